@@ -1,0 +1,207 @@
+"""Camera models and the calibration file (`calibration.toml`).
+
+Conventions (as OpenCV): a camera maps a point X in the *rig frame* (mm) to its own frame by
+``x_cam = R @ X + t``; pixels follow from the pinhole model with the full OpenCV distortion
+(k1, k2, p1, p2, k3) or the fisheye model (k1..k4). The rig frame is the first camera's frame
+unless stated otherwise; ``world_from_rig`` (4x4, mm) maps rig coordinates into the sand-box
+world frame (X, Y, Z along the box walls, Y up, Z along the tool's travel).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+import tomli_w
+
+from .errors import SandtrackError
+
+
+@dataclass
+class Camera:
+    name: str
+    width: int
+    height: int
+    matrix: np.ndarray  # 3x3 intrinsic matrix, px
+    distortion: np.ndarray  # (5,) pinhole k1 k2 p1 p2 k3, or (4,) fisheye k1..k4
+    rvec: np.ndarray = field(default_factory=lambda: np.zeros(3))  # Rodrigues, rig -> camera
+    tvec: np.ndarray = field(default_factory=lambda: np.zeros(3))  # mm
+    model: str = "pinhole"  # "pinhole" | "fisheye"
+    rmse_px: float | None = None
+
+    def __post_init__(self) -> None:
+        self.matrix = np.asarray(self.matrix, dtype=np.float64).reshape(3, 3)
+        self.distortion = np.asarray(self.distortion, dtype=np.float64).ravel()
+        self.rvec = np.asarray(self.rvec, dtype=np.float64).reshape(3)
+        self.tvec = np.asarray(self.tvec, dtype=np.float64).reshape(3)
+        if self.model not in ("pinhole", "fisheye"):
+            raise SandtrackError(f"camera {self.name}: unknown model {self.model!r} (pinhole or fisheye)")
+
+    @property
+    def R(self) -> np.ndarray:
+        return cv2.Rodrigues(self.rvec)[0]
+
+    @property
+    def center_mm(self) -> np.ndarray:
+        """Camera centre in the rig frame (mm)."""
+        return -self.R.T @ self.tvec
+
+    @property
+    def projection_matrix(self) -> np.ndarray:
+        """3x4 P = K [R | t] for undistorted pixels."""
+        return self.matrix @ np.hstack([self.R, self.tvec[:, None]])
+
+    def project(self, points_mm: np.ndarray) -> np.ndarray:
+        """Project (N, 3) rig-frame points to (N, 2) distorted pixels."""
+        pts = np.asarray(points_mm, dtype=np.float64).reshape(-1, 1, 3)
+        if len(pts) == 0:
+            return np.zeros((0, 2))
+        if self.model == "fisheye":
+            px, _ = cv2.fisheye.projectPoints(pts, self.rvec, self.tvec, self.matrix, self.distortion)
+        else:
+            px, _ = cv2.projectPoints(pts, self.rvec, self.tvec, self.matrix, self.distortion)
+        return px.reshape(-1, 2)
+
+    def undistort(self, pixels: np.ndarray) -> np.ndarray:
+        """Distorted pixels (N, 2) -> undistorted pixels (N, 2) of the same K."""
+        px = np.asarray(pixels, dtype=np.float64).reshape(-1, 1, 2)
+        if len(px) == 0:
+            return np.zeros((0, 2))
+        if self.model == "fisheye":
+            out = cv2.fisheye.undistortPoints(px, self.matrix, self.distortion, P=self.matrix)
+        else:
+            crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10)
+            out = cv2.undistortPointsIter(px, self.matrix, self.distortion, None, self.matrix, crit)
+        return out.reshape(-1, 2)
+
+    def to_dict(self) -> dict:
+        d = {
+            "model": self.model,
+            "size": [int(self.width), int(self.height)],
+            "matrix": self.matrix.tolist(),
+            "distortion": self.distortion.tolist(),
+            "rotation": self.rvec.tolist(),
+            "translation_mm": self.tvec.tolist(),
+        }
+        if self.rmse_px is not None:
+            d["rmse_px"] = float(self.rmse_px)
+        return d
+
+    @classmethod
+    def from_dict(cls, name: str, d: dict) -> Camera:
+        try:
+            w, h = d["size"]
+            return cls(
+                name=name,
+                width=int(w),
+                height=int(h),
+                matrix=np.array(d["matrix"], dtype=float),
+                distortion=np.array(d.get("distortion", [0, 0, 0, 0, 0]), dtype=float),
+                rvec=np.array(d.get("rotation", [0, 0, 0]), dtype=float),
+                tvec=np.array(d.get("translation_mm", [0, 0, 0]), dtype=float),
+                model=d.get("model", "pinhole"),
+                rmse_px=d.get("rmse_px"),
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            raise SandtrackError(f"camera {name}: malformed entry ({exc})") from None
+
+
+def euler_angles_deg(R: np.ndarray) -> tuple[float, float, float]:
+    """Rotation as three successive rotations about X, Y, Z (R = Rz @ Ry @ Rx), in degrees."""
+    sy = math.hypot(R[0, 0], R[1, 0])
+    if sy > 1e-9:
+        ax = math.atan2(R[2, 1], R[2, 2])
+        ay = math.atan2(-R[2, 0], sy)
+        az = math.atan2(R[1, 0], R[0, 0])
+    else:
+        ax = math.atan2(-R[1, 2], R[1, 1])
+        ay = math.atan2(-R[2, 0], sy)
+        az = 0.0
+    return math.degrees(ax), math.degrees(ay), math.degrees(az)
+
+
+@dataclass
+class Calibration:
+    """A calibrated rig: cameras (rig frame, mm) and the rig -> sand-box world transform."""
+
+    cameras: dict[str, Camera]
+    world_from_rig: np.ndarray = field(default_factory=lambda: np.eye(4))
+    report: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.world_from_rig = np.asarray(self.world_from_rig, dtype=np.float64).reshape(4, 4)
+
+    @property
+    def names(self) -> list[str]:
+        return list(self.cameras)
+
+    def to_world(self, points_rig: np.ndarray) -> np.ndarray:
+        p = np.asarray(points_rig, dtype=np.float64).reshape(-1, 3)
+        return p @ self.world_from_rig[:3, :3].T + self.world_from_rig[:3, 3]
+
+    def to_rig(self, points_world: np.ndarray) -> np.ndarray:
+        p = np.asarray(points_world, dtype=np.float64).reshape(-1, 3)
+        R, t = self.world_from_rig[:3, :3], self.world_from_rig[:3, 3]
+        return (p - t) @ R
+
+    def project_world(self, camera: str, points_world: np.ndarray) -> np.ndarray:
+        return self.cameras[camera].project(self.to_rig(points_world))
+
+    def to_toml(self) -> str:
+        doc = {
+            "units": "mm",
+            "convention": "OpenCV: x_cam = R(rotation, Rodrigues) @ X_rig + translation_mm; "
+            "X_world = world_from_rig @ [X_rig, 1]",
+            "cameras": {n: c.to_dict() for n, c in self.cameras.items()},
+            "world": {
+                "world_from_rig": self.world_from_rig.tolist(),
+                "angles_deg_xyz": list(euler_angles_deg(self.world_from_rig[:3, :3])),
+            },
+        }
+        if self.report:
+            doc["report"] = _plain(self.report)
+        return tomli_w.dumps(doc)
+
+    def save(self, path: str | Path) -> None:
+        Path(path).write_text(self.to_toml())
+
+    @classmethod
+    def from_toml(cls, text: str, source: str = "calibration") -> Calibration:
+        try:
+            doc = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise SandtrackError(f"{source}: not a valid TOML file ({exc})") from None
+        cams = doc.get("cameras")
+        if not isinstance(cams, dict) or not cams:
+            raise SandtrackError(f"{source}: no [cameras.NAME] tables found")
+        cameras = {name: Camera.from_dict(name, d) for name, d in cams.items()}
+        world = doc.get("world", {}).get("world_from_rig", np.eye(4).tolist())
+        try:
+            world = np.array(world, dtype=float).reshape(4, 4)
+        except ValueError:
+            raise SandtrackError(f"{source}: world_from_rig must be a 4x4 matrix") from None
+        return cls(cameras=cameras, world_from_rig=world, report=doc.get("report", {}))
+
+    @classmethod
+    def load(cls, path: str | Path) -> Calibration:
+        p = Path(path)
+        if not p.is_file():
+            raise SandtrackError(f"calibration file not found: {p}")
+        return cls.from_toml(p.read_text(), source=str(p))
+
+
+def _plain(obj):
+    """Make a report TOML-serialisable (numpy scalars/arrays -> Python, None dropped)."""
+    if isinstance(obj, dict):
+        return {str(k): _plain(v) for k, v in obj.items() if v is not None}
+    if isinstance(obj, (list, tuple)):
+        return [_plain(v) for v in obj if v is not None]
+    if isinstance(obj, np.ndarray):
+        return _plain(obj.tolist())
+    if isinstance(obj, np.generic):
+        return obj.item()
+    return obj

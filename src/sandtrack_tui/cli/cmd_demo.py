@@ -1,0 +1,10 @@
+"""`sandtrack demo`: not available in this version yet."""
+
+from .common import add_json_flag, not_available
+
+
+def register(sub) -> None:
+    p = sub.add_parser("demo", help="(demo: not available yet)")
+    p.add_argument("args", nargs="*")
+    add_json_flag(p)
+    p.set_defaults(func=not_available("sandtrack demo"))

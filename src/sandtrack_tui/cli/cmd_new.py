@@ -1,0 +1,45 @@
+"""`sandtrack new EXP.sandtrack --side SIDE --front FRONT [--board BOARD.toml]`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..board import load_board
+from ..store import Project
+from ..video import FramePair, FrameSource
+from .common import add_json_flag, emit, log
+
+
+def register(sub) -> None:
+    p = sub.add_parser("new", help="create a project from a pair of videos")
+    p.add_argument("project", help="project file to create (NAME.sandtrack)")
+    p.add_argument("--side", required=True, help="side camera video (or image folder)")
+    p.add_argument("--front", help="front camera video (or image folder); omit for a 2D-only project")
+    p.add_argument("--board", help="calibration board file (board.toml or Caliscope charuco.toml)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing project file")
+    add_json_flag(p)
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    videos = {"side": args.side}
+    if args.front:
+        videos["front"] = args.front
+    sources = {c: FrameSource(v, cache_mb=16) for c, v in videos.items()}  # validates before creating
+    warnings = []
+    if "front" in sources:
+        warnings = FramePair(sources["side"], sources["front"]).mismatch_warnings()
+    for w in warnings:
+        log(f"warning: {w}")
+    board = load_board(args.board) if args.board else None
+    proj = Project.create(Path(args.project), videos, overwrite=args.overwrite)
+    if board is not None:
+        proj.set("board", board.to_json_dict(), "set board")
+    result = {
+        "project": str(proj.path),
+        "videos": {c: s.describe() for c, s in sources.items()},
+        "warnings": warnings,
+    }
+    proj.close()
+    emit(result, args.json, text=f"created {result['project']}")
+    return 0

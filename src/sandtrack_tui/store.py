@@ -1,0 +1,524 @@
+"""The project store: one experiment = one SQLite file (`NAME.sandtrack`).
+
+Every edit is committed at once (WAL journal, synchronous=FULL), so a killed process or a
+dropped SSH link loses nothing; there is no save step.
+
+Tables
+- ``meta(key, value)``: ``schema_version`` and creation time.
+- ``videos(camera, path, fingerprint, width, height, fps, frames)``: one row per camera
+  ("side", "front", or any name for more cameras).
+- ``settings(key, value)``: JSON values: ``sync_offset_s`` (s; front started that much later),
+  ``board`` (BoardSpec fields), ``calibration`` (calibration.toml text), ``model`` (path and
+  metrics of the regression model), anything else a step needs to remember.
+- ``markers(id, label)``.
+- ``points(frame, camera, marker, x_px, y_px, status, score, psr, colour_frac)``: pixel position
+  of a marker in one camera's own frame index; status is one of STATUSES.
+- ``edits(id, kind, description, created, undone)`` and ``edit_rows(edit_id, seq, table_name,
+  key, before, after)``: the edit log that undo/redo walks.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sqlite3
+import time
+from collections.abc import Iterable, Sequence
+from contextlib import contextmanager, suppress
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .errors import SandtrackError
+
+SCHEMA_VERSION = 1
+STATUSES = ("tracked", "occluded", "lost", "manual", "interpolated", "imported")
+POINT_COLUMNS = ["frame", "camera", "marker", "x_px", "y_px", "status", "score", "psr", "colour_frac"]
+_POINT_VALUES = POINT_COLUMNS[3:]
+
+_SCHEMA_V1 = """
+CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS videos (
+    camera TEXT PRIMARY KEY, path TEXT NOT NULL, fingerprint TEXT NOT NULL,
+    width INTEGER, height INTEGER, fps REAL, frames INTEGER);
+CREATE TABLE IF NOT EXISTS settings (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS markers (id INTEGER PRIMARY KEY, label TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS points (
+    frame INTEGER NOT NULL, camera TEXT NOT NULL, marker INTEGER NOT NULL,
+    x_px REAL, y_px REAL, status TEXT NOT NULL, score REAL, psr REAL, colour_frac REAL,
+    PRIMARY KEY (marker, camera, frame)) WITHOUT ROWID;
+CREATE INDEX IF NOT EXISTS points_by_frame ON points (frame, camera);
+CREATE TABLE IF NOT EXISTS edits (
+    id INTEGER PRIMARY KEY AUTOINCREMENT, kind TEXT NOT NULL, description TEXT NOT NULL,
+    created REAL NOT NULL, undone INTEGER NOT NULL DEFAULT 0);
+CREATE TABLE IF NOT EXISTS edit_rows (
+    edit_id INTEGER NOT NULL, seq INTEGER NOT NULL, table_name TEXT NOT NULL,
+    key TEXT NOT NULL, before TEXT, after TEXT, PRIMARY KEY (edit_id, seq));
+"""
+
+# Migrations from version N to N+1; index 0 creates version 1.
+MIGRATIONS: list[str] = [_SCHEMA_V1]
+
+
+@dataclass
+class VideoRef:
+    camera: str
+    path: str
+    fingerprint: str
+    width: int
+    height: int
+    fps: float
+    frames: int
+
+
+@dataclass
+class VideoProblem:
+    camera: str
+    path: str
+    problem: str  # "missing" | "changed"
+
+    def message(self) -> str:
+        if self.problem == "missing":
+            return f"{self.camera} video not found at {self.path}: relink it (sandtrack new ... or the TUI's relink)"
+        return f"{self.camera} video at {self.path} has changed since the project was made: relink to confirm"
+
+
+class Project:
+    """An experiment stored in one SQLite file. Use `Project.create` or `Project.open`."""
+
+    def __init__(self, path: str | Path, conn: sqlite3.Connection):
+        self.path = Path(path)
+        self.conn = conn
+        self._edit_id: int | None = None
+        self._edit_seq = 0
+
+    # -- opening ---------------------------------------------------------------------------------
+    @staticmethod
+    def _connect(path: Path) -> sqlite3.Connection:
+        conn = sqlite3.connect(str(path), timeout=10.0, isolation_level=None, check_same_thread=False)
+        conn.execute("PRAGMA journal_mode=WAL")
+        conn.execute("PRAGMA synchronous=FULL")
+        conn.execute("PRAGMA foreign_keys=ON")
+        return conn
+
+    @classmethod
+    def create(cls, path: str | Path, videos: dict[str, str | Path] | None = None,
+               overwrite: bool = False) -> Project:
+        p = Path(path)
+        if p.exists():
+            if not overwrite:
+                raise SandtrackError(f"{p} already exists (choose another name or delete it)")
+            for suffix in ("", "-wal", "-shm"):
+                Path(str(p) + suffix).unlink(missing_ok=True)
+        if not p.parent.exists():
+            raise SandtrackError(f"folder does not exist: {p.parent}")
+        try:
+            conn = cls._connect(p)
+        except sqlite3.Error as exc:
+            raise SandtrackError(f"cannot create {p}: {exc}") from None
+        proj = cls(p, conn)
+        proj._migrate(0)
+        with proj._tx():
+            conn.execute("INSERT OR REPLACE INTO meta VALUES ('created', ?)", (str(time.time()),))
+        for camera, vpath in (videos or {}).items():
+            proj.link_video(camera, vpath)
+        return proj
+
+    @classmethod
+    def open(cls, path: str | Path) -> Project:
+        p = Path(path)
+        if not p.is_file():
+            raise SandtrackError(f"project file not found: {p}")
+        try:
+            with p.open("rb") as fh:
+                head = fh.read(16)
+        except OSError as exc:
+            raise SandtrackError(f"cannot read {p}: {exc.strerror}") from None
+        if head != b"SQLite format 3\x00":
+            raise SandtrackError(f"{p}: not a sandtrack project (not an SQLite file)")
+        try:
+            conn = cls._connect(p)
+            version = cls._read_version(conn)
+        except sqlite3.DatabaseError as exc:
+            raise SandtrackError(f"{p}: project file is damaged ({exc})") from None
+        if version is None:
+            conn.close()
+            raise SandtrackError(f"{p}: not a sandtrack project (no schema version)")
+        if version > SCHEMA_VERSION:
+            conn.close()
+            raise SandtrackError(
+                f"{p}: made by a newer sandtrack (schema {version}, this one reads up to {SCHEMA_VERSION}); upgrade"
+            )
+        proj = cls(p, conn)
+        if version < SCHEMA_VERSION:
+            proj._migrate(version)
+        return proj
+
+    @staticmethod
+    def _read_version(conn: sqlite3.Connection) -> int | None:
+        has_meta = conn.execute("SELECT 1 FROM sqlite_master WHERE type='table' AND name='meta'").fetchone()
+        if not has_meta:
+            return None
+        row = conn.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()
+        return int(row[0]) if row else None
+
+    def _migrate(self, from_version: int) -> None:
+        with self._tx():
+            for v in range(from_version, SCHEMA_VERSION):
+                self._run_script(MIGRATIONS[v])
+            self.conn.execute("INSERT OR REPLACE INTO meta VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
+
+    def _run_script(self, script: str) -> None:
+        for stmt in script.split(";"):
+            if stmt.strip():
+                self.conn.execute(stmt)
+
+    def close(self) -> None:
+        with suppress(sqlite3.Error):
+            self.conn.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    @contextmanager
+    def _tx(self):
+        try:
+            self.conn.execute("BEGIN IMMEDIATE")
+        except sqlite3.OperationalError as exc:
+            raise SandtrackError(f"{self.path}: cannot write ({exc})") from None
+        try:
+            yield
+        except BaseException:
+            self.conn.execute("ROLLBACK")
+            raise
+        try:
+            self.conn.execute("COMMIT")
+        except sqlite3.Error as exc:
+            self.conn.execute("ROLLBACK")
+            raise SandtrackError(f"{self.path}: write failed ({exc})") from None
+
+    def _write(self, fn):
+        """Run fn() in a transaction, turning disk/permission errors into one-line messages."""
+        try:
+            with self._tx():
+                return fn()
+        except sqlite3.OperationalError as exc:
+            msg = str(exc)
+            if "readonly" in msg:
+                msg = "the project file is read-only"
+            elif "full" in msg:
+                msg = "the disk is full"
+            raise SandtrackError(f"{self.path}: cannot save ({msg}); nothing was changed") from None
+
+    # -- videos --------------------------------------------------------------------------------
+    def link_video(self, camera: str, path: str | Path) -> VideoRef:
+        from .video import FrameSource, fingerprint
+
+        p = Path(path).resolve()
+        with FrameSource(p, cache_mb=64) as src:
+            ref = VideoRef(camera, str(p), fingerprint(p), src.width, src.height, src.fps, len(src))
+        self._write(lambda: self.conn.execute(
+            "INSERT OR REPLACE INTO videos VALUES (?,?,?,?,?,?,?)",
+            (ref.camera, ref.path, ref.fingerprint, ref.width, ref.height, ref.fps, ref.frames)))
+        return ref
+
+    def videos(self) -> dict[str, VideoRef]:
+        rows = self.conn.execute("SELECT * FROM videos ORDER BY rowid").fetchall()
+        return {r[0]: VideoRef(*r) for r in rows}
+
+    def cameras(self) -> list[str]:
+        order = {"side": 0, "front": 1}
+        return sorted(self.videos(), key=lambda c: (order.get(c, 2), c))
+
+    def video_problems(self, check_content: bool = True) -> list[VideoProblem]:
+        from .video import fingerprint
+
+        out = []
+        for ref in self.videos().values():
+            p = Path(ref.path)
+            if not p.exists():
+                out.append(VideoProblem(ref.camera, ref.path, "missing"))
+            elif check_content and fingerprint(p) != ref.fingerprint:
+                out.append(VideoProblem(ref.camera, ref.path, "changed"))
+        return out
+
+    def open_sources(self, cache_mb: float = 512) -> dict:
+        """FrameSource per camera; raises one clear error if a video moved or changed."""
+        from .video import FrameSource
+
+        problems = self.video_problems()
+        if problems:
+            raise SandtrackError("; ".join(p.message() for p in problems))
+        return {c: FrameSource(self.videos()[c].path, cache_mb=cache_mb) for c in self.cameras()}
+
+    # -- settings ------------------------------------------------------------------------------
+    def get(self, key: str, default=None):
+        row = self.conn.execute("SELECT value FROM settings WHERE key=?", (key,)).fetchone()
+        return json.loads(row[0]) if row else default
+
+    def set(self, key: str, value, description: str | None = None) -> None:
+        """Set a setting (JSON-serialisable) as one undoable edit."""
+        before = self.conn.execute("SELECT value FROM settings WHERE key=?", (key,)).fetchone()
+        after = json.dumps(value)
+
+        def fn():
+            eid = self._new_edit("setting", description or f"set {key}")
+            self._log_row(eid, 0, "settings", key, before[0] if before else None, after)
+            self.conn.execute("INSERT OR REPLACE INTO settings VALUES (?, ?)", (key, after))
+
+        self._write(fn)
+
+    @property
+    def sync_offset_s(self) -> float:
+        return float(self.get("sync_offset_s", 0.0))
+
+    def calibration(self):
+        from .camera import Calibration
+
+        text = self.get("calibration")
+        return Calibration.from_toml(text, source=f"{self.path} calibration") if text else None
+
+    def set_calibration(self, calibration) -> None:
+        self.set("calibration", calibration.to_toml(), "set calibration")
+
+    def board(self):
+        from .board import board_from_dict
+
+        d = self.get("board")
+        return board_from_dict(d) if d else None
+
+    # -- markers -------------------------------------------------------------------------------
+    def markers(self) -> pd.DataFrame:
+        return pd.read_sql_query("SELECT id, label FROM markers ORDER BY id", self.conn)
+
+    def add_marker(self, label: str | None = None, marker_id: int | None = None) -> int:
+        def fn():
+            mid = marker_id
+            if mid is None:
+                row = self.conn.execute("SELECT COALESCE(MAX(id), 0) + 1 FROM markers").fetchone()
+                mid = int(row[0])
+            lab = label if label is not None else str(mid)
+            eid = self._new_edit("marker", f"add marker {lab}")
+            old = self.conn.execute("SELECT label FROM markers WHERE id=?", (mid,)).fetchone()
+            self._log_row(eid, 0, "markers", str(mid), json.dumps(old[0]) if old else None, json.dumps(lab))
+            self.conn.execute("INSERT OR REPLACE INTO markers VALUES (?, ?)", (mid, lab))
+            return mid
+
+        return self._write(fn)
+
+    def rename_marker(self, marker_id: int, label: str) -> None:
+        self.add_marker(label, marker_id)
+
+    def delete_marker(self, marker_id: int) -> None:
+        """Delete a marker and all its points (undoable)."""
+        def fn():
+            eid = self._new_edit("marker", f"delete marker {marker_id}")
+            old = self.conn.execute("SELECT label FROM markers WHERE id=?", (marker_id,)).fetchone()
+            seq = self._log_point_deletions(eid, "marker=?", (marker_id,), 0)
+            self._log_row(eid, seq, "markers", str(marker_id), json.dumps(old[0]) if old else None, None)
+            self.conn.execute("DELETE FROM points WHERE marker=?", (marker_id,))
+            self.conn.execute("DELETE FROM markers WHERE id=?", (marker_id,))
+
+        self._write(fn)
+
+    # -- points --------------------------------------------------------------------------------
+    def points(self, frame: int | None = None, camera: str | None = None, marker: int | None = None,
+               frames: tuple[int, int] | None = None) -> pd.DataFrame:
+        """Points as a DataFrame with POINT_COLUMNS (frame = that camera's own frame index)."""
+        where, args = [], []
+        for col, val in (("frame", frame), ("camera", camera), ("marker", marker)):
+            if val is not None:
+                where.append(f"{col}=?")
+                args.append(val)
+        if frames is not None:
+            where.append("frame BETWEEN ? AND ?")
+            args.extend(frames)
+        sql = f"SELECT {', '.join(POINT_COLUMNS)} FROM points"
+        if where:
+            sql += " WHERE " + " AND ".join(where)
+        sql += " ORDER BY marker, camera, frame"
+        return pd.read_sql_query(sql, self.conn, params=args)
+
+    def set_points(self, rows, description: str = "edit points", kind: str = "points") -> int:
+        """Insert or replace point rows (DataFrame or iterable of dicts/tuples in POINT_COLUMNS
+        order) as one undoable edit, committed at once. Returns the edit id."""
+        with self.edit(description, kind) as ed:
+            ed.write(rows)
+        return ed.edit_id
+
+    def delete_points(self, marker: int, camera: str | None = None, frames: tuple[int, int] | None = None,
+                      description: str | None = None) -> int:
+        def fn():
+            eid = self._new_edit("points", description or f"delete points of marker {marker}")
+            where, args = "marker=?", [marker]
+            if camera is not None:
+                where += " AND camera=?"
+                args.append(camera)
+            if frames is not None:
+                where += " AND frame BETWEEN ? AND ?"
+                args.extend(frames)
+            self._log_point_deletions(eid, where, tuple(args), 0)
+            self.conn.execute(f"DELETE FROM points WHERE {where}", args)
+            return eid
+
+        return self._write(fn)
+
+    @contextmanager
+    def edit(self, description: str, kind: str = "points"):
+        """One undoable edit whose rows may be written in several commits (e.g. while tracking):
+        every `write` is committed at once, so an interrupted run keeps what it wrote."""
+        ed = _Edit(self, description, kind)
+        yield ed
+
+    def _log_point_deletions(self, eid: int, where: str, args: tuple, seq: int) -> int:
+        rows = self.conn.execute(f"SELECT {', '.join(POINT_COLUMNS)} FROM points WHERE {where}", args).fetchall()
+        for r in rows:
+            self._log_row(eid, seq, "points", json.dumps(list(r[:3])), json.dumps(list(r[3:])), None)
+            seq += 1
+        return seq
+
+    # -- edit log ------------------------------------------------------------------------------
+    def _new_edit(self, kind: str, description: str) -> int:
+        # A new edit discards the redo stack.
+        self.conn.execute("DELETE FROM edit_rows WHERE edit_id IN (SELECT id FROM edits WHERE undone=1)")
+        self.conn.execute("DELETE FROM edits WHERE undone=1")
+        cur = self.conn.execute("INSERT INTO edits (kind, description, created) VALUES (?,?,?)",
+                                (kind, description, time.time()))
+        return int(cur.lastrowid)
+
+    def _log_row(self, eid: int, seq: int, table: str, key: str, before: str | None, after: str | None) -> None:
+        self.conn.execute("INSERT INTO edit_rows VALUES (?,?,?,?,?,?)", (eid, seq, table, key, before, after))
+
+    def history(self, limit: int = 50) -> pd.DataFrame:
+        return pd.read_sql_query(
+            "SELECT id, kind, description, created, undone FROM edits ORDER BY id DESC LIMIT ?",
+            self.conn, params=(limit,))
+
+    def can_undo(self) -> bool:
+        return self.conn.execute("SELECT 1 FROM edits WHERE undone=0 LIMIT 1").fetchone() is not None
+
+    def can_redo(self) -> bool:
+        return self.conn.execute("SELECT 1 FROM edits WHERE undone=1 LIMIT 1").fetchone() is not None
+
+    def undo(self) -> str | None:
+        """Undo the latest edit; returns its description, or None if there is nothing to undo."""
+        row = self.conn.execute("SELECT id, description FROM edits WHERE undone=0 ORDER BY id DESC LIMIT 1").fetchone()
+        if row is None:
+            return None
+
+        def fn():
+            self._apply(row[0], "before")
+            self.conn.execute("UPDATE edits SET undone=1 WHERE id=?", (row[0],))
+
+        self._write(fn)
+        return row[1]
+
+    def redo(self) -> str | None:
+        row = self.conn.execute("SELECT id, description FROM edits WHERE undone=1 ORDER BY id ASC LIMIT 1").fetchone()
+        if row is None:
+            return None
+
+        def fn():
+            self._apply(row[0], "after")
+            self.conn.execute("UPDATE edits SET undone=0 WHERE id=?", (row[0],))
+
+        self._write(fn)
+        return row[1]
+
+    def _apply(self, eid: int, side: str) -> None:
+        order = "DESC" if side == "before" else "ASC"
+        rows = self.conn.execute(
+            f"SELECT table_name, key, {side} FROM edit_rows WHERE edit_id=? ORDER BY seq {order}", (eid,)
+        ).fetchall()
+        for table, key, value in rows:
+            if table == "points":
+                f, c, m = json.loads(key)
+                if value is None:
+                    self.conn.execute("DELETE FROM points WHERE frame=? AND camera=? AND marker=?", (f, c, m))
+                else:
+                    self.conn.execute(f"INSERT OR REPLACE INTO points ({', '.join(POINT_COLUMNS)}) "
+                                      f"VALUES (?,?,?,?,?,?,?,?,?)", (f, c, m, *json.loads(value)))
+            elif table == "markers":
+                if value is None:
+                    self.conn.execute("DELETE FROM markers WHERE id=?", (int(key),))
+                else:
+                    self.conn.execute("INSERT OR REPLACE INTO markers VALUES (?, ?)", (int(key), json.loads(value)))
+            elif table == "settings":
+                if value is None:
+                    self.conn.execute("DELETE FROM settings WHERE key=?", (key,))
+                else:
+                    self.conn.execute("INSERT OR REPLACE INTO settings VALUES (?, ?)", (key, value))
+
+
+class _Edit:
+    """Rows written through one edit; each `write` is its own committed transaction."""
+
+    def __init__(self, project: Project, description: str, kind: str):
+        self.project = project
+        self.description = description
+        self.kind = kind
+        self.edit_id: int | None = None
+        self.seq = 0
+        self._seq_of: dict[str, int] = {}
+
+    def write(self, rows) -> int:
+        records = list(_as_point_tuples(rows))
+        if not records:
+            return 0
+        conn = self.project.conn
+
+        def fn():
+            if self.edit_id is None:
+                self.edit_id = self.project._new_edit(self.kind, self.description)
+            for rec in records:
+                key = json.dumps(list(rec[:3]))
+                after = json.dumps(list(rec[3:]))
+                if key in self._seq_of:
+                    conn.execute("UPDATE edit_rows SET after=? WHERE edit_id=? AND seq=?",
+                                 (after, self.edit_id, self._seq_of[key]))
+                    continue
+                old = conn.execute(
+                    f"SELECT {', '.join(_POINT_VALUES)} FROM points WHERE frame=? AND camera=? AND marker=?",
+                    rec[:3]).fetchone()
+                self.project._log_row(self.edit_id, self.seq, "points", key,
+                                      json.dumps(list(old)) if old else None, after)
+                self._seq_of[key] = self.seq
+                self.seq += 1
+            conn.executemany(f"INSERT OR REPLACE INTO points ({', '.join(POINT_COLUMNS)}) "
+                             f"VALUES (?,?,?,?,?,?,?,?,?)", records)
+
+        self.project._write(fn)
+        return len(records)
+
+
+def _as_point_tuples(rows) -> Iterable[tuple]:
+    if isinstance(rows, pd.DataFrame):
+        df = rows.copy()
+        for col in ("score", "psr", "colour_frac"):
+            if col not in df:
+                df[col] = np.nan
+        rows = df[POINT_COLUMNS].itertuples(index=False, name=None)
+    for r in rows:
+        if isinstance(r, dict):
+            r = tuple(r.get(c) for c in POINT_COLUMNS)
+        r = tuple(r) + (None,) * (len(POINT_COLUMNS) - len(r))
+        status = r[5]
+        if status not in STATUSES:
+            raise SandtrackError(f"unknown point status {status!r} (one of {', '.join(STATUSES)})")
+        yield (int(r[0]), str(r[1]), int(r[2]), *(_num(v) for v in r[3:5]), status, *(_num(v) for v in r[6:9]))
+
+
+def _num(v):
+    if v is None:
+        return None
+    v = float(v)
+    return v if np.isfinite(v) else None
+
+
+def project_default_name(videos: Sequence[str]) -> str:
+    return os.path.splitext(os.path.basename(videos[0]))[0] + ".sandtrack"

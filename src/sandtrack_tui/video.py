@@ -1,0 +1,312 @@
+"""Frame-accurate video access.
+
+`FrameSource` decodes a video with PyAV by presentation timestamp (pts): at open it demuxes the
+stream once (no decoding) to list every frame's pts, so the frame count and per-frame times are
+exact and frame ``i`` is the ``i``-th frame in presentation order, also with B-frames. Random
+access seeks to the keyframe before the wanted pts and decodes forward; reading the next frame
+continues the running decoder. Decoded frames sit in an LRU cache bounded in bytes. A folder of
+images is accepted too (sorted by name, times = index / fps).
+
+Frames are numpy arrays, H x W x 3, uint8, BGR (as OpenCV). Times are seconds of the file's
+presentation timeline.
+
+`FramePair` pairs the side and front cameras for a sync offset in seconds. Convention used
+everywhere: ``offset_s`` is how much later the front camera started recording than the side
+camera, so an event at side time ``t`` appears at front time ``t - offset_s``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import threading
+from collections import OrderedDict
+from dataclasses import dataclass
+from pathlib import Path
+
+import av
+import cv2
+import numpy as np
+
+from .errors import SandtrackError
+
+IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
+
+
+def fingerprint(path: str | Path, chunk: int = 1 << 20) -> str:
+    """Content fingerprint: size + SHA-1 of the first and last MiB (fast on large videos)."""
+    p = Path(path)
+    if p.is_dir():
+        h = hashlib.sha1()
+        for f in sorted(x for x in p.iterdir() if x.suffix.lower() in IMAGE_SUFFIXES):
+            h.update(f.name.encode())
+            h.update(str(f.stat().st_size).encode())
+        return "dir:" + h.hexdigest()
+    size = p.stat().st_size
+    h = hashlib.sha1(str(size).encode())
+    with p.open("rb") as fh:
+        h.update(fh.read(chunk))
+        if size > chunk:
+            fh.seek(max(size - chunk, chunk))
+            h.update(fh.read(chunk))
+    return f"{size}:{h.hexdigest()}"
+
+
+class _LRU:
+    def __init__(self, max_bytes: int):
+        self.max_bytes = max_bytes
+        self.bytes = 0
+        self.items: OrderedDict[int, np.ndarray] = OrderedDict()
+
+    def get(self, key: int) -> np.ndarray | None:
+        v = self.items.get(key)
+        if v is not None:
+            self.items.move_to_end(key)
+        return v
+
+    def put(self, key: int, value: np.ndarray) -> None:
+        if key in self.items:
+            return
+        self.items[key] = value
+        self.bytes += value.nbytes
+        while self.bytes > self.max_bytes and len(self.items) > 1:
+            _, old = self.items.popitem(last=False)
+            self.bytes -= old.nbytes
+
+
+class FrameSource:
+    """Random and sequential, frame-accurate access to a video file or an image folder."""
+
+    def __init__(self, path: str | Path, cache_mb: float = 512, fps: float | None = None):
+        self.path = Path(path)
+        self._lock = threading.RLock()
+        self._cache = _LRU(int(cache_mb * 1024 * 1024))
+        self._container = None
+        self._decoder = None
+        self._next_index = None  # index the running decoder will yield next
+        if not self.path.exists():
+            raise SandtrackError(f"file not found: {self.path}")
+        if self.path.is_dir():
+            self._open_folder(fps or 50.0)
+        else:
+            self._open_video()
+
+    # -- opening -------------------------------------------------------------------------------
+    def _open_folder(self, fps: float) -> None:
+        self._files = sorted(f for f in self.path.iterdir() if f.suffix.lower() in IMAGE_SUFFIXES)
+        if not self._files:
+            raise SandtrackError(f"{self.path}: folder holds no images ({', '.join(sorted(IMAGE_SUFFIXES))})")
+        first = cv2.imread(str(self._files[0]), cv2.IMREAD_COLOR)
+        if first is None:
+            raise SandtrackError(f"{self._files[0]}: not a readable image")
+        self.height, self.width = first.shape[:2]
+        self.fps = float(fps)
+        self.times_s = np.arange(len(self._files)) / self.fps
+        self._pts = None
+        self.is_folder = True
+
+    def _open_video(self) -> None:
+        self.is_folder = False
+        try:
+            container = av.open(str(self.path))
+        except (av.error.InvalidDataError, av.error.FFmpegError, OSError, ValueError) as exc:
+            raise SandtrackError(f"{self.path}: not a readable video ({_short(exc)})") from None
+        try:
+            if not container.streams.video:
+                raise SandtrackError(f"{self.path}: no video stream")
+            stream = container.streams.video[0]
+            self.time_base = stream.time_base
+            pts = []
+            try:
+                for packet in container.demux(stream):
+                    if packet.pts is not None and packet.size > 0:
+                        pts.append(packet.pts)
+            except (av.error.InvalidDataError, av.error.FFmpegError):
+                pass  # truncated file: keep the frames before the damage
+            if not pts:
+                raise SandtrackError(f"{self.path}: video holds no frames")
+            self._pts = np.array(sorted(pts), dtype=np.int64)
+            self.width = stream.codec_context.width
+            self.height = stream.codec_context.height
+            rate = stream.average_rate or stream.guessed_rate
+            if rate:
+                self.fps = float(rate)
+            elif len(self._pts) > 1:
+                self.fps = 1.0 / float(np.median(np.diff(self._pts)) * self.time_base)
+            else:
+                self.fps = 50.0
+            self.times_s = self._pts.astype(np.float64) * float(self.time_base)
+        finally:
+            container.close()
+        # Verify the first frame decodes: catches files whose packets are garbage.
+        self.frame(0)
+
+    # -- access --------------------------------------------------------------------------------
+    def __len__(self) -> int:
+        return len(self.times_s)
+
+    @property
+    def frame_count(self) -> int:
+        return len(self)
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.times_s[-1] - self.times_s[0] + 1.0 / self.fps)
+
+    def index_at(self, t_s: float) -> int:
+        """Index of the frame whose time is nearest to ``t_s`` (clipped to the video)."""
+        i = int(np.searchsorted(self.times_s, t_s))
+        if i <= 0:
+            return 0
+        if i >= len(self.times_s):
+            return len(self.times_s) - 1
+        return i if self.times_s[i] - t_s < t_s - self.times_s[i - 1] else i - 1
+
+    def __getitem__(self, i: int) -> np.ndarray:
+        return self.frame(i)
+
+    def frame(self, i: int) -> np.ndarray:
+        n = len(self)
+        if i < 0:
+            i += n
+        if not 0 <= i < n:
+            raise IndexError(f"frame {i} outside 0..{n - 1}")
+        with self._lock:
+            cached = self._cache.get(i)
+            if cached is not None:
+                return cached
+            img = self._read_image(i) if self.is_folder else self._decode(i)
+            self._cache.put(i, img)
+            return img
+
+    def iter_frames(self, start: int = 0, stop: int | None = None, step: int = 1):
+        """Yield (index, frame) in order; sequential decoding, no seeks between frames."""
+        stop = len(self) if stop is None else min(stop, len(self))
+        for i in range(max(start, 0), stop, step):
+            yield i, self.frame(i)
+
+    def _read_image(self, i: int) -> np.ndarray:
+        img = cv2.imread(str(self._files[i]), cv2.IMREAD_COLOR)
+        if img is None:
+            raise SandtrackError(f"{self._files[i]}: not a readable image")
+        if img.shape[:2] != (self.height, self.width):
+            raise SandtrackError(f"{self._files[i]}: size differs from the first image")
+        return img
+
+    def _ensure_container(self):
+        if self._container is None:
+            self._container = av.open(str(self.path))
+            stream = self._container.streams.video[0]
+            stream.thread_type = "AUTO"
+        return self._container
+
+    def _frames_from_decoder(self):
+        container = self._ensure_container()
+        stream = container.streams.video[0]
+        try:
+            yield from container.decode(stream)
+        except (av.error.InvalidDataError, av.error.FFmpegError, EOFError):
+            return
+
+    def _decode(self, i: int) -> np.ndarray:
+        target = int(self._pts[i])
+        if self._decoder is None or self._next_index is None or i < self._next_index or i > self._next_index + 60:
+            self._seek(target)
+        for frame in self._decoder:
+            if frame.pts is None:
+                continue
+            img = frame.to_ndarray(format="bgr24")
+            k = int(np.searchsorted(self._pts, frame.pts))
+            if k < len(self._pts) and self._pts[k] == frame.pts:
+                self._next_index = k + 1
+                if k != i:
+                    self._cache.put(k, img)
+            if frame.pts == target:
+                return img
+            if frame.pts > target:
+                break
+        raise SandtrackError(f"{self.path}: frame {i} could not be decoded (damaged file?)")
+
+    def _seek(self, target_pts: int) -> None:
+        container = self._ensure_container()
+        stream = container.streams.video[0]
+        container.seek(int(target_pts), stream=stream, backward=True, any_frame=False)
+        self._decoder = self._frames_from_decoder()
+        self._next_index = 0  # unknown until the first frame comes out
+
+    def close(self) -> None:
+        with self._lock:
+            if self._container is not None:
+                self._container.close()
+            self._container = None
+            self._decoder = None
+            self._next_index = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def describe(self) -> dict:
+        return {
+            "path": str(self.path),
+            "frames": len(self),
+            "fps": self.fps,
+            "width": self.width,
+            "height": self.height,
+            "duration_s": self.duration_s,
+        }
+
+
+def _short(exc: BaseException) -> str:
+    return str(exc).splitlines()[0][:200] if str(exc) else type(exc).__name__
+
+
+@dataclass
+class PairedIndex:
+    side: int
+    front: int
+    remainder_frames: float  # (wanted front time - time of frame `front`) in front frames, in [-0.5, 0.5]
+
+
+class FramePair:
+    """Side and front frames paired by a sync offset (s; front started `offset_s` later)."""
+
+    def __init__(self, side: FrameSource, front: FrameSource, offset_s: float = 0.0):
+        self.side = side
+        self.front = front
+        self.offset_s = float(offset_s)
+
+    def mismatch_warnings(self) -> list[str]:
+        out = []
+        if (self.side.width, self.side.height) != (self.front.width, self.front.height):
+            out.append(f"resolutions differ: side {self.side.width}x{self.side.height}, "
+                       f"front {self.front.width}x{self.front.height}")
+        if abs(self.side.fps - self.front.fps) > 1e-3:
+            out.append(f"frame rates differ: side {self.side.fps:g} fps, front {self.front.fps:g} fps")
+        return out
+
+    def front_time(self, side_index: int) -> float:
+        return float(self.side.times_s[side_index]) - self.offset_s
+
+    def index(self, side_index: int) -> PairedIndex:
+        tf = self.front_time(side_index)
+        j = self.front.index_at(tf)
+        rem = (tf - float(self.front.times_s[j])) * self.front.fps
+        return PairedIndex(side_index, j, rem)
+
+    def side_range(self) -> tuple[int, int]:
+        """[first, last] side indices whose front time lies within the front video (±half a frame)."""
+        half = 0.5 / self.front.fps
+        tf = self.side.times_s - self.offset_s
+        ok = np.nonzero((tf >= self.front.times_s[0] - half) & (tf <= self.front.times_s[-1] + half))[0]
+        if len(ok) == 0:
+            raise SandtrackError("the videos do not overlap in time for this sync offset")
+        return int(ok[0]), int(ok[-1])
+
+    def __len__(self) -> int:
+        return len(self.side)
+
+    def __getitem__(self, side_index: int) -> tuple[np.ndarray, np.ndarray, PairedIndex]:
+        p = self.index(side_index)
+        return self.side.frame(p.side), self.front.frame(p.front), p
