@@ -75,7 +75,7 @@ class Camera:
             out = cv2.fisheye.undistortPoints(px, self.matrix, self.distortion, P=self.matrix)
         else:
             crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10)
-            out = cv2.undistortPointsIter(px, self.matrix, self.distortion, None, self.matrix, crit)
+            out = cv2.undistortPoints(px, self.matrix, self.distortion, P=self.matrix, criteria=crit)
         return out.reshape(-1, 2)
 
     def to_dict(self) -> dict:
