@@ -103,9 +103,11 @@ class FrameSource:
         self.times_s = np.arange(len(self._files)) / self.fps
         self._pts = None
         self.is_folder = True
+        self.truncated = False
 
     def _open_video(self) -> None:
         self.is_folder = False
+        self.truncated = False
         try:
             container = av.open(str(self.path))
         except (av.error.InvalidDataError, av.error.FFmpegError, OSError, ValueError) as exc:
@@ -115,16 +117,19 @@ class FrameSource:
                 raise SandtrackError(f"{self.path}: no video stream")
             stream = container.streams.video[0]
             self.time_base = stream.time_base
-            pts = []
+            pts, key_pts = [], []
             try:
                 for packet in container.demux(stream):
                     if packet.pts is not None and packet.size > 0:
                         pts.append(packet.pts)
+                        if packet.is_keyframe:
+                            key_pts.append(packet.pts)
             except (av.error.InvalidDataError, av.error.FFmpegError):
                 pass  # truncated file: keep the frames before the damage
             if not pts:
                 raise SandtrackError(f"{self.path}: video holds no frames")
             self._pts = np.array(sorted(pts), dtype=np.int64)
+            self._trim_undecodable_tail(container, stream, max(key_pts) if key_pts else int(self._pts[0]))
             self.width = stream.codec_context.width
             self.height = stream.codec_context.height
             rate = stream.average_rate or stream.guessed_rate
@@ -139,6 +144,24 @@ class FrameSource:
             container.close()
         # Verify the first frame decodes: catches files whose packets are garbage.
         self.frame(0)
+
+    def _trim_undecodable_tail(self, container, stream, last_key_pts: int) -> None:
+        """Decode the last GOP once: a truncated file lists packets that cannot be decoded."""
+        decoded = set()
+        try:
+            container.seek(int(last_key_pts), stream=stream, backward=True, any_frame=False)
+            for frame in container.decode(stream):
+                if frame.pts is not None:
+                    decoded.add(int(frame.pts))
+        except (av.error.InvalidDataError, av.error.FFmpegError, EOFError):
+            pass
+        tail = self._pts[self._pts >= last_key_pts]
+        missing = [p for p in tail if int(p) not in decoded]
+        if missing:
+            self._pts = self._pts[self._pts < min(missing)]
+            self.truncated = True
+        if len(self._pts) == 0:
+            raise SandtrackError(f"{self.path}: no frame of the video can be decoded")
 
     # -- access --------------------------------------------------------------------------------
     def __len__(self) -> int:

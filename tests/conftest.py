@@ -1,0 +1,55 @@
+"""Shared test helpers: small generated videos with known content."""
+
+from __future__ import annotations
+
+from fractions import Fraction
+from pathlib import Path
+
+import av
+import numpy as np
+import pytest
+
+SAMPLE_DATA = Path(__file__).resolve().parents[1] / "sample_data"
+SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+
+
+def numbered_frame(i: int, width: int = 320, height: int = 240) -> np.ndarray:
+    """A BGR frame whose index can be read back after lossy compression (see frame_number)."""
+    img = np.full((height, width, 3), 40, np.uint8)
+    bits = [(i >> b) & 1 for b in range(12)]
+    cell = width // 12
+    for b, on in enumerate(bits):
+        img[: height // 2, b * cell:(b + 1) * cell] = 230 if on else 20
+    # moving texture in the lower half so the encoder uses motion prediction and B-frames
+    yy, xx = np.mgrid[0:height // 2, 0:width]
+    img[height // 2:, :, 1] = (128 + 100 * np.sin((xx + 3 * i) / 7.0) * np.cos(yy / 5.0)).astype(np.uint8)
+    return img
+
+
+def frame_number(img: np.ndarray) -> int:
+    height, width = img.shape[:2]
+    cell = width // 12
+    top = img[: height // 2].mean(axis=2)
+    return sum(int(top[height // 4, b * cell + cell // 2] > 128) << b for b in range(12))
+
+
+def write_clip(path: Path, n_frames: int = 60, fps: int = 50, width: int = 320, height: int = 240,
+               bframes: int = 2, gop: int = 12, frame_fn=numbered_frame, faststart: bool = False) -> Path:
+    """Write an H.264 mp4 (with B-frames) of numbered frames."""
+    with av.open(str(path), "w", options={"movflags": "faststart"} if faststart else {}) as out:
+        stream = out.add_stream("libx264", rate=Fraction(fps))
+        stream.width, stream.height, stream.pix_fmt = width, height, "yuv420p"
+        stream.options = {"bf": str(bframes), "g": str(gop), "crf": "18", "preset": "ultrafast"
+                          if bframes == 0 else "fast", "threads": "1"}
+        for i in range(n_frames):
+            frame = av.VideoFrame.from_ndarray(frame_fn(i, width, height), format="bgr24")
+            for packet in stream.encode(frame):
+                out.mux(packet)
+        for packet in stream.encode():
+            out.mux(packet)
+    return path
+
+
+@pytest.fixture
+def clip(tmp_path) -> Path:
+    return write_clip(tmp_path / "clip.mp4")
