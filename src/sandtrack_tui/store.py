@@ -495,6 +495,35 @@ class _Edit:
         self.project._write(fn)
         return len(records)
 
+    def delete(self, keys) -> int:
+        """Delete points by (frame, camera, marker) as part of this edit (undone with it)."""
+        keys = [(int(f), str(c), int(m)) for f, c, m in keys]
+        if not keys:
+            return 0
+        conn = self.project.conn
+
+        def fn():
+            if self.edit_id is None:
+                self.edit_id = self.project._new_edit(self.kind, self.description)
+            for key in keys:
+                jkey = json.dumps(list(key))
+                if jkey in self._seq_of:
+                    conn.execute("UPDATE edit_rows SET after=NULL WHERE edit_id=? AND seq=?",
+                                 (self.edit_id, self._seq_of[jkey]))
+                else:
+                    old = conn.execute(
+                        f"SELECT {', '.join(_POINT_VALUES)} FROM points WHERE frame=? AND camera=? AND marker=?",
+                        key).fetchone()
+                    if old is None:
+                        continue
+                    self.project._log_row(self.edit_id, self.seq, "points", jkey, json.dumps(list(old)), None)
+                    self._seq_of[jkey] = self.seq
+                    self.seq += 1
+                conn.execute("DELETE FROM points WHERE frame=? AND camera=? AND marker=?", key)
+
+        self.project._write(fn)
+        return len(keys)
+
 
 def _as_point_tuples(rows) -> Iterable[tuple]:
     if isinstance(rows, pd.DataFrame):
