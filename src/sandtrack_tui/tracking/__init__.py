@@ -1,0 +1,5 @@
+"""Marker tracking: template + constant-velocity Kalman per marker and camera, stereo-consistent.
+
+Project-level entry points live in `run` (auto_seed, accept_seeds, seed_marker, track_project)
+and `seeding` (snap_to_marker).
+"""

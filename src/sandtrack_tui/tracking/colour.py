@@ -1,0 +1,120 @@
+"""Colour model of one marker, learned from its seed box: marker disc against the sand around it.
+
+A Fisher discriminant in BGR separates the disc's pixels from the sand ring's and is scaled so
+sand scores 0 and the disc 1. A pixel that is a mix of marker and sand (an anti-aliased edge, a
+marker dusted with sand) scores its marker fraction, so the clipped score doubles as a coverage
+weight for the centroid. Sand's own texture (mostly brightness) is the variance the discriminant
+learns to ignore. Fixed HSV thresholds fail on dusty markers; a model learned per marker does not.
+Also here: a generic "blueness" measure for finding markers with no model yet (seeding, snapping).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ..errors import SandtrackError
+
+
+@dataclass
+class ColourModel:
+    w: np.ndarray  # (3,) weights on BGR
+    b: float  # offset: score = bgr @ w + b
+    threshold: float  # score at or above which a pixel counts as marker
+    disc_area: float  # marker pixels in the seed (px²)
+    radius: float  # equivalent disc radius (px)
+    sand_spread: float  # std of sand scores around the seed
+
+    def score(self, bgr: np.ndarray) -> np.ndarray:
+        """Per-pixel score, float32: ~0 on sand, ~1 on the marker."""
+        if not bgr.size:
+            return np.zeros(bgr.shape[:2], dtype=np.float32)
+        return cv2.transform(bgr.astype(np.float32), self._matrix).reshape(bgr.shape[:2])
+
+    @property
+    def _matrix(self) -> np.ndarray:
+        m = getattr(self, "_m", None)
+        if m is None:
+            m = np.array([[self.w[0], self.w[1], self.w[2], self.b]], dtype=np.float32)
+            self._m = m
+        return m
+
+    def weights(self, score: np.ndarray) -> np.ndarray:
+        """Soft marker membership for centroids (≈ coverage of the pixel by the marker)."""
+        lo = min(0.5 * self.threshold, 0.15)
+        return np.clip((score - lo) / (1.0 - lo), 0.0, 1.0)
+
+
+def blueness(bgr: np.ndarray) -> np.ndarray:
+    """Generic blue-against-sand measure, float32: B - (G + R) / 2 (sand is strongly negative)."""
+    f = bgr.astype(np.float32)
+    return f[..., 0] - 0.5 * (f[..., 1] + f[..., 2])
+
+
+def learn(frame_bgr: np.ndarray, cx: float, cy: float, w: float, h: float) -> ColourModel:
+    """Learn a ColourModel from a seed box centred at (cx, cy) of size w x h (px)."""
+    H, W = frame_bgr.shape[:2]
+    if not (np.isfinite(cx) and np.isfinite(cy)) or not (0 <= cx < W and 0 <= cy < H):
+        raise SandtrackError(f"seed point ({cx:.1f}, {cy:.1f}) lies outside the {W}x{H} image")
+    if not (w >= 3 and h >= 3):
+        raise SandtrackError(f"seed box {w}x{h} px is too small (at least 3x3)")
+    half_in = 0.5 * max(w, h)
+    margin = max(4.0, 0.5 * half_in)
+    R = int(np.ceil(half_in + margin))
+    x0, x1 = int(round(cx)) - R, int(round(cx)) + R + 1
+    y0, y1 = int(round(cy)) - R, int(round(cy)) + R + 1
+    patch = frame_bgr[max(y0, 0):min(y1, H), max(x0, 0):min(x1, W)].reshape(-1, 3).astype(np.float64)
+    yy, xx = np.mgrid[max(y0, 0):min(y1, H), max(x0, 0):min(x1, W)]
+    dx, dy = np.abs(xx.ravel() - cx), np.abs(yy.ravel() - cy)
+    inner = (dx <= 0.5 * w) & (dy <= 0.5 * h)
+    ring = (np.maximum(dx, dy) >= half_in + 1.5)
+    if inner.sum() < 4 or ring.sum() < 12:
+        raise SandtrackError("seed box lies too close to the image border to learn the marker's colour")
+    sand = patch[ring]
+    # Neighbouring markers may reach into the ring: drop its clearly blue pixels.
+    bl = sand @ np.array([1.0, -0.5, -0.5])
+    med = np.median(bl)
+    mad = 1.4826 * np.median(np.abs(bl - med)) + 1.0
+    sand = sand[bl <= med + 4 * mad]
+    # First direction: inner pixels furthest from sand in the blue-vs-sand sense; split the box's
+    # pixels into marker and sand by 2-means along it.
+    mu_s = np.median(sand, axis=0)
+    d0 = patch[inner].mean(axis=0) - mu_s
+    blue_dir = np.array([1.0, -0.5, -0.5])
+    if np.linalg.norm(d0) < 1e-6 or d0 @ blue_dir <= 0:
+        d0 = blue_dir
+    p_in = (patch[inner] - mu_s) @ d0
+    t = 0.5 * (np.percentile(p_in, 95) + np.median((sand - mu_s) @ d0))
+    for _ in range(10):
+        hi, lo = p_in[p_in >= t], p_in[p_in < t]
+        if len(hi) == 0 or len(lo) == 0:
+            break
+        t_new = 0.5 * (hi.mean() + 0.5 * (lo.mean() + np.median((sand - mu_s) @ d0)))
+        if abs(t_new - t) < 1e-6:
+            break
+        t = t_new
+    disc = patch[inner][p_in >= t]
+    if len(disc) < 3:
+        raise SandtrackError("no marker found in the seed box (empty box?)")
+    # Fisher discriminant between disc and sand.
+    mu_d, mu_sand = disc.mean(axis=0), sand.mean(axis=0)
+    Sw = np.cov(sand.T) + (np.cov(disc.T) if len(disc) > 3 else 0) + np.eye(3) * 4.0
+    wv = np.linalg.solve(Sw, mu_d - mu_sand)
+    scale = float(wv @ (mu_d - mu_sand))
+    if scale <= 1e-9:
+        raise SandtrackError("the seed box's marker does not differ in colour from the sand around it")
+    wv = wv / scale
+    b = -float(wv @ mu_sand)
+    s_sand = sand @ wv + b
+    s_disc = disc @ wv + b
+    sand_hi = float(np.percentile(s_sand, 99.5))
+    separation = float(np.median(s_disc)) - sand_hi
+    if separation < 0.2:
+        raise SandtrackError("no marker found in the seed box: its colour is not distinct from the sand")
+    threshold = float(np.clip(max(0.45, sand_hi + 0.1), 0.3, 0.7))
+    area = float(np.clip(s_disc, 0, 1).sum() + np.clip(patch[inner][p_in < t] @ wv + b, 0, 1).sum())
+    area = max(area, 3.0)
+    return ColourModel(w=wv, b=b, threshold=threshold, disc_area=area, radius=float(np.sqrt(area / np.pi)),
+                       sand_spread=float(np.std(s_sand)))

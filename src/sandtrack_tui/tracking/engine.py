@@ -1,0 +1,192 @@
+"""All markers in all cameras, one time step at a time.
+
+Per step: every track predicts and proposes its best gated match; two tracks of one camera
+claiming the same marker keep only the better; with a calibration, the proposals of a marker in
+the two cameras are checked against each other's epipolar lines (the suspect view is dropped and
+flagged); coasting tracks look for unexplained blobs (along the epipolar band when the other view
+is tracked); then every track commits its status for the frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .matcher import Match
+from .reacquire import find_blobs, unexplained
+from .stereo import StereoCheck
+from .tracker import MarkerTrack, Observation
+
+
+@dataclass
+class _Proposal:
+    match: Match
+    reattach: bool = False
+
+
+@dataclass
+class Engine:
+    stereo: StereoCheck | None = None
+    direction: int = 1  # +1 forward, -1 backward
+    tracks: dict = field(default_factory=dict)  # (marker, camera) -> MarkerTrack
+    start: dict = field(default_factory=dict)  # (marker, camera) -> seed frame
+    stereo_flags: list = field(default_factory=list)
+    ambiguous: list = field(default_factory=list)
+    max_events: int = 500
+
+    def add(self, track: MarkerTrack, start_frame: int) -> None:
+        self.tracks[(track.marker, track.camera)] = track
+        self.start[(track.marker, track.camera)] = start_frame
+
+    def step(self, frames: dict, manual: dict | None = None) -> list[Observation]:
+        """frames: camera -> (frame index, BGR image, remainder in frames of the wanted time);
+        manual: (marker, camera, frame) -> (x, y) operator points to trust along the way."""
+        manual = manual or {}
+        obs: list[Observation] = []
+        live: dict[str, list[MarkerTrack]] = {}
+        props: dict[tuple, _Proposal] = {}
+        forced: dict[tuple, tuple] = {}
+        for cam, (j, img, _rem) in frames.items():
+            live[cam] = []
+            for key, t in self.tracks.items():
+                if t.camera != cam:
+                    continue
+                s = self.start[key]
+                if j == s and t.frame_index == s and t.counts["manual"] == 0:
+                    obs.append(t.seed_observation())
+                    continue
+                if self.direction * (j - s) <= 0:
+                    continue
+                t.predict()
+                man = manual.get((t.marker, cam, j))
+                if man is not None:
+                    forced[key] = man
+                    continue
+                live[cam].append(t)
+                if not t.coasting:
+                    m = t.propose(img)
+                    if m is not None:
+                        props[key] = _Proposal(m)
+            self._resolve_conflicts(live[cam], props, forced)
+        if self.stereo is not None:
+            self._stereo_check(frames, props, forced, only_reattached=False)
+        for cam, (_j, img, _rem) in frames.items():
+            self._reacquire(cam, img, live[cam], props, forced, frames)
+        if self.stereo is not None:
+            self._stereo_check(frames, props, forced, only_reattached=True)
+        for cam, (j, img, _rem) in frames.items():
+            for t in live[cam]:
+                p = props.get((t.marker, cam))
+                obs.append(t.apply(j, img, p.match if p else None, reattach=bool(p and p.reattach)))
+        for key, (x, y) in forced.items():
+            t = self.tracks[key]
+            obs.append(t.set_manual(frames[t.camera][0], None, x, y))
+        return obs
+
+    # -- steps ---------------------------------------------------------------------------------
+    def _resolve_conflicts(self, tracks, props, forced) -> None:
+        """Two tracks on (nearly) the same spot: the better match keeps it, the other coasts."""
+        keyed = [(t, props[(t.marker, t.camera)]) for t in tracks if (t.marker, t.camera) in props]
+        for i in range(len(keyed)):
+            for k in range(i + 1, len(keyed)):
+                (ta, pa), (tb, pb) = keyed[i], keyed[k]
+                ka, kb = (ta.marker, ta.camera), (tb.marker, tb.camera)
+                if ka not in props or kb not in props:
+                    continue
+                r = max(ta.model.radius, tb.model.radius)
+                if np.hypot(pa.match.x - pb.match.x, pa.match.y - pb.match.y) < 1.2 * r:
+                    worse = kb if (pa.match.score - 0.05 * pa.match.d2) >= (pb.match.score - 0.05 * pb.match.d2) \
+                        else ka
+                    del props[worse]
+
+    def _point_at(self, key, frames, props, forced):
+        """Position of a marker in one camera at the step's wanted time, or None."""
+        t = self.tracks.get(key)
+        if t is None:
+            return None
+        if key in forced:
+            return np.array(forced[key], dtype=float)
+        p = props.get(key)
+        if p is None:
+            return None
+        rem = frames[t.camera][2]
+        v = t.kf.velocity * self.direction
+        return np.array([p.match.x, p.match.y]) + v * rem
+
+    def _stereo_check(self, frames, props, forced, only_reattached: bool) -> None:
+        a, b = self.stereo.cams
+        if a not in frames or b not in frames:
+            return
+        markers = {m for (m, c) in self.tracks if c == a} & {m for (m, c) in self.tracks if c == b}
+        for m in sorted(markers):
+            ka, kb = (m, a), (m, b)
+            pa, pb = self._point_at(ka, frames, props, forced), self._point_at(kb, frames, props, forced)
+            if pa is None or pb is None:
+                continue
+            if only_reattached and not ((ka in props and props[ka].reattach) or (kb in props and props[kb].reattach)):
+                continue
+            d = float(self.stereo.distance(a, pa, b, pb)[0])
+            if d <= self.stereo.threshold_px:
+                continue
+            cands = [k for k in (ka, kb) if k in props and k not in forced]
+            if only_reattached:
+                cands = [k for k in cands if props[k].reattach] or cands
+            if not cands:
+                continue
+            suspect = max(cands, key=lambda k: props[k].match.d2 if np.isfinite(props[k].match.d2) else 0.0)
+            del props[suspect]
+            if len(self.stereo_flags) < self.max_events:
+                self.stereo_flags.append({"marker": m, "camera": suspect[1], "frame": int(frames[suspect[1]][0]),
+                                          "epipolar_px": round(d, 2)})
+
+    def _reacquire(self, cam, img, tracks, props, forced, frames) -> None:
+        explained = [(p.match.x, p.match.y) for k, p in props.items() if k[1] == cam]
+        explained += [xy for k, xy in forced.items() if k[1] == cam]
+        wanted: dict[tuple, object] = {}
+        for t in tracks:
+            key = (t.marker, cam)
+            if key in props:
+                continue
+            px, py = t.kf.position
+            hx, hy = t.search_halfsize()
+            band_from = None
+            if self.stereo is not None and cam in self.stereo.cams:
+                other = (t.marker, self.stereo.other(cam))
+                if other[1] in frames:
+                    band_from = self._point_at(other, frames, props, forced)
+            if band_from is not None:
+                # The other view pins the marker to a line: search a wider window, along the band only.
+                wide = max(hx, hy, 4 * t.model.radius + 10)
+                hx = hy = min(wide, t.params.max_search_px)
+            blobs = find_blobs(img, t.model, px, py, hx, hy)
+            blobs = unexplained(blobs, np.array(explained).reshape(-1, 2), 1.5 * t.model.radius + 1)
+            if not blobs:
+                continue
+            xy = np.array([(b.x, b.y) for b in blobs])
+            if band_from is not None:
+                d = self.stereo.distance(self.stereo.other(cam), band_from, cam, xy)
+                keep = d <= self.stereo.band_px
+            else:
+                keep = t.kf.mahalanobis2(xy) <= t.params.gate_d2
+            blobs = [b for b, k in zip(blobs, keep, strict=True) if k]
+            if len(blobs) == 1:
+                wanted[key] = blobs[0]
+            elif len(blobs) > 1 and len(self.ambiguous) < self.max_events:
+                self.ambiguous.append({"marker": t.marker, "camera": cam, "frame": int(frames[cam][0]),
+                                       "candidates": len(blobs)})
+        # A blob wanted by two tracks is ambiguous: neither takes it.
+        owners: dict[tuple, list] = {}
+        for key, b in wanted.items():
+            owners.setdefault((round(b.x, 1), round(b.y, 1)), []).append(key)
+        for keys in owners.values():
+            if len(keys) > 1:
+                if len(self.ambiguous) < self.max_events:
+                    self.ambiguous.append({"marker": [k[0] for k in keys], "camera": cam,
+                                           "frame": int(frames[cam][0]), "candidates": 1})
+                continue
+            key = keys[0]
+            b = wanted[key]
+            m = self.tracks[key].verify_at(img, b.x, b.y)
+            if m is not None:
+                props[key] = _Proposal(m, reattach=True)

@@ -1,0 +1,84 @@
+"""Constant-velocity Kalman filter in pixel space, one per marker and camera.
+
+State ``[x, y, vx, vy]`` (px, px/frame); one step = one frame of that camera (backward tracking
+simply feeds frames in reverse order). Process noise is white acceleration (``accel_px``, px/frame²).
+The gate is the 99 % ellipse of the predicted measurement: Mahalanobis d² ≤ 9.21 (χ², 2 dof).
+While a marker is hidden, only `predict` runs: the covariance grows and the gate widens.
+A constant-acceleration model made the gate jumpy when the tool hits a marker, hence constant velocity.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+GATE_D2 = 9.21  # chi-square, 2 dof, 99 %
+
+_F = np.array([[1, 0, 1, 0], [0, 1, 0, 1], [0, 0, 1, 0], [0, 0, 0, 1]], dtype=np.float64)
+_H = np.array([[1, 0, 0, 0], [0, 1, 0, 0]], dtype=np.float64)
+
+
+class ConstantVelocityKF:
+    def __init__(self, x: float, y: float, accel_px: float = 2.0, meas_px: float = 0.3,
+                 init_speed_px: float = 3.0, coast_damping: float = 0.9):
+        self.x = np.array([x, y, 0.0, 0.0])
+        self.P = np.diag([meas_px**2, meas_px**2, init_speed_px**2, init_speed_px**2])
+        q = accel_px**2
+        # Discrete white-noise acceleration over one frame.
+        self.Q = q * np.array([[0.25, 0, 0.5, 0], [0, 0.25, 0, 0.5], [0.5, 0, 1, 0], [0, 0.5, 0, 1]])
+        self.R = np.eye(2) * meas_px**2
+        self.coast_damping = coast_damping
+        self._coasting = False
+
+    @property
+    def position(self) -> np.ndarray:
+        return self.x[:2].copy()
+
+    @property
+    def velocity(self) -> np.ndarray:
+        return self.x[2:].copy()
+
+    def predict(self) -> np.ndarray:
+        if self._coasting:
+            # Hidden markers usually stop (buried, or the tool has passed): damp the velocity
+            # so a long coast does not run away, while the covariance keeps growing.
+            self.x[2:] *= self.coast_damping
+        self.x = _F @ self.x
+        self.P = _F @ self.P @ _F.T + self.Q
+        return self.position
+
+    def innovation_cov(self) -> np.ndarray:
+        return self.P[:2, :2] + self.R
+
+    def mahalanobis2(self, z) -> np.ndarray:
+        """Squared Mahalanobis distance(s) of measurement(s) z (2,) or (N, 2) from the prediction."""
+        z = np.atleast_2d(np.asarray(z, dtype=np.float64))
+        d = z - self.x[:2]
+        Si = np.linalg.inv(self.innovation_cov())
+        return np.einsum("ni,ij,nj->n", d, Si, d)
+
+    def gate_halfsize(self, d2: float = GATE_D2) -> tuple[float, float]:
+        """Half extents (x, y) of the box enclosing the gate ellipse."""
+        S = self.innovation_cov()
+        return float(np.sqrt(d2 * S[0, 0])), float(np.sqrt(d2 * S[1, 1]))
+
+    def update(self, z, meas_px: float | None = None) -> None:
+        z = np.asarray(z, dtype=np.float64)
+        R = self.R if meas_px is None else np.eye(2) * meas_px**2
+        S = self.P[:2, :2] + R
+        K = self.P[:, :2] @ np.linalg.inv(S)
+        self.x = self.x + K @ (z - self.x[:2])
+        self.P = (np.eye(4) - K @ _H) @ self.P
+        self.P = 0.5 * (self.P + self.P.T)
+        self._coasting = False
+
+    def coast(self) -> None:
+        """Record that this frame had no measurement (the next predict damps velocity)."""
+        self._coasting = True
+
+    def reset(self, x: float, y: float, speed_px: float = 3.0, velocity=None) -> None:
+        """Re-attach after a long gap: position known, velocity uncertain."""
+        v = np.zeros(2) if velocity is None else np.asarray(velocity, dtype=np.float64)
+        self.x = np.array([x, y, v[0], v[1]])
+        r = self.R[0, 0]
+        self.P = np.diag([r, r, speed_px**2, speed_px**2])
+        self._coasting = False

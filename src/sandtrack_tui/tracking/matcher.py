@@ -1,0 +1,155 @@
+"""Template matching of one marker: NCC on the colour-score image, sub-pixel peak, colour centroid.
+
+Matching runs on the marker's colour score (see colour.py) rather than on grey levels: the sand's
+texture, which is brightness, scores ~0 everywhere, so the marker's disc is the only structure the
+template sees. Two templates are matched: the one cut at the seed (never changes, so the track
+cannot drift) and a slowly updated one (follows gradual changes: dust, lighting, blur), updated
+only on confident matches. The NCC peak is searched inside the Kalman gate only, refined to
+sub-pixel by a parabola, then the centre is refined by the colour-weighted centroid of the disc:
+the clipped score is the pixel's marker coverage, so the centroid of coverage is the disc centre.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .colour import ColourModel
+
+
+@dataclass
+class Match:
+    x: float  # refined centre (px)
+    y: float
+    score: float  # NCC peak, -1..1
+    psr: float  # peak-to-sidelobe ratio (NaN if the search area was too small to tell)
+    colour_frac: float  # marker coverage found around the centre / seed disc area
+    d2: float = float("nan")  # Mahalanobis distance² from the prediction (set by the caller)
+    used_centroid: bool = True
+
+
+class TemplateMatcher:
+    def __init__(self, model: ColourModel, frame_bgr: np.ndarray, cx: float, cy: float, half: int | None = None):
+        self.model = model
+        self.half = int(half if half is not None else np.ceil(model.radius + 3))
+        self.seed_template = self._cut(frame_bgr, cx, cy)
+        self.template = self.seed_template.copy()
+
+    @property
+    def size(self) -> int:
+        return 2 * self.half + 1
+
+    def _cut(self, frame_bgr: np.ndarray, cx: float, cy: float) -> np.ndarray:
+        r = self.half + 2
+        x0, y0 = int(np.floor(cx)) - r, int(np.floor(cy)) - r
+        roi = _crop(frame_bgr, x0, y0, 2 * r + 2, 2 * r + 2)
+        score = self.model.score(roi)
+        return cv2.getRectSubPix(score, (self.size, self.size), (cx - x0, cy - y0))
+
+    def update_template(self, frame_bgr: np.ndarray, cx: float, cy: float, alpha: float = 0.1) -> None:
+        patch = self._cut(frame_bgr, cx, cy)
+        self.template = ((1 - alpha) * self.template + alpha * patch).astype(np.float32)
+
+    def match(self, frame_bgr: np.ndarray, px: float, py: float, hx: float, hy: float,
+              S_inv: np.ndarray | None = None, gate_d2: float = 9.21) -> Match | None:
+        """Best match whose centre lies within (hx, hy) of the prediction (px, py) and, given the
+        inverse innovation covariance S_inv, inside the gate ellipse. None if nothing to match."""
+        H, W = frame_bgr.shape[:2]
+        if not (np.isfinite(px) and np.isfinite(py)):
+            return None
+        r_min = 2 * self.model.radius + 2  # room for sidelobes, so the PSR means something
+        ex, ey = int(np.ceil(max(hx, r_min))), int(np.ceil(max(hy, r_min)))
+        cx0, cy0 = int(round(px)), int(round(py))
+        x0, y0 = max(cx0 - ex - self.half, 0), max(cy0 - ey - self.half, 0)
+        x1, y1 = min(cx0 + ex + self.half + 1, W), min(cy0 + ey + self.half + 1, H)
+        if x1 - x0 < self.size + 2 or y1 - y0 < self.size + 2:
+            return None
+        score = self.model.score(frame_bgr[y0:y1, x0:x1])
+        res = cv2.matchTemplate(score, self.seed_template, cv2.TM_CCOEFF_NORMED)
+        res2 = cv2.matchTemplate(score, self.template, cv2.TM_CCOEFF_NORMED)
+        res = np.nan_to_num(np.maximum(res, res2), nan=-1.0, posinf=-1.0, neginf=-1.0)
+        # Centres of the result grid relative to the prediction.
+        gx = np.arange(res.shape[1]) + x0 + self.half - px
+        gy = np.arange(res.shape[0]) + y0 + self.half - py
+        inside = (np.abs(gx)[None, :] <= hx + 0.5) & (np.abs(gy)[:, None] <= hy + 0.5)
+        if S_inv is not None:
+            d2 = S_inv[0, 0] * gx[None, :] ** 2 + 2 * S_inv[0, 1] * gx[None, :] * gy[:, None] \
+                + S_inv[1, 1] * gy[:, None] ** 2
+            inside &= d2 <= gate_d2 + 1.0  # +1: the grid is integer, the refined centre is not
+        if not inside.any():
+            return None
+        masked = np.where(inside, res, -2.0)
+        r, c = np.unravel_index(int(np.argmax(masked)), res.shape)
+        peak = float(res[r, c])
+        sx = _parabola(res[r, c - 1], peak, res[r, c + 1]) if 0 < c < res.shape[1] - 1 else 0.0
+        sy = _parabola(res[r - 1, c], peak, res[r + 1, c]) if 0 < r < res.shape[0] - 1 else 0.0
+        psr = _psr(res, r, c, int(np.ceil(self.model.radius)) + 1)
+        # Peak centre in ROI (score image) coordinates.
+        ncc_x, ncc_y = c + self.half + sx, r + self.half + sy
+        cxr, cyr, frac = self.centroid(score, ncc_x, ncc_y)
+        used = frac >= 0.75 and np.hypot(cxr - ncc_x, cyr - ncc_y) <= 0.5 * self.model.radius
+        if used:
+            mx, my = cxr, cyr
+        else:
+            mx, my = ncc_x, ncc_y
+        return Match(x=mx + x0, y=my + y0, score=peak, psr=psr, colour_frac=frac, used_centroid=bool(used))
+
+    def centroid(self, score: np.ndarray, x: float, y: float, iterations: int = 2) -> tuple[float, float, float]:
+        """Colour-weighted centroid near (x, y) in `score`'s coordinates; returns (x, y, coverage)."""
+        rad = self.model.radius + 1.5
+        R = int(np.ceil(rad)) + 1
+        frac = 0.0
+        for _ in range(iterations):
+            ix, iy = int(round(x)), int(round(y))
+            xa, ya = max(ix - R, 0), max(iy - R, 0)
+            xb, yb = min(ix + R + 1, score.shape[1]), min(iy + R + 1, score.shape[0])
+            if xb <= xa or yb <= ya:
+                return x, y, 0.0
+            wts = self.model.weights(score[ya:yb, xa:xb])
+            yy, xx = np.mgrid[ya:yb, xa:xb]
+            wts = wts * (((xx - x) ** 2 + (yy - y) ** 2) <= rad * rad)
+            tot = float(wts.sum())
+            frac = tot / self.model.disc_area
+            if tot < 1e-6:
+                return x, y, 0.0
+            x, y = float((wts * xx).sum() / tot), float((wts * yy).sum() / tot)
+        return x, y, frac
+
+    def refine_at(self, frame_bgr: np.ndarray, x: float, y: float) -> tuple[float, float, float]:
+        """Colour centroid around a given point of the frame (seeding, re-acquisition)."""
+        R = int(np.ceil(self.model.radius + 4))
+        x0, y0 = int(round(x)) - R, int(round(y)) - R
+        roi = _crop(frame_bgr, x0, y0, 2 * R + 1, 2 * R + 1)
+        cx, cy, frac = self.centroid(self.model.score(roi), x - x0, y - y0, iterations=3)
+        return cx + x0, cy + y0, frac
+
+
+def _crop(img: np.ndarray, x0: int, y0: int, w: int, h: int) -> np.ndarray:
+    """Crop with edge replication where the window leaves the image."""
+    H, W = img.shape[:2]
+    if x0 >= 0 and y0 >= 0 and x0 + w <= W and y0 + h <= H:
+        return img[y0:y0 + h, x0:x0 + w]
+    xa, ya, xb, yb = max(x0, 0), max(y0, 0), min(x0 + w, W), min(y0 + h, H)
+    if xb <= xa or yb <= ya:
+        return np.zeros((h, w) + img.shape[2:], dtype=img.dtype)
+    sub = img[ya:yb, xa:xb]
+    return cv2.copyMakeBorder(sub, ya - y0, y0 + h - yb, xa - x0, x0 + w - xb, cv2.BORDER_REPLICATE)
+
+
+def _parabola(a: float, b: float, c: float) -> float:
+    den = a - 2 * b + c
+    if den >= 0:
+        return 0.0
+    return float(np.clip(0.5 * (a - c) / den, -0.5, 0.5))
+
+
+def _psr(res: np.ndarray, r: int, c: int, excl: int) -> float:
+    mask = np.ones(res.shape, dtype=bool)
+    mask[max(r - excl, 0):r + excl + 1, max(c - excl, 0):c + excl + 1] = False
+    side = res[mask]
+    if side.size < 16:
+        return float("nan")
+    sd = float(side.std())
+    return float((res[r, c] - side.mean()) / max(sd, 1e-3))

@@ -1,0 +1,66 @@
+"""Re-acquisition: a marker-coloured blob that no track explains re-attaches a coasting track.
+
+A coasting (occluded or lost) track looks for blobs of its marker's colour and size inside its
+widened gate. A blob already explained by another track of the same camera is not a candidate.
+Exactly one candidate re-attaches the track (after a template check); two or more, or one blob
+wanted by two tracks, is ambiguous and left to the operator: the track keeps coasting.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .colour import ColourModel
+
+
+@dataclass
+class Blob:
+    x: float
+    y: float
+    area: float  # soft marker area, px²
+
+
+def find_blobs(frame_bgr: np.ndarray, model: ColourModel, cx: float, cy: float, hx: float, hy: float,
+               min_frac: float = 0.4, max_frac: float = 2.5) -> list[Blob]:
+    """Blobs of the model's colour and roughly its size whose centre lies within (hx, hy) of (cx, cy)."""
+    H, W = frame_bgr.shape[:2]
+    pad = int(np.ceil(model.radius)) + 2
+    x0, x1 = max(int(np.floor(cx - hx)) - pad, 0), min(int(np.ceil(cx + hx)) + pad + 1, W)
+    y0, y1 = max(int(np.floor(cy - hy)) - pad, 0), min(int(np.ceil(cy + hy)) + pad + 1, H)
+    if x1 - x0 < 3 or y1 - y0 < 3:
+        return []
+    score = model.score(frame_bgr[y0:y1, x0:x1])
+    mask = (score >= model.threshold).astype(np.uint8)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    if n <= 1:
+        return []
+    wts = model.weights(score)
+    out = []
+    for k in range(1, n):
+        bx, by, bw, bh, cnt = stats[k]
+        if cnt < 2:
+            continue
+        # Soft area and centroid over the component grown by one pixel (its anti-aliased rim).
+        xa, ya = max(bx - 1, 0), max(by - 1, 0)
+        xb, yb = min(bx + bw + 1, score.shape[1]), min(by + bh + 1, score.shape[0])
+        comp = cv2.dilate((labels[ya:yb, xa:xb] == k).astype(np.uint8), np.ones((3, 3), np.uint8))
+        ww = wts[ya:yb, xa:xb] * comp
+        area = float(ww.sum())
+        if not (min_frac * model.disc_area <= area <= max_frac * model.disc_area):
+            continue
+        yy, xx = np.mgrid[ya:yb, xa:xb]
+        bx_c, by_c = float((ww * xx).sum() / area) + x0, float((ww * yy).sum() / area) + y0
+        if abs(bx_c - cx) <= hx and abs(by_c - cy) <= hy:
+            out.append(Blob(bx_c, by_c, area))
+    return out
+
+
+def unexplained(blobs: list[Blob], explained_xy: np.ndarray, radius: float) -> list[Blob]:
+    """Blobs farther than `radius` from every explained position."""
+    if len(explained_xy) == 0:
+        return blobs
+    e = np.asarray(explained_xy, dtype=float).reshape(-1, 2)
+    return [b for b in blobs if np.min(np.hypot(e[:, 0] - b.x, e[:, 1] - b.y)) > radius]

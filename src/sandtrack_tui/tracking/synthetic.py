@@ -1,0 +1,150 @@
+"""Synthetic marker clips with exact ground truth, for tests and quick benchmarks.
+
+Sand-like textured background, blue anti-aliased discs (shaded like small spheres) that move with
+known sub-pixel centres, a grey tool passing over them, optional dust on the markers, burial
+(a marker fading under sand) and two markers passing close to each other.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+import pandas as pd
+
+SAND_BGR = np.array([110.0, 150.0, 185.0])
+MARKER_BGR = np.array([175.0, 95.0, 35.0])
+TOOL_BGR = np.array([100.0, 100.0, 104.0])
+
+
+@dataclass
+class MarkerPath:
+    marker: int
+    xy: np.ndarray  # (n_frames, 2) true centres, px
+    radius: float = 5.0
+    fade: np.ndarray | None = None  # (n_frames,) 1 = fully shown, 0 = buried
+
+
+@dataclass
+class Clip:
+    frames: list[np.ndarray]
+    truth: pd.DataFrame  # frame, marker, x_px, y_px, visible_frac, visible
+    seeds: pd.DataFrame  # marker, frame, x, y, w, h
+    fps: float = 50.0
+    tool_boxes: list = field(default_factory=list)
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def frame(self, i: int) -> np.ndarray:
+        return self.frames[i]
+
+    def __getitem__(self, i: int) -> np.ndarray:
+        return self.frames[i]
+
+    @property
+    def times_s(self) -> np.ndarray:
+        return np.arange(len(self.frames)) / self.fps
+
+    def index_at(self, t: float) -> int:
+        return int(np.clip(round(t * self.fps), 0, len(self.frames) - 1))
+
+
+def sand_texture(h: int, w: int, rng: np.random.Generator) -> np.ndarray:
+    lum = cv2.GaussianBlur(rng.normal(0, 1, (h, w)).astype(np.float32), (0, 0), 0.8) * 30
+    lum += cv2.GaussianBlur(rng.normal(0, 1, (h, w)).astype(np.float32), (0, 0), 5) * 60
+    chroma = cv2.GaussianBlur(rng.normal(0, 1, (h, w, 3)).astype(np.float32), (0, 0), 1.0) * 6
+    img = SAND_BGR[None, None, :] * (1 + lum[..., None] / 255.0) + chroma
+    return img.astype(np.float32)
+
+
+def _disc_alpha(h: int, w: int, cx: float, cy: float, r: float, ss: int = 4):
+    """Coverage (0..1) of a disc and its pixel box; supersampled ss x ss."""
+    x0, x1 = max(int(np.floor(cx - r - 1)), 0), min(int(np.ceil(cx + r + 2)), w)
+    y0, y1 = max(int(np.floor(cy - r - 1)), 0), min(int(np.ceil(cy + r + 2)), h)
+    if x1 <= x0 or y1 <= y0:
+        return None
+    off = (np.arange(ss) + 0.5) / ss - 0.5
+    xs = (np.arange(x0, x1)[:, None] + off[None, :]).ravel()
+    ys = (np.arange(y0, y1)[:, None] + off[None, :]).ravel()
+    d2 = (xs[None, :] - cx) ** 2 + (ys[:, None] - cy) ** 2
+    inside = (d2 <= r * r).astype(np.float32)
+    alpha = inside.reshape(y1 - y0, ss, x1 - x0, ss).mean(axis=(1, 3))
+    shade = 1.0 - 0.35 * np.clip(d2 / (r * r), 0, 1)
+    shade = shade.reshape(y1 - y0, ss, x1 - x0, ss).mean(axis=(1, 3))
+    return (y0, y1, x0, x1), alpha, shade
+
+
+def render(paths: list[MarkerPath], n_frames: int, size=(360, 480), seed: int = 0, noise: float = 3.0,
+           dusty: float = 0.0, tool: tuple | None = None, fps: float = 50.0) -> Clip:
+    """Render a clip. tool = (y0, y1, width, x_start, speed_px_per_frame) of a grey bar moving right."""
+    rng = np.random.default_rng(seed)
+    h, w = size
+    bg = sand_texture(h, w, rng)
+    colour = (1 - dusty) * MARKER_BGR + dusty * SAND_BGR
+    speckle = {p.marker: rng.random((64, 64)) < 0.5 * dusty for p in paths}
+    frames, rows, tool_boxes = [], [], []
+    for f in range(n_frames):
+        img = bg.copy()
+        tool_box = None
+        if tool is not None:
+            ty0, ty1, tw, tx, tv = tool
+            xa = int(round(tx + tv * f))
+            tool_box = (xa, ty0, xa + tw, ty1)
+        tool_boxes.append(tool_box)
+        for p in paths:
+            cx, cy = p.xy[f]
+            out = _disc_alpha(h, w, cx, cy, p.radius)
+            fade = 1.0 if p.fade is None else float(p.fade[f])
+            vis_frac = 0.0
+            if out is not None:
+                (y0, y1, x0, x1), alpha, shade = out
+                a = alpha * fade
+                col = colour[None, None, :] * shade[..., None]
+                if dusty > 0:
+                    sp = speckle[p.marker][(np.arange(y0, y1) - int(cy)) % 64][:, (np.arange(x0, x1) - int(cx)) % 64]
+                    col = np.where(sp[..., None], SAND_BGR * 0.95, col)
+                img[y0:y1, x0:x1] = a[..., None] * col + (1 - a[..., None]) * img[y0:y1, x0:x1]
+                covered = np.zeros_like(alpha)
+                if tool_box is not None:
+                    yy, xx = np.mgrid[y0:y1, x0:x1]
+                    covered = ((xx >= tool_box[0]) & (xx < tool_box[2]) & (yy >= tool_box[1]) & (yy < tool_box[3]))
+                total = alpha.sum()
+                vis_frac = float((alpha * (1 - covered)).sum() / total * fade) if total > 0 else 0.0
+            rows.append((f, p.marker, cx, cy, vis_frac))
+        if tool_box is not None:
+            xa, ya, xb, yb = tool_box
+            xa, xb = max(xa, 0), min(xb, w)
+            if xb > xa:
+                img[ya:yb, xa:xb] = TOOL_BGR * (1 + 0.05 * rng.normal(0, 1, (yb - ya, xb - xa, 1)))
+        img += rng.normal(0, noise, img.shape).astype(np.float32)
+        frames.append(np.clip(img, 0, 255).astype(np.uint8))
+    truth = pd.DataFrame(rows, columns=["frame", "marker", "x_px", "y_px", "visible_frac"])
+    truth["visible"] = truth["visible_frac"] >= 0.5
+    seeds = pd.DataFrame([(p.marker, 0, p.xy[0, 0], p.xy[0, 1], 2 * p.radius + 4, 2 * p.radius + 4) for p in paths],
+                         columns=["marker", "frame", "x", "y", "w", "h"])
+    return Clip(frames=frames, truth=truth, seeds=seeds, fps=fps, tool_boxes=tool_boxes)
+
+
+def standard_paths(n_frames: int, size=(360, 480), seed: int = 1) -> list[MarkerPath]:
+    """Six markers: still, drifting, wobbling, pushed (sudden start), and two passing close."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n_frames, dtype=np.float64)
+    h, w = size
+    paths = []
+    paths.append(MarkerPath(1, np.stack([np.full_like(t, 0.30 * w + 0.37), np.full_like(t, 0.25 * h + 0.21)], 1)))
+    paths.append(MarkerPath(2, np.stack([0.15 * w + 0.83 * t, 0.55 * h + 0.31 * t], 1), radius=4.6))
+    paths.append(MarkerPath(3, np.stack([0.60 * w + 6 * np.sin(t / 7.0), 0.30 * h + 4 * np.cos(t / 5.0)], 1),
+                            radius=5.5))
+    start = n_frames // 3
+    v = np.clip(t - start, 0, None)
+    push = np.minimum(v * 3.5, 3.5 * 12 + 0.0 * v)  # 3.5 px/frame for 12 frames, then rests
+    paths.append(MarkerPath(4, np.stack([0.45 * w + push, 0.72 * h + 0.3 * push], 1)))
+    # Two markers passing each other ~14 px apart.
+    paths.append(MarkerPath(5, np.stack([0.70 * w - 1.1 * t, 0.80 * h + 0.0 * t], 1), radius=4.8))
+    paths.append(MarkerPath(6, np.stack([0.70 * w - 1.1 * n_frames + 1.1 * t, 0.80 * h - 14.0 + 0 * t], 1),
+                            radius=4.8))
+    for p in paths:
+        p.xy = p.xy + rng.normal(0, 0.15, p.xy.shape)  # jitter: markers are never perfectly smooth
+    return paths

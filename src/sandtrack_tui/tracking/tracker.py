@@ -1,0 +1,169 @@
+"""One marker in one camera: a Kalman filter, a template matcher, a colour model and its status.
+
+Status per frame (the store's STATUSES):
+- ``tracked``: a match passed the gate, the NCC score, the peak-to-sidelobe ratio and the colour check;
+- ``occluded``: no acceptable match; the position written is the Kalman prediction (coasting);
+- ``lost``: more than ``lost_after`` frames without a match; no position is claimed;
+- ``manual``: the operator's point (a seed or a correction), used as a measurement as is.
+A track never invents a match: when in doubt it coasts and says so.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import SandtrackError
+from .colour import ColourModel, learn
+from .kalman import GATE_D2, ConstantVelocityKF
+from .matcher import Match, TemplateMatcher
+
+TRACKED, OCCLUDED, LOST, MANUAL, INTERPOLATED = "tracked", "occluded", "lost", "manual", "interpolated"
+DEFAULT_BOX_PX = 16
+
+
+@dataclass
+class TrackParams:
+    min_score: float = 0.6  # NCC peak to accept a match
+    min_psr: float = 3.0  # peak-to-sidelobe ratio to accept a match
+    min_colour: float = 0.55  # marker coverage (fraction of the seed disc) to accept a match
+    confident_score: float = 0.85  # the updated template learns only from matches this good ...
+    confident_colour: float = 0.85  # ... and this complete
+    template_alpha: float = 0.08
+    lost_after: int = 25  # frames of coasting before a track is declared lost
+    accel_px: float = 2.0  # Kalman process noise: white acceleration, px/frame²
+    meas_px: float = 0.3  # measurement noise, px
+    max_search_px: float = 120.0  # cap of the half search window while hidden
+    gate_d2: float = GATE_D2
+
+
+@dataclass
+class Observation:
+    frame: int
+    camera: str
+    marker: int
+    x_px: float
+    y_px: float
+    status: str
+    score: float = float("nan")
+    psr: float = float("nan")
+    colour_frac: float = float("nan")
+
+    def row(self) -> tuple:
+        return (self.frame, self.camera, self.marker, self.x_px, self.y_px, self.status, self.score, self.psr,
+                self.colour_frac)
+
+
+class MarkerTrack:
+    def __init__(self, marker: int, camera: str, frame_bgr: np.ndarray, frame_index: int, x: float, y: float,
+                 w: float | None = None, h: float | None = None, params: TrackParams | None = None,
+                 refine_seed: bool = True):
+        self.marker, self.camera = int(marker), camera
+        self.params = params or TrackParams()
+        H, W = frame_bgr.shape[:2]
+        if not (np.isfinite(x) and np.isfinite(y)) or not (0 <= x < W and 0 <= y < H):
+            raise SandtrackError(f"marker {marker} ({camera}, frame {frame_index}): seed ({x:.1f}, {y:.1f}) "
+                                 f"lies outside the {W}x{H} image")
+        w = float(w) if w is not None and np.isfinite(w) and w > 0 else DEFAULT_BOX_PX
+        h = float(h) if h is not None and np.isfinite(h) and h > 0 else DEFAULT_BOX_PX
+        try:
+            self.model: ColourModel = learn(frame_bgr, x, y, w, h)
+        except SandtrackError as exc:
+            raise SandtrackError(f"marker {marker} ({camera}, frame {frame_index}): {exc}") from None
+        self.matcher = TemplateMatcher(self.model, frame_bgr, x, y)
+        if refine_seed:
+            rx, ry, frac = self.matcher.refine_at(frame_bgr, x, y)
+            if frac >= 0.5 and np.hypot(rx - x, ry - y) <= max(w, h):
+                x, y = rx, ry
+                self.matcher = TemplateMatcher(self.model, frame_bgr, x, y)
+        p = self.params
+        self.kf = ConstantVelocityKF(x, y, accel_px=p.accel_px, meas_px=p.meas_px)
+        self.status = MANUAL
+        self.misses = 0
+        self.frame_index = frame_index
+        self.seed_xy = (x, y)
+        self.reacquisitions = 0
+        self.counts = {TRACKED: 0, OCCLUDED: 0, LOST: 0, MANUAL: 0}
+
+    # -- per frame -----------------------------------------------------------------------------
+    @property
+    def coasting(self) -> bool:
+        return self.status in (OCCLUDED, LOST)
+
+    def predict(self) -> None:
+        self.kf.predict()
+
+    def search_halfsize(self) -> tuple[float, float]:
+        hx, hy = self.kf.gate_halfsize(self.params.gate_d2)
+        cap = self.params.max_search_px
+        return min(hx, cap), min(hy, cap)
+
+    def propose(self, frame_bgr: np.ndarray) -> Match | None:
+        """Best acceptable match inside the gate (after predict), or None."""
+        px, py = self.kf.position
+        hx, hy = self.search_halfsize()
+        S_inv = np.linalg.inv(self.kf.innovation_cov())
+        m = self.matcher.match(frame_bgr, px, py, hx, hy, S_inv, self.params.gate_d2)
+        if m is None:
+            return None
+        m.d2 = float(self.kf.mahalanobis2((m.x, m.y))[0])
+        return m if self.acceptable(m) else None
+
+    def acceptable(self, m: Match, relax: float = 1.0) -> bool:
+        p = self.params
+        psr_ok = not np.isfinite(m.psr) or m.psr >= p.min_psr * relax
+        return m.score >= p.min_score * relax and m.colour_frac >= p.min_colour and psr_ok
+
+    def verify_at(self, frame_bgr: np.ndarray, x: float, y: float) -> Match | None:
+        """Match in a small window around a candidate point (re-acquisition); None if it fails."""
+        m = self.matcher.match(frame_bgr, x, y, 2.0, 2.0)
+        if m is None or not self.acceptable(m, relax=0.9):
+            return None
+        m.d2 = float(self.kf.mahalanobis2((m.x, m.y))[0])
+        return m
+
+    def apply(self, frame_index: int, frame_bgr: np.ndarray | None, m: Match | None,
+              reattach: bool = False) -> Observation:
+        """Commit this frame's outcome and return its observation."""
+        self.frame_index = frame_index
+        p = self.params
+        if m is not None:
+            if reattach and self.misses > 2:
+                self.kf.reset(m.x, m.y)
+                self.reacquisitions += 1
+            else:
+                self.kf.update((m.x, m.y), None if m.used_centroid else 1.0)
+            if (frame_bgr is not None and m.score >= p.confident_score and m.colour_frac >= p.confident_colour
+                    and m.used_centroid):
+                self.matcher.update_template(frame_bgr, m.x, m.y, p.template_alpha)
+            self.status, self.misses = TRACKED, 0
+            obs = Observation(frame_index, self.camera, self.marker, m.x, m.y, TRACKED, m.score, m.psr, m.colour_frac)
+        else:
+            self.kf.coast()
+            self.misses += 1
+            if self.misses > p.lost_after:
+                self.status = LOST
+                obs = Observation(frame_index, self.camera, self.marker, float("nan"), float("nan"), LOST)
+            else:
+                self.status = OCCLUDED
+                x, y = self.kf.position
+                obs = Observation(frame_index, self.camera, self.marker, float(x), float(y), OCCLUDED)
+        self.counts[obs.status] += 1
+        return obs
+
+    def set_manual(self, frame_index: int, frame_bgr: np.ndarray | None, x: float, y: float) -> Observation:
+        """An operator's point met along the way: trust it, keep tracking from it."""
+        if self.misses > 2:
+            self.kf.reset(x, y)
+        else:
+            self.kf.update((x, y), 0.2)
+        self.status, self.misses, self.frame_index = TRACKED, 0, frame_index
+        self.counts[MANUAL] += 1
+        return Observation(frame_index, self.camera, self.marker, x, y, MANUAL)
+
+    def seed_observation(self) -> Observation:
+        x, y = self.kf.position
+        self.counts[MANUAL] += 1
+        return Observation(self.frame_index, self.camera, self.marker, float(x), float(y), MANUAL, 1.0, float("nan"),
+                           1.0)
