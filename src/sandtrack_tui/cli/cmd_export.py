@@ -1,10 +1,41 @@
-"""`sandtrack export`: not available in this version yet."""
+"""`sandtrack export PROJECT -o FILE [--format csv|parquet|dltdv]`: the 3D trajectories."""
 
-from .common import add_json_flag, not_available
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..errors import SandtrackError
+from .common import add_json_flag, emit, log
 
 
 def register(sub) -> None:
-    p = sub.add_parser("export", help="(export: not available yet)")
-    p.add_argument("args", nargs="*")
+    p = sub.add_parser("export", help="export the 3D trajectories (tidy CSV, Parquet, DLTdv/Argus CSVs)")
+    p.add_argument("project", help="project file (NAME.sandtrack)")
+    p.add_argument("-o", "--output", required=True,
+                   help="output file (.csv, .parquet), or the file prefix for --format dltdv")
+    p.add_argument("--format", choices=["csv", "parquet", "dltdv"], default=None,
+                   help="default: from the output's suffix")
+    p.add_argument("--method", choices=["both", "triangulation", "mlp"], default="both",
+                   help="3D method(s) to export (dltdv takes one: triangulation unless mlp is given)")
     add_json_flag(p)
-    p.set_defaults(func=not_available("sandtrack export"))
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from ..store import Project
+    from ..trajectories import export, trajectory_table
+
+    with Project.open(args.project) as proj:
+        vids = proj.videos()
+        if "side" not in vids:
+            raise SandtrackError(f"{args.project}: the project has no side video")
+        heights = {c: float(v.height) for c, v in vids.items()}
+        heights.setdefault("front", heights["side"])
+        log(f"export: computing 3D positions ({args.method})")
+        df = trajectory_table(proj, method=args.method)
+    method = None if args.method == "both" else args.method
+    paths = export(df, Path(args.output), fmt=args.format, heights=heights, method=method)
+    result = {"files": [str(p) for p in paths], "rows": int(len(df)), "markers": int(df["marker"].nunique()),
+              "frames": int(df["frame"].nunique())}
+    emit(result, args.json, text="\n".join(f"wrote {p}" for p in paths))
+    return 0
