@@ -1,10 +1,144 @@
-"""`sandtrack track`: not available in this version yet."""
+"""`sandtrack track PROJECT [--seeds seeds.csv] [--auto-seed] [--from N] [--to M] [--backward] [--markers 1,2]`.
 
-from .common import add_json_flag, not_available
+Headless tracking. Seeds come from the project (its manual points), from a CSV
+(`frame, camera, marker, x, y, w, h`: x, y = marker centre in pixels, w, h = box around it;
+w, h may be empty) or from auto-seeding (every blue marker of frame --from, paired across cameras).
+Results are written to the project as they are made, as one undoable edit.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ..errors import SandtrackError
+from .common import Progress, add_json_flag, emit, log
+
+CSV_COLUMNS = ["frame", "camera", "marker", "x", "y", "w", "h"]
 
 
 def register(sub) -> None:
-    p = sub.add_parser("track", help="(track: not available yet)")
-    p.add_argument("args", nargs="*")
+    p = sub.add_parser("track", help="track the markers in both cameras (template + Kalman, stereo-checked)",
+                       description="Tracks each marker in each camera from its seed; writes tracked/occluded/lost "
+                                   "points to the project as it goes (one undoable edit).")
+    p.add_argument("project", help="project file (NAME.sandtrack)")
+    p.add_argument("--seeds", metavar="CSV",
+                   help="seed file: frame, camera, marker, x, y, w, h (pixels; x, y = marker centre)")
+    p.add_argument("--auto-seed", action="store_true", help="seed every blue marker found in frame --from (or 0)")
+    p.add_argument("--from", dest="start", type=int, metavar="N",
+                   help="start frame (first camera's index); default: each marker's seed")
+    p.add_argument("--to", dest="stop", type=int, metavar="M", help="last frame (inclusive); default: the end")
+    p.add_argument("--backward", action="store_true", help="track backward in time")
+    p.add_argument("--markers", metavar="LIST", help="comma-separated marker ids (default: all)")
     add_json_flag(p)
-    p.set_defaults(func=not_available("sandtrack track"))
+    p.set_defaults(func=run)
+
+
+def read_seeds_csv(path: str | Path) -> pd.DataFrame:
+    """Seeds CSV -> DataFrame[marker, camera, frame, x_px, y_px, w, h]; clear errors on bad input."""
+    p = Path(path)
+    if not p.is_file():
+        raise SandtrackError(f"seed file not found: {p}")
+    try:
+        df = pd.read_csv(p, skipinitialspace=True)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise SandtrackError(f"{p}: not a readable CSV ({str(exc).splitlines()[0]})") from None
+    df.columns = [str(c).strip().lower() for c in df.columns]
+    missing = [c for c in CSV_COLUMNS[:5] if c not in df.columns]
+    if missing:
+        raise SandtrackError(f"{p}: missing column(s) {', '.join(missing)} (need {', '.join(CSV_COLUMNS)})")
+    if df.empty:
+        raise SandtrackError(f"{p}: no seed rows")
+    for c in ("w", "h"):
+        if c not in df.columns:
+            df[c] = np.nan
+    try:
+        out = pd.DataFrame({
+            "marker": df["marker"].astype(int), "camera": df["camera"].astype(str).str.strip(),
+            "frame": df["frame"].astype(int), "x_px": df["x"].astype(float), "y_px": df["y"].astype(float),
+            "w": pd.to_numeric(df["w"], errors="coerce"), "h": pd.to_numeric(df["h"], errors="coerce")})
+    except (ValueError, TypeError) as exc:
+        raise SandtrackError(f"{p}: non-numeric value ({exc})") from None
+    if not np.isfinite(out[["x_px", "y_px"]].to_numpy()).all():
+        raise SandtrackError(f"{p}: x and y must be numbers on every row")
+    bad = out[(out.w <= 0) | (out.h <= 0)]
+    if len(bad):
+        r = bad.iloc[0]
+        raise SandtrackError(f"{p}: marker {r.marker} has an empty box ({r.w}x{r.h})")
+    return out
+
+
+def _check_seeds(project, seeds: pd.DataFrame) -> None:
+    vids = project.videos()
+    for r in seeds.itertuples():
+        if r.camera not in vids:
+            raise SandtrackError(f"seed of marker {r.marker}: no camera {r.camera!r} (have {', '.join(vids)})")
+        v = vids[r.camera]
+        if not 0 <= r.frame < v.frames:
+            raise SandtrackError(f"seed of marker {r.marker}: frame {r.frame} outside 0..{v.frames - 1}")
+        if not (0 <= r.x_px < v.width and 0 <= r.y_px < v.height):
+            raise SandtrackError(f"seed of marker {r.marker} ({r.camera}): ({r.x_px}, {r.y_px}) lies outside the "
+                                 f"{v.width}x{v.height} image")
+
+
+def run(args) -> int:
+    from ..store import Project
+    from ..tracking.run import accept_seeds, auto_seed, track_project
+
+    markers = None
+    if args.markers:
+        try:
+            markers = [int(m) for m in args.markers.split(",") if m.strip()]
+        except ValueError:
+            raise SandtrackError(f"--markers: give ids separated by commas, not {args.markers!r}") from None
+    with Project.open(args.project) as proj:
+        seeded = 0
+        if args.seeds:
+            seeds = read_seeds_csv(args.seeds)
+            _check_seeds(proj, seeds)
+            seeded = accept_seeds(proj, seeds, f"seeds from {Path(args.seeds).name}")
+            log(f"track: {seeded} seed points from {args.seeds}")
+        if args.auto_seed:
+            proposal = auto_seed(proj, frame=args.start or 0)
+            if proposal.empty:
+                raise SandtrackError(f"auto-seed: no blue marker found in frame {args.start or 0}")
+            seeded += accept_seeds(proj, proposal, "auto-seed")
+            n_pairs = int(proposal.epipolar_px.notna().sum() // 2)
+            log(f"track: auto-seed found {proposal.marker.nunique()} markers ({n_pairs} paired across cameras)")
+        if proj.points().query("status == 'manual'").empty and args.start is None:
+            raise SandtrackError("no seeds: give --seeds CSV, --auto-seed, or seed markers in the TUI")
+        bar = Progress(1, "track")
+
+        def progress(done, total):
+            bar.total = max(total, 1)
+            bar.update(done)
+
+        summary = track_project(proj, markers=markers, start=args.start, stop=args.stop,
+                                direction="backward" if args.backward else "forward", progress=progress)
+        bar.close()
+    summary["project"] = str(args.project)
+    summary["seed_points"] = seeded
+    for p in summary.get("problems", []):
+        log(f"warning: {p}")
+    emit(summary, args.json, _text(summary))
+    return 0 if summary.get("frames", 0) > 0 else 1
+
+
+def _text(s: dict) -> str:
+    lines = [f"tracked {s.get('frames', 0)} frames {s['direction']} "
+             f"({s.get('first_frame', '-')}..{s.get('last_frame', '-')}), "
+             f"stereo check {'on' if s.get('stereo') else 'off'}, {s.get('rows_written', 0)} points written"]
+    for m, cams in s.get("per_marker", {}).items():
+        parts = [f"{c}: {v['tracked']} tracked, {v['occluded']} occluded, {v['lost']} lost" for c, v in cams.items()]
+        lines.append(f"  marker {m}: " + "; ".join(parts))
+    if s.get("stereo_flags"):
+        lines.append(f"  {len(s['stereo_flags'])} stereo inconsistencies flagged (view dropped, searched again)")
+    if s.get("ambiguous"):
+        lines.append(f"  {len(s['ambiguous'])} ambiguous re-acquisitions left to the operator")
+    if s.get("never_found"):
+        lines.append("  never found: " + ", ".join(s["never_found"]))
+    if s.get("stopped"):
+        lines.append("  stopped early; what was tracked is saved")
+    return "\n".join(lines)

@@ -148,3 +148,42 @@ def standard_paths(n_frames: int, size=(360, 480), seed: int = 1) -> list[Marker
     for p in paths:
         p.xy = p.xy + rng.normal(0, 0.15, p.xy.shape)  # jitter: markers are never perfectly smooth
     return paths
+
+
+def stereo_rig(size=(360, 480)):
+    """Two pinhole cameras 25° apart looking at a sand patch ~400 mm away (a Calibration)."""
+    from ..camera import Calibration, Camera
+
+    h, w = size
+    K = np.array([[700.0, 0, w / 2], [0, 700.0, h / 2], [0, 0, 1]])
+    side = Camera("side", w, h, K, np.zeros(5))
+    ang = np.deg2rad(-25.0)
+    R = np.array([[np.cos(ang), 0, -np.sin(ang)], [0, 1, 0], [np.sin(ang), 0, np.cos(ang)]])
+    c_front = np.array([170.0, 0.0, 30.0])  # front camera centre, rig frame (mm)
+    front = Camera("front", w, h, K, np.zeros(5), rvec=cv2.Rodrigues(R)[0].ravel(), tvec=-R @ c_front)
+    return Calibration(cameras={"side": side, "front": front})
+
+
+def stereo_paths(n_frames: int, seed: int = 2):
+    """3D paths (mm, rig frame) of five markers on a patch ~400 mm in front of the side camera."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n_frames, dtype=np.float64)
+    base = np.array([[-40, -20, 400], [-10, 15, 410], [20, -10, 395], [45, 20, 405], [5, -35, 400]], float)
+    out = []
+    for k, b in enumerate(base):
+        v = np.array([0.25 * np.cos(k), 0.2 * np.sin(k), 0.05]) * (k % 3)
+        xyz = b[None, :] + t[:, None] * v[None, :] + rng.normal(0, 0.01, (n_frames, 3))
+        out.append((k + 1, xyz))
+    return out
+
+
+def render_stereo(n_frames: int, size=(360, 480), seed: int = 0, tool: dict | None = None, noise: float = 3.0):
+    """Render both cameras of `stereo_rig` for `stereo_paths`: returns (calibration, {camera: Clip})."""
+    cal = stereo_rig(size)
+    paths3d = stereo_paths(n_frames, seed + 2)
+    clips = {}
+    for k, (name, cam) in enumerate(cal.cameras.items()):
+        paths = [MarkerPath(m, cam.project(xyz), radius=5.0 * 400 / xyz[0, 2]) for m, xyz in paths3d]
+        clips[name] = render(paths, n_frames, size, seed=seed + 10 * k, noise=noise,
+                             tool=None if tool is None else tool.get(name))
+    return cal, clips

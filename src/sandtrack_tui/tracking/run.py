@@ -1,0 +1,365 @@
+"""Project-level tracking API used by the CLI, the TUI and the demo.
+
+- `auto_seed(project, frame)`: propose every blue marker of a frame, paired across cameras.
+- `accept_seeds(project, seeds)`: write the accepted proposal as markers and "manual" points.
+- `seed_marker(project, marker, camera, frame, x, y, w, h)`: one operator seed (a click).
+- `track_project(project, ...)`: track forward or backward from the seeds (or from any frame:
+  re-tracking after a correction is tracking from that frame), writing results to the store
+  as they are made, in chunks, inside one undoable edit.
+
+Frame indices are each camera's own. The cameras are stepped together on the first camera's
+clock ("side"): side frame i pairs with the front frame nearest to side time t - sync_offset_s
+(the front started offset_s later), and the front point is shifted by its velocity times the
+sub-frame remainder before the epipolar check.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+
+import numpy as np
+import pandas as pd
+
+from ..errors import SandtrackError
+from .engine import Engine
+from .seeding import detect_markers, marker_box, pair_by_epipolar, snap_to_marker
+from .stereo import StereoCheck
+from .tracker import DEFAULT_BOX_PX, LOST, MANUAL, OCCLUDED, TRACKED, MarkerTrack, TrackParams
+
+__all__ = ["auto_seed", "accept_seeds", "seed_marker", "track_project", "snap_to_marker", "SEED_COLUMNS"]
+
+SEED_COLUMNS = ["marker", "camera", "frame", "x_px", "y_px", "w", "h", "epipolar_px"]
+BOXES_KEY = "tracking_boxes"
+_USABLE = (MANUAL, TRACKED, "interpolated", "imported")
+
+
+# -- clocks and pairing -----------------------------------------------------------------------
+def camera_offsets(project, cameras: list[str]) -> dict[str, float]:
+    """Offset (s) of each camera's clock behind the first camera's: event at t is at t - offset."""
+    off = {cameras[0]: 0.0}
+    for c in cameras[1:]:
+        off[c] = project.sync_offset_s if c == "front" or len(cameras) == 2 else 0.0
+    return off
+
+
+def paired_frame(sources: dict, offsets: dict, ref: str, ref_index: int, cam: str):
+    """(frame index, remainder in frames) of `cam` at the time of ref frame `ref_index`, or None."""
+    src = sources[cam]
+    t = float(sources[ref].times_s[ref_index]) - offsets[cam]
+    j = src.index_at(t)
+    fps = float(getattr(src, "fps", 50.0))
+    rem = (t - float(src.times_s[j])) * fps
+    if abs(rem) > 0.5 + 1e-6:
+        return None
+    return j, rem
+
+
+def _ref_index_of(sources, offsets, ref, cam, frame) -> int:
+    t = float(sources[cam].times_s[frame]) + offsets[cam]
+    return sources[ref].index_at(t)
+
+
+def _stereo_for(project, cameras, params_px=(2.0, 3.0)) -> StereoCheck | None:
+    if len(cameras) < 2:
+        return None
+    cal = project.calibration()
+    if cal is None or not all(c in cal.cameras for c in cameras[:2]):
+        return None
+    return StereoCheck(cal, cameras[0], cameras[1], *params_px)
+
+
+# -- seeding ----------------------------------------------------------------------------------
+def auto_seed(project, frame: int = 0, sources: dict | None = None, max_epipolar_px: float = 5.0) -> pd.DataFrame:
+    """Every blue marker in `frame` (first camera's index; the others at the paired frame), paired
+    across cameras by epipolar distance when the project holds a calibration. A proposal only:
+    nothing is written. Unpaired detections get their own marker ids (epipolar_px NaN)."""
+    own = sources is None
+    sources = sources or project.open_sources()
+    try:
+        cams = list(sources)
+        ref = cams[0]
+        offsets = camera_offsets(project, cams)
+        if not 0 <= frame < len(sources[ref]):
+            raise SandtrackError(f"frame {frame} outside 0..{len(sources[ref]) - 1}")
+        dets, frames = {}, {}
+        for c in cams:
+            pf = (frame, 0.0) if c == ref else paired_frame(sources, offsets, ref, frame, c)
+            if pf is None:
+                continue
+            frames[c] = pf[0]
+            dets[c] = detect_markers(sources[c].frame(pf[0]))
+        existing = project.markers()
+        next_id = int(existing["id"].max()) + 1 if len(existing) else 1
+        rows = []
+        stereo = _stereo_for(project, cams)
+        used = {c: set() for c in dets}
+        if stereo is not None and all(c in dets for c in stereo.cams):
+            a, b = stereo.cams
+            pairs = pair_by_epipolar(stereo, dets[a], dets[b], max_epipolar_px)
+            pairs.sort(key=lambda p: (dets[a].x_px.iloc[p[0]], dets[a].y_px.iloc[p[0]]))
+            for ia, ib, d in pairs:
+                for c, i in ((a, ia), (b, ib)):
+                    r = dets[c].iloc[i]
+                    rows.append((next_id, c, frames[c], r.x_px, r.y_px, r.w, r.h, d))
+                    used[c].add(i)
+                next_id += 1
+        for c, det in dets.items():
+            order = det.sort_values(["x_px", "y_px"]).index
+            for i in order:
+                if i in used[c]:
+                    continue
+                r = det.loc[i]
+                rows.append((next_id, c, frames[c], r.x_px, r.y_px, r.w, r.h, np.nan))
+                next_id += 1
+        return pd.DataFrame(rows, columns=SEED_COLUMNS)
+    finally:
+        if own:
+            _close(sources)
+
+
+def accept_seeds(project, seeds: pd.DataFrame, description: str = "accept seeds") -> int:
+    """Write seeds (SEED_COLUMNS; epipolar_px optional) as markers and manual points. Returns rows."""
+    if seeds is None or len(seeds) == 0:
+        return 0
+    missing = {"marker", "camera", "frame", "x_px", "y_px"} - set(seeds.columns)
+    if missing:
+        raise SandtrackError(f"seeds lack columns: {', '.join(sorted(missing))}")
+    have = set(project.markers()["id"].astype(int))
+    for m in sorted(set(seeds["marker"].astype(int)) - have):
+        project.add_marker(str(m), int(m))
+    rows = [(int(r.frame), str(r.camera), int(r.marker), float(r.x_px), float(r.y_px), MANUAL, None, None, None)
+            for r in seeds.itertuples()]
+    project.set_points(rows, description)
+    _store_boxes(project, seeds)
+    return len(rows)
+
+
+def _store_boxes(project, seeds: pd.DataFrame) -> None:
+    if "w" not in seeds.columns or "h" not in seeds.columns:
+        return
+    boxes = dict(project.get(BOXES_KEY, {}) or {})
+    changed = False
+    for r in seeds.itertuples():
+        if np.isfinite(r.w) and np.isfinite(r.h) and r.w > 0 and r.h > 0:
+            k = f"{int(r.marker)}/{r.camera}"
+            v = [float(r.w), float(r.h)]
+            if boxes.get(k) != v:
+                boxes[k] = v
+                changed = True
+    if changed:
+        project.set(BOXES_KEY, boxes, "marker box sizes")
+
+
+def seed_marker(project, marker: int, camera: str, frame: int, x: float, y: float, w: float | None = None,
+                h: float | None = None) -> None:
+    """One operator seed: marker `marker` at (x, y) px in `camera`'s frame `frame` (a manual point)."""
+    vids = project.videos()
+    if camera not in vids:
+        raise SandtrackError(f"no camera {camera!r} in this project ({', '.join(vids) or 'none'})")
+    v = vids[camera]
+    if not 0 <= frame < v.frames:
+        raise SandtrackError(f"frame {frame} outside 0..{v.frames - 1} of {camera}")
+    if not (np.isfinite(x) and np.isfinite(y)) or not (0 <= x < v.width and 0 <= y < v.height):
+        raise SandtrackError(f"seed ({x}, {y}) lies outside the {v.width}x{v.height} image of {camera}")
+    if w is not None and h is not None and (not w > 0 or not h > 0):
+        raise SandtrackError(f"seed box {w}x{h} is empty")
+    df = pd.DataFrame([(int(marker), camera, int(frame), float(x), float(y),
+                        np.nan if w is None else float(w), np.nan if h is None else float(h), np.nan)],
+                      columns=SEED_COLUMNS)
+    accept_seeds(project, df, f"seed marker {marker} in {camera} at frame {frame}")
+
+
+# -- tracking ---------------------------------------------------------------------------------
+class _Prefetch:
+    """Decode one camera's frames in a thread, in the order they will be needed."""
+
+    def __init__(self, source, indices: list[int], depth: int = 6):
+        self.q: queue.Queue = queue.Queue(maxsize=depth)
+        self._stop = threading.Event()
+        self._t = threading.Thread(target=self._run, args=(source, indices), daemon=True)
+        self._t.start()
+
+    def _run(self, source, indices):
+        try:
+            for j in indices:
+                if self._stop.is_set():
+                    return
+                self._put((j, source.frame(j)))
+        except BaseException as exc:  # handed to the consumer
+            self._put(exc)
+
+    def _put(self, item):
+        while not self._stop.is_set():
+            try:
+                self.q.put(item, timeout=0.1)
+                return
+            except queue.Full:
+                continue
+
+    def get(self):
+        item = self.q.get()
+        if isinstance(item, BaseException):
+            raise item
+        return item
+
+    def close(self):
+        self._stop.set()
+        self._t.join(timeout=2)
+
+
+def _close(sources):
+    for s in sources.values():
+        close = getattr(s, "close", None)
+        if close:
+            close()
+
+
+def _find_seeds(project, points: pd.DataFrame, markers, cams, sources, offsets, ref, start, direction):
+    """Per (marker, camera): (frame, x, y) to start from, plus problems for those without one."""
+    seeds, problems = {}, []
+    for m in markers:
+        for c in cams:
+            p = points[(points.marker == m) & (points.camera == c) & points.x_px.notna()]
+            if start is not None:
+                pf = (start, 0.0) if c == ref else paired_frame(sources, offsets, ref, start, c)
+                if pf is None:
+                    problems.append(f"marker {m} {c}: frame {start} has no paired {c} frame")
+                    continue
+                row = p[(p.frame == pf[0]) & p.status.isin(_USABLE)]
+                if row.empty:
+                    problems.append(f"marker {m} {c}: no point at frame {pf[0]} to start from")
+                    continue
+            else:
+                row = p[p.status == MANUAL].sort_values("frame")
+                if row.empty:
+                    problems.append(f"marker {m} {c}: no seed (manual point)")
+                    continue
+                row = row.iloc[[0]] if direction > 0 else row.iloc[[-1]]
+            r = row.iloc[0]
+            seeds[(m, c)] = (int(r.frame), float(r.x_px), float(r.y_px))
+    return seeds, problems
+
+
+def track_project(project, markers=None, start: int | None = None, stop: int | None = None,
+                  direction: str = "forward", progress=None, should_stop=None, sources: dict | None = None,
+                  params: TrackParams | None = None, chunk_steps: int = 25, epipolar_px: float = 2.0,
+                  band_px: float = 3.0) -> dict:
+    """Track markers from their seeds (or from frame `start`, first camera's index) to `stop`
+    (inclusive; default: the end in that direction). Results go to the store as they are made.
+    Returns a summary dict (counts per marker and camera, stereo flags, ambiguities, problems)."""
+    if direction not in ("forward", "backward"):
+        raise SandtrackError(f"direction must be forward or backward, not {direction!r}")
+    dirn = 1 if direction == "forward" else -1
+    own = sources is None
+    sources = sources or project.open_sources()
+    prefetch: list[_Prefetch] = []
+    try:
+        cams = [c for c in project.cameras() if c in sources] or list(sources)
+        ref = cams[0]
+        offsets = camera_offsets(project, cams)
+        n_ref = len(sources[ref])
+        for name, v in (("start", start), ("stop", stop)):
+            if v is not None and not 0 <= v < n_ref:
+                raise SandtrackError(f"{name} frame {v} outside 0..{n_ref - 1}")
+        all_markers = [int(m) for m in project.markers()["id"]]
+        points = project.points()
+        if markers is None:
+            markers = sorted(set(all_markers) | set(points.marker.astype(int)))
+        markers = [int(m) for m in markers]
+        unknown = [m for m in markers if m not in all_markers and m not in set(points.marker)]
+        if unknown:
+            raise SandtrackError(f"unknown marker(s): {', '.join(map(str, unknown))}")
+        seeds, problems = _find_seeds(project, points, markers, cams, sources, offsets, ref, start, dirn)
+        summary = {"direction": direction, "cameras": cams, "markers": markers, "problems": problems,
+                   "stereo": False, "rows_written": 0, "stopped": False, "per_marker": {}}
+        if not seeds:
+            summary.update(frames=0, status="nothing to track")
+            return summary
+        # Range on the first camera's clock.
+        seed_ref = [_ref_index_of(sources, offsets, ref, c, f) for (m, c), (f, _, _) in seeds.items()]
+        a = start if start is not None else (min(seed_ref) if dirn > 0 else max(seed_ref))
+        b = stop if stop is not None else (n_ref - 1 if dirn > 0 else 0)
+        if dirn * (b - a) < 0:
+            raise SandtrackError(f"stop frame {b} lies {'before' if dirn > 0 else 'after'} the start frame {a}")
+        steps = []
+        last = {c: None for c in cams}
+        for i in range(a, b + dirn, dirn):
+            st = {}
+            for c in cams:
+                pf = (i, 0.0) if c == ref else paired_frame(sources, offsets, ref, i, c)
+                if pf is None or pf[0] == last[c]:
+                    continue
+                last[c] = pf[0]
+                st[c] = pf
+            steps.append(st)
+        stereo = _stereo_for(project, cams, (epipolar_px, band_px))
+        summary["stereo"] = stereo is not None
+        engine = Engine(stereo=stereo, direction=dirn)
+        boxes = project.get(BOXES_KEY, {}) or {}
+        params = params or TrackParams()
+        for (m, c), (f, x, y) in sorted(seeds.items(), key=lambda kv: (kv[0][1], kv[1][0])):
+            img = sources[c].frame(f)
+            box = boxes.get(f"{m}/{c}") or marker_box(img, x, y) or (DEFAULT_BOX_PX, DEFAULT_BOX_PX)
+            try:
+                engine.add(MarkerTrack(m, c, img, f, x, y, box[0], box[1], params), f)
+            except SandtrackError as exc:
+                problems.append(str(exc))
+        if not engine.tracks:
+            summary.update(frames=0, status="no marker could be started")
+            return summary
+        man_pts = points[(points.status == MANUAL) & points.x_px.notna()]
+        manual = {(int(r.marker), r.camera, int(r.frame)): (float(r.x_px), float(r.y_px))
+                  for r in man_pts.itertuples() if (int(r.marker), r.camera) in engine.tracks}
+        for key, (f, _, _) in seeds.items():
+            manual.pop((key[0], key[1], f), None)
+        prefetch = [_Prefetch(sources[c], [st[c][0] for st in steps if c in st]) for c in cams]
+        feeds = dict(zip(cams, prefetch, strict=True))
+        t0 = time.perf_counter()
+        t_track = 0.0
+        n_obs = 0
+        buf: list[tuple] = []
+        desc = f"track {direction} from frame {a}" + (f" (markers {', '.join(map(str, markers))})" if markers else "")
+        with project.edit(desc) as ed:
+            for k, st in enumerate(steps):
+                if should_stop is not None and should_stop():
+                    summary["stopped"] = True
+                    break
+                frames = {}
+                for c, (j, rem) in st.items():
+                    jj, img = feeds[c].get()
+                    if jj != j:
+                        raise RuntimeError(f"frame order broken ({c}: wanted {j}, got {jj})")
+                    frames[c] = (j, img, rem)
+                t1 = time.perf_counter()
+                obs = engine.step(frames, manual)
+                t_track += time.perf_counter() - t1
+                n_obs += len(obs)
+                buf.extend(o.row() for o in obs if o.status != MANUAL)
+                if (k + 1) % chunk_steps == 0 and buf:
+                    summary["rows_written"] += ed.write(buf)
+                    buf = []
+                if progress is not None:
+                    progress(k + 1, len(steps))
+            if buf:
+                summary["rows_written"] += ed.write(buf)
+        elapsed = time.perf_counter() - t0
+        per = {}
+        for (m, c), t in engine.tracks.items():
+            per.setdefault(str(m), {})[c] = {
+                "tracked": t.counts[TRACKED], "occluded": t.counts[OCCLUDED], "lost": t.counts[LOST],
+                "reacquired": t.reacquisitions, "last_status": t.status}
+        never = [f"marker {m} {c}" for (m, c), t in engine.tracks.items()
+                 if t.counts[TRACKED] == 0 and (t.counts[OCCLUDED] + t.counts[LOST]) > 0]
+        summary.update(
+            frames=len(steps), first_frame=a, last_frame=b, per_marker=per, stereo_flags=engine.stereo_flags,
+            ambiguous=engine.ambiguous, never_found=never, elapsed_s=round(elapsed, 3),
+            track_ms_per_marker_frame=round(1000 * t_track / max(n_obs, 1), 4),
+            status="stopped" if summary["stopped"] else "done")
+        return summary
+    finally:
+        for p in prefetch:
+            p.close()
+        if own:
+            _close(sources)

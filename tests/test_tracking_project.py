@@ -1,0 +1,158 @@
+"""Tracking through the project API and the CLI, on short synthetic stereo clips with exact truth."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pandas as pd
+import pytest
+
+from sandtrack_tui.cli import main
+from sandtrack_tui.store import Project
+from sandtrack_tui.tracking import synthetic
+from sandtrack_tui.tracking.run import accept_seeds, auto_seed, seed_marker, track_project
+
+N = 40
+
+
+@pytest.fixture(scope="module")
+def stereo_data(tmp_path_factory):
+    root = tmp_path_factory.mktemp("stereo")
+    tool = {"front": (150, 240, 40, 60, 8.0)}  # hides markers in the front view for a while
+    cal, clips = synthetic.render_stereo(N, tool=tool)
+    for name, clip in clips.items():
+        d = root / name
+        d.mkdir()
+        for i, f in enumerate(clip.frames):
+            cv2.imwrite(str(d / f"{i:05d}.png"), f)
+    return root, cal, clips
+
+
+def _project(root, cal, tmp_path, cameras=("side", "front")):
+    proj = Project.create(tmp_path / "exp.sandtrack", {c: root / c for c in cameras})
+    if cal is not None:
+        proj.set_calibration(cal)
+    return proj
+
+
+def _errors(points: pd.DataFrame, clips) -> pd.DataFrame:
+    out = []
+    for cam, clip in clips.items():
+        p = points[points.camera == cam].merge(clip.truth, on=["frame", "marker"], suffixes=("", "_true"))
+        p["err"] = np.hypot(p.x_px - p.x_px_true, p.y_px - p.y_px_true)
+        out.append(p)
+    return pd.concat(out)
+
+
+def test_auto_seed_pairs_markers_across_cameras(stereo_data, tmp_path):
+    root, cal, clips = stereo_data
+    with _project(root, cal, tmp_path) as proj:
+        seeds = auto_seed(proj, frame=0)
+    assert set(seeds.camera) == {"side", "front"}
+    assert seeds.epipolar_px.notna().all() and (seeds.epipolar_px < 1.0).all()
+    # Each proposed marker must be the same true marker in both cameras.
+    for m, g in seeds.groupby("marker"):
+        truth_ids = []
+        for r in g.itertuples():
+            t = clips[r.camera].truth.query("frame == 0")
+            d = np.hypot(t.x_px - r.x_px, t.y_px - r.y_px)
+            assert d.min() < 0.5
+            truth_ids.append(int(t.marker.iloc[int(np.argmin(d.to_numpy()))]))
+        assert len(set(truth_ids)) == 1, f"marker {m} paired two different markers"
+    assert seeds.marker.nunique() == 5
+
+
+def test_track_project_accuracy_occlusion_and_undo(stereo_data, tmp_path):
+    root, cal, clips = stereo_data
+    with _project(root, cal, tmp_path) as proj:
+        accept_seeds(proj, auto_seed(proj, frame=0))
+        edits_before = len(proj.history())
+        calls = []
+        summary = track_project(proj, progress=lambda d, t: calls.append((d, t)), chunk_steps=10)
+        assert summary["stereo"] and summary["frames"] == N
+        assert calls[-1] == (N, N)
+        assert len(proj.history()) == edits_before + 1  # one undoable edit for the whole run
+        pts = proj.points()
+        # Map proposal ids to true ids through frame 0.
+        ids = {}
+        for r in pts.query("frame == 0 and camera == 'side'").itertuples():
+            t = clips["side"].truth.query("frame == 0")
+            ids[r.marker] = int(t.marker.iloc[int(np.argmin(np.hypot(t.x_px - r.x_px, t.y_px - r.y_px)))])
+        pts["marker"] = pts.marker.map(ids)
+        e = _errors(pts, clips)
+        vis = e[e.visible & (e.status == "tracked")]
+        assert vis.err.mean() < 0.3 and vis.err.max() < 3.0
+        assert (e[e.visible].status.isin(["tracked", "manual"])).mean() > 0.9
+        hidden = e[~e.visible]
+        assert len(hidden) > 10
+        assert hidden.status.isin(["occluded", "lost"]).mean() >= 0.95
+        assert proj.undo() is not None
+        assert set(proj.points().status) == {"manual"}
+
+
+def test_retrack_from_a_frame_and_backward(stereo_data, tmp_path):
+    root, cal, clips = stereo_data
+    with _project(root, cal, tmp_path) as proj:
+        t = clips["side"].truth.query("frame == 20 and marker == 2").iloc[0]
+        tf = clips["front"].truth.query("frame == 20 and marker == 2").iloc[0]
+        seed_marker(proj, 7, "side", 20, t.x_px + 0.7, t.y_px - 0.5, 14, 14)
+        seed_marker(proj, 7, "front", 20, tf.x_px - 0.6, tf.y_px + 0.4)
+        s = track_project(proj, markers=[7], direction="backward")
+        assert s["first_frame"] == 20 and s["last_frame"] == 0
+        back = proj.points(marker=7, camera="side")
+        assert back.frame.min() == 0 and back.frame.max() == 20
+        # Re-tracking forward from frame 10 overwrites frames 11.. and keeps the manual seed at 20.
+        s = track_project(proj, markers=[7], start=10, stop=30)
+        side = proj.points(marker=7, camera="side")
+        assert side.frame.max() == 30
+        assert side.query("frame == 20").status.iloc[0] == "manual"
+        e = _errors(side.assign(marker=2), {"side": clips["side"]})
+        assert e.query("status == 'tracked'").err.max() < 1.0
+
+
+def test_single_camera_project_tracks_in_2d(stereo_data, tmp_path):
+    root, _cal, clips = stereo_data
+    with _project(root, None, tmp_path, cameras=("side",)) as proj:
+        seeds = auto_seed(proj, frame=0)
+        assert set(seeds.camera) == {"side"} and seeds.epipolar_px.isna().all()
+        accept_seeds(proj, seeds)
+        s = track_project(proj, stop=15)
+        assert not s["stereo"] and s["frames"] == 16
+        assert len(proj.points(camera="side")) == 16 * seeds.marker.nunique()
+
+
+def test_cli_track_with_csv_and_bad_input(stereo_data, tmp_path, capsys):
+    root, cal, clips = stereo_data
+    proj = _project(root, cal, tmp_path)
+    proj.close()
+    t0 = clips["side"].truth.query("frame == 0")
+    rows = [(0, "side", int(r.marker), r.x_px, r.y_px, 14, 14) for r in t0.itertuples()][:2]
+    f0 = clips["front"].truth.query("frame == 0")
+    rows += [(0, "front", int(r.marker), r.x_px, r.y_px, "", "") for r in f0.itertuples()][:2]
+    csv = tmp_path / "seeds.csv"
+    pd.DataFrame(rows, columns=["frame", "camera", "marker", "x", "y", "w", "h"]).to_csv(csv, index=False)
+    rc = main(["track", str(tmp_path / "exp.sandtrack"), "--seeds", str(csv), "--to", "9", "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert rc == 0 and out["frames"] == 10 and out["seed_points"] == 4
+    assert set(out["per_marker"]) == {"1", "2"}
+    assert out["per_marker"]["1"]["side"]["tracked"] == 9
+
+    bad = tmp_path / "bad.csv"
+    bad.write_text("frame,camera,marker,x,y,w,h\n0,side,1,5000,10,12,12\n")
+    assert main(["track", str(tmp_path / "exp.sandtrack"), "--seeds", str(bad)]) == 1
+    err = capsys.readouterr().err
+    assert "outside" in err and "Traceback" not in err
+    empty = tmp_path / "empty.csv"
+    empty.write_text("frame,camera,marker,x,y,w,h\n0,side,1,10,10,0,0\n")
+    assert main(["track", str(tmp_path / "exp.sandtrack"), "--seeds", str(empty)]) == 1
+    assert "empty box" in capsys.readouterr().err
+
+
+def test_seed_on_plain_sand_is_reported_not_crashed(stereo_data, tmp_path):
+    root, cal, _clips = stereo_data
+    with _project(root, cal, tmp_path) as proj:
+        seed_marker(proj, 1, "side", 0, 30.0, 30.0, 14, 14)  # no marker there
+        s = track_project(proj, stop=5)
+        assert s["frames"] == 0 and any("no marker" in p for p in s["problems"])
