@@ -192,3 +192,15 @@ def test_read_only_project_gives_clear_message(project):
         os.chmod(project.path, 0o444)
     with pytest.raises(SandtrackError, match="read-only|cannot"):
         project.add_marker()
+
+
+def test_full_disk_gives_clear_message_and_keeps_committed_edits(project):
+    m = project.add_marker()
+    project.set_points(_rows(m, "side", range(5)), "before the disk filled")
+    pages = project.conn.execute("PRAGMA page_count").fetchone()[0]
+    project.conn.execute(f"PRAGMA max_page_count = {pages + 2}")  # the disk is (nearly) full
+    with pytest.raises(SandtrackError, match="disk is full"):
+        project.set_points(_rows(m, "front", range(20000)), "too big")
+    project.conn.execute("PRAGMA max_page_count = 1000000")
+    assert len(project.points()) == 5 and project.points(camera="front").empty
+    assert project.undo() == "before the disk filled"

@@ -193,14 +193,11 @@ class Project:
             raise SandtrackError(f"{self.path}: cannot write ({exc})") from None
         try:
             yield
-        except BaseException:
-            self.conn.execute("ROLLBACK")
-            raise
-        try:
             self.conn.execute("COMMIT")
-        except sqlite3.Error as exc:
-            self.conn.execute("ROLLBACK")
-            raise SandtrackError(f"{self.path}: write failed ({exc})") from None
+        except BaseException:
+            if self.conn.in_transaction:  # SQLite may already have rolled back (e.g. disk full)
+                self.conn.execute("ROLLBACK")
+            raise
 
     def _write(self, fn):
         """Run fn() in a transaction, turning disk/permission errors into one-line messages."""
