@@ -66,3 +66,15 @@ def test_corrupt_board_file_is_one_line_error(tmp_path):
     board.write_text("columns = 'eight'\nrows = 5\n")
     out = run_cli("new", tmp_path / "e.sandtrack", "--side", side, "--board", board)
     assert out.returncode == 1 and "Traceback" not in out.stderr
+
+
+def test_relink_moved_video(tmp_path):
+    side = write_clip(tmp_path / "side.mp4", n_frames=4)
+    assert run_cli("new", tmp_path / "p.sandtrack", "--side", side).returncode == 0
+    moved = side.rename(tmp_path / "elsewhere.mp4")
+    check = run_cli("relink", tmp_path / "p.sandtrack")
+    assert check.returncode == 1 and "not found" in check.stdout and "relink" in check.stdout
+    fixed = run_cli("relink", tmp_path / "p.sandtrack", "--side", moved, "--json")
+    assert fixed.returncode == 0, fixed.stderr
+    assert json.loads(fixed.stdout)["problems"] == []
+    assert run_cli("relink", tmp_path / "p.sandtrack").returncode == 0

@@ -81,8 +81,10 @@ class VideoProblem:
 
     def message(self) -> str:
         if self.problem == "missing":
-            return f"{self.camera} video not found at {self.path}: relink it (sandtrack new ... or the TUI's relink)"
-        return f"{self.camera} video at {self.path} has changed since the project was made: relink to confirm"
+            return (f"{self.camera} video not found at {self.path}: "
+                    f"relink it (sandtrack relink PROJECT --{self.camera} PATH)")
+        return (f"{self.camera} video at {self.path} has changed since the project was made: "
+                f"relink to confirm (sandtrack relink PROJECT --{self.camera} PATH)")
 
 
 class Project:

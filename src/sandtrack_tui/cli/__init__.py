@@ -14,7 +14,7 @@ import sys
 from ..errors import NotAvailableYet, SandtrackError
 
 COMMANDS = [
-    "tui", "new", "sample", "calibrate", "sync", "train", "track", "xyz", "export", "import", "compare", "demo",
+    "tui", "new", "sample", "calibrate", "sync", "train", "track", "xyz", "export", "import", "compare", "demo", "relink",
 ]
 
 
