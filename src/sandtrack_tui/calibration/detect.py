@@ -1,0 +1,223 @@
+"""Board detection in images and videos: ChArUco and chessboard corners with sub-pixel accuracy.
+
+A ChArUco board seen from behind (printed on both sides, as Caliscope's boards are) shows a mirror
+image; when the plain search finds nothing, the horizontally flipped image is searched and the
+corners mapped back (`mirror_search`). Blurred views are measured (variance of the Laplacian inside
+the board's outline) so the calibration can skip them.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import av
+import cv2
+import numpy as np
+
+from ..board import BoardSpec
+from ..errors import SandtrackError
+from ..video import FrameSource
+
+ProgressFn = Callable[[str, int, int], None]
+
+
+@dataclass
+class BoardView:
+    """The board's corners found in one image of one camera."""
+
+    frame: int  # frame index of the reference (first) camera this view is paired with
+    source_frame: int  # the camera's own frame index
+    ids: np.ndarray  # (n,) corner ids (OpenCV ChArUco order, see BoardSpec.corner_points_mm)
+    corners: np.ndarray  # (n, 2) pixels
+    sharpness: float = float("nan")
+    mirrored: bool = False
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+
+class BoardDetector:
+    """Finds one board in greyscale or BGR images. Thread-safe (one OpenCV detector per thread)."""
+
+    def __init__(self, board: BoardSpec, mirror_search: bool = True, min_corners: int = 6):
+        self.board = board
+        self.mirror_search = mirror_search and board.type == "charuco"
+        self.min_corners = max(4, min_corners)
+        self._local = threading.local()
+        a, _ = board.inner_corners
+        self._grid = np.stack([np.arange(board.n_corners) % a, np.arange(board.n_corners) // a], axis=1)
+
+    def _charuco(self):
+        det = getattr(self._local, "det", None)
+        if det is None:
+            params = cv2.aruco.DetectorParameters()
+            params.detectInvertedMarker = bool(self.board.inverted)
+            det = cv2.aruco.CharucoDetector(self.board.cv_board(), cv2.aruco.CharucoParameters(), params)
+            self._local.det = det
+        return det
+
+    def detect(self, image: np.ndarray) -> BoardView | None:
+        gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+        if self.board.type == "chessboard":
+            found = self._detect_chessboard(gray)
+            mirrored = False
+        else:
+            found = self._detect_charuco(gray)
+            mirrored = False
+            if found is None and self.mirror_search:
+                found = self._detect_charuco(np.ascontiguousarray(gray[:, ::-1]))
+                if found is not None:
+                    found[1][:, 0] = gray.shape[1] - 1 - found[1][:, 0]
+                    mirrored = True
+        if found is None:
+            return None
+        ids, corners = found
+        if len(ids) < self.min_corners or not self._spans_plane(ids):
+            return None
+        return BoardView(frame=-1, source_frame=-1, ids=ids, corners=corners,
+                         sharpness=_sharpness(gray, corners), mirrored=mirrored)
+
+    def _detect_charuco(self, gray: np.ndarray):
+        cc, ci, _, _ = self._charuco().detectBoard(gray)
+        if ci is None or len(ci) == 0:
+            return None
+        ids = ci.ravel().astype(np.int32)
+        order = np.argsort(ids)
+        return ids[order], cc.reshape(-1, 2).astype(np.float64)[order]
+
+    def _detect_chessboard(self, gray: np.ndarray):
+        g = 255 - gray if self.board.inverted else gray
+        size = self.board.inner_corners
+        # Cheap check at reduced size first; the sector-based detector is slow on empty frames.
+        scale = min(1.0, 960.0 / max(g.shape))
+        small = cv2.resize(g, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA) if scale < 1 else g
+        ok, _ = cv2.findChessboardCorners(small, size, flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_FAST_CHECK
+                                          | cv2.CALIB_CB_NORMALIZE_IMAGE)
+        if not ok:
+            return None
+        ok, corners = cv2.findChessboardCornersSB(g, size, flags=cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_ACCURACY)
+        if not ok:
+            return None
+        return np.arange(self.board.n_corners, dtype=np.int32), corners.reshape(-1, 2).astype(np.float64)
+
+    def _spans_plane(self, ids: np.ndarray) -> bool:
+        """Corners all on one row/column/diagonal give no pose: reject them."""
+        g = self._grid[ids].astype(float)
+        g -= g.mean(0)
+        return np.linalg.matrix_rank(g, tol=1e-6) >= 2
+
+
+def _sharpness(gray: np.ndarray, corners: np.ndarray) -> float:
+    x0, y0 = np.floor(corners.min(0)).astype(int)
+    x1, y1 = np.ceil(corners.max(0)).astype(int) + 1
+    roi = gray[max(y0, 0):max(y1, 1), max(x0, 0):max(x1, 1)]
+    if roi.size < 25:
+        return 0.0
+    return float(cv2.Laplacian(roi, cv2.CV_32F).var())
+
+
+def open_source(path: str | Path) -> FrameSource:
+    p = Path(path)
+    if not p.exists():
+        raise SandtrackError(f"video or image folder not found: {p}")
+    return FrameSource(p, cache_mb=64)
+
+
+def frame_pairing(sources: dict[str, FrameSource], offsets_s: dict[str, float] | None = None) -> dict[str, np.ndarray]:
+    """For every frame of the reference (first) camera, the matching frame index of each camera
+    (-1 where none lies within half a frame). offsets_s[name] = how much later that camera started
+    recording than the reference camera (the project's sync convention)."""
+    names = list(sources)
+    ref = sources[names[0]]
+    t = np.asarray(ref.times_s, dtype=float) - float(ref.times_s[0])
+    out = {names[0]: np.arange(len(ref))}
+    for n in names[1:]:
+        s = sources[n]
+        ts = np.asarray(s.times_s, dtype=float) - float(s.times_s[0])
+        target = t - float((offsets_s or {}).get(n, 0.0))
+        j = np.clip(np.searchsorted(ts, target), 0, len(ts) - 1)
+        jm = np.clip(j - 1, 0, len(ts) - 1)
+        j = np.where(np.abs(ts[jm] - target) < np.abs(ts[j] - target), jm, j)
+        tol = 0.5 / max(s.fps, 1e-6) + 1e-6
+        out[n] = np.where(np.abs(ts[j] - target) <= tol, j, -1)
+    return out
+
+
+def _gray_frames(source: FrameSource, wanted: Sequence[int]):
+    """Yield (index, grey image) for the wanted frame indices (ascending), decoding sequentially
+    and converting only the frames that are wanted."""
+    wanted = sorted(set(int(i) for i in wanted))
+    if not wanted:
+        return
+    if source.is_folder:
+        for i in wanted:
+            yield i, cv2.cvtColor(source.frame(i), cv2.COLOR_BGR2GRAY)
+        return
+    times = np.asarray(source.times_s, dtype=float)
+    want = set(wanted)
+    last = wanted[-1]
+    with av.open(str(source.path)) as container:
+        stream = container.streams.video[0]
+        stream.thread_type = "AUTO"
+        tb = float(stream.time_base)
+        first_t = times[wanted[0]]
+        if wanted[0] > 0:
+            container.seek(int(first_t / tb), stream=stream, backward=True, any_frame=False)
+        try:
+            for frame in container.decode(stream):
+                if frame.pts is None:
+                    continue
+                k = int(np.searchsorted(times, frame.pts * tb - 1e-9))
+                if k >= len(times) or abs(times[k] - frame.pts * tb) > 1e-6:
+                    continue
+                if k in want:
+                    yield k, frame.to_ndarray(format="gray")
+                if k >= last:
+                    break
+        except (av.error.InvalidDataError, av.error.FFmpegError, EOFError):
+            return
+
+
+def detect_in_sources(sources: dict[str, FrameSource], board: BoardSpec, ref_frames: Sequence[int],
+                      pairing: dict[str, np.ndarray], progress: ProgressFn | None = None,
+                      mirror_search: bool = True, workers: int = 2) -> dict[str, dict[int, BoardView]]:
+    """Detect the board in the given reference-camera frames of every camera (one thread per camera).
+    Returns {camera: {reference frame: BoardView}}."""
+    detector = BoardDetector(board, mirror_search=mirror_search)
+    names = list(sources)
+    ref_frames = sorted(set(int(f) for f in ref_frames))
+    total = len(ref_frames) * len(names)
+    done = [0]
+    lock = threading.Lock()
+
+    def run(name: str) -> dict[int, BoardView]:
+        own = pairing[name][ref_frames]
+        by_own: dict[int, list[int]] = {}
+        for f, j in zip(ref_frames, own, strict=True):
+            if j >= 0:
+                by_own.setdefault(int(j), []).append(f)
+        views: dict[int, BoardView] = {}
+        for j, gray in _gray_frames(sources[name], list(by_own)):
+            view = detector.detect(gray)
+            for f in by_own[j]:
+                if view is not None:
+                    views[f] = BoardView(frame=f, source_frame=j, ids=view.ids, corners=view.corners,
+                                         sharpness=view.sharpness, mirrored=view.mirrored)
+            with lock:
+                done[0] += len(by_own[j])
+                if progress is not None:
+                    progress("detect", done[0], total)
+        return views
+
+    with ThreadPoolExecutor(max_workers=max(1, min(workers, len(names)))) as pool:
+        results = list(pool.map(run, names))
+    return dict(zip(names, results, strict=True))
+
+
+def detection_stride(n_frames: int, budget: int) -> int:
+    return max(1, math.ceil(n_frames / max(budget, 1)))

@@ -1,0 +1,224 @@
+"""Per-camera intrinsics from board views: view selection for coverage, OpenCV calibration (full
+pinhole model or fisheye), per-view errors with the worst views dropped, a coverage report, and a
+guard against an over-fitted k3."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from ..board import BoardSpec
+from ..errors import SandtrackError
+from .detect import BoardView
+from .geometry import radial_is_monotonic
+
+GRID = (8, 6)  # coverage cells across, down
+
+
+@dataclass
+class IntrinsicsResult:
+    name: str
+    model: str
+    size: tuple[int, int]
+    K: np.ndarray
+    dist: np.ndarray
+    rmse_px: float
+    frames: list[int]  # views used
+    per_view_rmse: dict[int, float]
+    poses: dict[int, tuple[np.ndarray, np.ndarray]]  # frame -> (rvec, tvec) board -> camera
+    dropped: list[int] = field(default_factory=list)
+    k3: str = "free"
+    coverage: dict = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+
+    def report(self) -> dict:
+        return {
+            "model": self.model,
+            "rmse_px": self.rmse_px,
+            "views_used": len(self.frames),
+            "views_dropped": len(self.dropped),
+            "fx": float(self.K[0, 0]), "fy": float(self.K[1, 1]),
+            "cx": float(self.K[0, 2]), "cy": float(self.K[1, 2]),
+            "distortion": self.dist.tolist(),
+            "k3": self.k3,
+            "coverage": self.coverage,
+            "warnings": self.warnings,
+        }
+
+
+def cells_of(corners: np.ndarray, size: tuple[int, int]) -> set[int]:
+    w, h = size
+    cx = np.clip((corners[:, 0] / w * GRID[0]).astype(int), 0, GRID[0] - 1)
+    cy = np.clip((corners[:, 1] / h * GRID[1]).astype(int), 0, GRID[1] - 1)
+    return set((cy * GRID[0] + cx).tolist())
+
+
+def select_views(views: dict[int, BoardView], size: tuple[int, int], max_views: int) -> list[int]:
+    """Greedy choice: first views that cover new image cells (most corners first), then evenly spread
+    views in time for pose variety, up to max_views."""
+    frames = sorted(views)
+    if len(frames) <= max_views:
+        return frames
+    covered: set[int] = set()
+    chosen: list[int] = []
+    cells = {f: cells_of(views[f].corners, size) for f in frames}
+    while len(chosen) < max_views:
+        best, gain = None, 0
+        for f in frames:
+            if f in chosen:
+                continue
+            g = len(cells[f] - covered) * 1000 + len(views[f])
+            if len(cells[f] - covered) > 0 and g > gain:
+                best, gain = f, g
+        if best is None:
+            break
+        chosen.append(best)
+        covered |= cells[best]
+    rest = [f for f in frames if f not in chosen]
+    need = max_views - len(chosen)
+    if need > 0 and rest:
+        idx = np.unique(np.linspace(0, len(rest) - 1, need).round().astype(int))
+        chosen += [rest[i] for i in idx]
+    return sorted(chosen)
+
+
+def coverage_report(views: dict[int, BoardView], frames: list[int], size: tuple[int, int], K: np.ndarray,
+                    poses: dict[int, tuple[np.ndarray, np.ndarray]]) -> dict:
+    w, h = size
+    covered: set[int] = set()
+    r_max = 0.0
+    for f in frames:
+        c = views[f].corners
+        covered |= cells_of(c, size)
+        r_max = max(r_max, float(np.max(np.hypot(c[:, 0] - K[0, 2], c[:, 1] - K[1, 2]))))
+    r_img = float(np.max(np.hypot(np.array([0, w]) - K[0, 2], np.array([[0], [h]]) - K[1, 2])))
+    depths, tilts = [], []
+    for f in frames:
+        if f in poses:
+            R = cv2.Rodrigues(poses[f][0])[0]
+            depths.append(float(poses[f][1][2]))
+            tilts.append(float(np.degrees(np.arccos(min(1.0, abs(R[2, 2]))))))
+    return {
+        "image_cells_covered": len(covered) / (GRID[0] * GRID[1]),
+        "radial_coverage": r_max / r_img if r_img > 0 else 0.0,
+        "depth_mm": [min(depths), max(depths)] if depths else None,
+        "tilt_deg": [min(tilts), max(tilts)] if tilts else None,
+    }
+
+
+def _calibrate(obj, img, size, model, flags_extra=0, K0=None):
+    if model == "fisheye":
+        flags = cv2.fisheye.CALIB_RECOMPUTE_EXTRINSIC | cv2.fisheye.CALIB_FIX_SKEW | flags_extra
+        K = np.eye(3) if K0 is None else K0.copy()
+        if K0 is not None:
+            flags |= cv2.fisheye.CALIB_USE_INTRINSIC_GUESS
+        crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-9)
+        rms, K, D, rvecs, tvecs = cv2.fisheye.calibrate(
+            [o.reshape(-1, 1, 3) for o in obj], [i.reshape(-1, 1, 2) for i in img], size, K, np.zeros(4),
+            flags=flags, criteria=crit)
+    else:
+        crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-9)
+        rms, K, D, rvecs, tvecs = cv2.calibrateCamera(
+            [o.astype(np.float32) for o in obj], [i.astype(np.float32) for i in img], size, None, None,
+            flags=flags_extra, criteria=crit)
+    return float(rms), K, np.asarray(D, dtype=np.float64).ravel(), rvecs, tvecs
+
+
+def _view_rmse(obj, img, K, D, rvec, tvec, model) -> float:
+    if model == "fisheye":
+        proj, _ = cv2.fisheye.projectPoints(obj.reshape(-1, 1, 3), rvec, tvec, K, D)
+    else:
+        proj, _ = cv2.projectPoints(obj, rvec, tvec, K, D)
+    return float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - img) ** 2, axis=1))))
+
+
+def calibrate_intrinsics(name: str, views: dict[int, BoardView], board: BoardSpec, size: tuple[int, int],
+                         model: str = "pinhole", max_views: int = 30, min_views: int = 4) -> IntrinsicsResult:
+    """Calibrate one camera from its board views (frame -> BoardView)."""
+    if len(views) < min_views:
+        raise SandtrackError(
+            f"camera {name}: the board was found in only {len(views)} frame(s); record at least 10 sharp views "
+            "of the whole board at different angles (tilted 20-45 degrees) and distances, covering the image")
+    pts3d = board.corner_points_mm()
+    sharp = np.array([views[f].sharpness for f in views])
+    cut = 0.3 * np.nanmedian(sharp) if np.isfinite(sharp).any() else 0.0
+    usable = {f: v for f, v in views.items() if not v.sharpness < cut}
+    blurred = len(views) - len(usable)
+    # Views with few corners make OpenCV's closed-form start unstable; keep them for the bundle only.
+    rich = {f: v for f, v in usable.items() if len(v) >= max(6, 0.3 * board.n_corners)}
+    if len(rich) >= min_views:
+        usable = rich
+    frames = select_views(usable, size, max_views)
+    warnings: list[str] = []
+
+    def fit(fr, flags):
+        obj = [pts3d[usable[f].ids] for f in fr]
+        img = [usable[f].corners for f in fr]
+        return _calibrate(obj, img, size, model, flags)
+
+    try:
+        base_flags = 0 if model == "fisheye" else cv2.CALIB_FIX_K3
+        rms, K, D, rv, tv = fit(frames, base_flags)
+        # Drop the worst views once (wrong detections, motion blur), then refit.
+        errs = [_view_rmse(pts3d[usable[f].ids], usable[f].corners, K, D, r, t, model)
+                for f, r, t in zip(frames, rv, tv, strict=True)]
+        med = float(np.median(errs))
+        bad = [f for f, e in zip(frames, errs, strict=True) if e > max(3.0 * med, 0.5)]
+        bad = sorted(bad, key=lambda f: -errs[frames.index(f)])[: max(0, len(frames) // 5)]
+        dropped = list(bad)
+        if bad:
+            frames = [f for f in frames if f not in bad]
+            rms, K, D, rv, tv = fit(frames, base_flags)
+        k3 = "fixed at 0" if model != "fisheye" else "n/a (fisheye k1..k4)"
+        if model != "fisheye":
+            rms3, K3, D3, rv3, tv3 = fit(frames, 0)
+            radial = coverage_report(usable, frames, size, K3, {})["radial_coverage"]
+            if not radial_is_monotonic(D3, K3, size):
+                k3 = "fixed at 0: a free k3 folded the image edge back (over-fitting)"
+                warnings.append(f"camera {name}: free k3 rejected (non-monotonic distortion); "
+                                "record views with the board near the image corners")
+            elif radial < 0.6:
+                k3 = "fixed at 0: the board did not reach the image corners"
+                warnings.append(f"camera {name}: board reached only {radial:.0%} of the image radius; k3 fixed")
+            elif rms3 < rms * 0.995:
+                k3 = "free"
+                rms, K, D, rv, tv = rms3, K3, D3, rv3, tv3
+    except cv2.error as exc:
+        raise SandtrackError(f"camera {name}: calibration failed ({str(exc).strip().splitlines()[-1]}); "
+                             "record more varied views of the board") from None
+    poses = {f: (np.asarray(r, float).ravel(), np.asarray(t, float).ravel()) for f, r, t in
+             zip(frames, rv, tv, strict=True)}
+    per_view = {f: _view_rmse(pts3d[usable[f].ids], usable[f].corners, K, D, *poses[f], model) for f in frames}
+    cov = coverage_report(usable, frames, size, K, poses)
+    cov["blurred_views_skipped"] = blurred
+    if cov["image_cells_covered"] < 0.5:
+        warnings.append(f"camera {name}: the board covered only {cov['image_cells_covered']:.0%} of the image; "
+                        "move it into the corners and edges too")
+    tilt = cov.get("tilt_deg")
+    if tilt is not None and tilt[1] - tilt[0] < 5.0 and tilt[1] < 10.0:
+        raise SandtrackError(
+            f"camera {name}: every view shows the board nearly face-on (tilt {tilt[0]:.0f}-{tilt[1]:.0f} deg), "
+            "so the focal length cannot be found; record views tilted 20-45 degrees in different directions")
+    return IntrinsicsResult(name=name, model=model, size=size, K=K, dist=D, rmse_px=rms, frames=list(frames),
+                            per_view_rmse=per_view, poses=poses, dropped=dropped, k3=k3, coverage=cov,
+                            warnings=warnings)
+
+
+def board_pose(view: BoardView, board: BoardSpec, K: np.ndarray, D: np.ndarray,
+               model: str = "pinhole") -> tuple[np.ndarray, np.ndarray] | None:
+    """Board -> camera pose of one view (IPPE for the planar board, then Levenberg-Marquardt)."""
+    obj = board.corner_points_mm()[view.ids]
+    img = view.corners
+    if model == "fisheye":
+        img = cv2.fisheye.undistortPoints(img.reshape(-1, 1, 2), K, D, P=K).reshape(-1, 2)
+        D = np.zeros(5)
+    try:
+        ok, rvec, tvec = cv2.solvePnP(obj, img, K, D, flags=cv2.SOLVEPNP_IPPE)
+        if not ok:
+            return None
+        rvec, tvec = cv2.solvePnPRefineLM(obj, img, K, D, rvec, tvec)
+    except cv2.error:
+        return None
+    return rvec.ravel(), tvec.ravel()
