@@ -44,7 +44,9 @@ class ColourModel:
     def weights(self, score: np.ndarray) -> np.ndarray:
         """Soft marker membership for centroids (≈ coverage of the pixel by the marker)."""
         lo = min(0.5 * self.threshold, 0.15)
-        return np.clip((score - lo) / (1.0 - lo), 0.0, 1.0)
+        w = (score - lo) * (1.0 / (1.0 - lo))
+        np.clip(w, 0.0, 1.0, out=w)
+        return w
 
 
 def blueness(bgr: np.ndarray) -> np.ndarray:

@@ -49,12 +49,15 @@ class ConstantVelocityKF:
     def innovation_cov(self) -> np.ndarray:
         return self.P[:2, :2] + self.R
 
+    def innovation_inv(self) -> np.ndarray:
+        return _inv2(self.innovation_cov())
+
     def mahalanobis2(self, z) -> np.ndarray:
         """Squared Mahalanobis distance(s) of measurement(s) z (2,) or (N, 2) from the prediction."""
         z = np.atleast_2d(np.asarray(z, dtype=np.float64))
         d = z - self.x[:2]
-        Si = np.linalg.inv(self.innovation_cov())
-        return np.einsum("ni,ij,nj->n", d, Si, d)
+        Si = self.innovation_inv()
+        return Si[0, 0] * d[:, 0] ** 2 + 2 * Si[0, 1] * d[:, 0] * d[:, 1] + Si[1, 1] * d[:, 1] ** 2
 
     def gate_halfsize(self, d2: float = GATE_D2) -> tuple[float, float]:
         """Half extents (x, y) of the box enclosing the gate ellipse."""
@@ -65,7 +68,7 @@ class ConstantVelocityKF:
         z = np.asarray(z, dtype=np.float64)
         R = self.R if meas_px is None else np.eye(2) * meas_px**2
         S = self.P[:2, :2] + R
-        K = self.P[:, :2] @ np.linalg.inv(S)
+        K = self.P[:, :2] @ _inv2(S)
         self.x = self.x + K @ (z - self.x[:2])
         self.P = (np.eye(4) - K @ _H) @ self.P
         self.P = 0.5 * (self.P + self.P.T)
@@ -82,3 +85,9 @@ class ConstantVelocityKF:
         r = self.R[0, 0]
         self.P = np.diag([r, r, speed_px**2, speed_px**2])
         self._coasting = False
+
+
+def _inv2(S: np.ndarray) -> np.ndarray:
+    a, b, c, d = S[0, 0], S[0, 1], S[1, 0], S[1, 1]
+    det = a * d - b * c
+    return np.array([[d, -b], [-c, a]]) / det

@@ -31,6 +31,8 @@ class Match:
 
 
 class TemplateMatcher:
+    skip_updated_above = 0.92  # NCC of the seed template above which the updated one is not needed
+
     def __init__(self, model: ColourModel, frame_bgr: np.ndarray, cx: float, cy: float, half: int | None = None):
         self.model = model
         self.half = int(half if half is not None else np.ceil(model.radius + 3))
@@ -68,20 +70,27 @@ class TemplateMatcher:
             return None
         score = self.model.score(frame_bgr[y0:y1, x0:x1])
         res = cv2.matchTemplate(score, self.seed_template, cv2.TM_CCOEFF_NORMED)
-        res2 = cv2.matchTemplate(score, self.template, cv2.TM_CCOEFF_NORMED)
-        res = np.nan_to_num(np.maximum(res, res2), nan=-1.0, posinf=-1.0, neginf=-1.0)
+        cv2.patchNaNs(res, -1.0)
+        if float(res.max()) < self.skip_updated_above:
+            # The seed template alone is not convincing: let the updated one (dust, blur) compete.
+            res2 = cv2.matchTemplate(score, self.template, cv2.TM_CCOEFF_NORMED)
+            cv2.patchNaNs(res2, -1.0)
+            res = np.maximum(res, res2)
         # Centres of the result grid relative to the prediction.
-        gx = np.arange(res.shape[1]) + x0 + self.half - px
-        gy = np.arange(res.shape[0]) + y0 + self.half - py
-        inside = (np.abs(gx)[None, :] <= hx + 0.5) & (np.abs(gy)[:, None] <= hy + 0.5)
-        if S_inv is not None:
-            d2 = S_inv[0, 0] * gx[None, :] ** 2 + 2 * S_inv[0, 1] * gx[None, :] * gy[:, None] \
-                + S_inv[1, 1] * gy[:, None] ** 2
-            inside &= d2 <= gate_d2 + 1.0  # +1: the grid is integer, the refined centre is not
-        if not inside.any():
+        gx = np.arange(res.shape[1], dtype=np.float64) + (x0 + self.half - px)
+        gy = np.arange(res.shape[0], dtype=np.float64) + (y0 + self.half - py)
+        okx, oky = np.abs(gx) <= hx + 0.5, np.abs(gy) <= hy + 0.5
+        if not okx.any() or not oky.any():
             return None
+        inside = oky[:, None] & okx[None, :]
+        if S_inv is not None:
+            d2 = (S_inv[0, 0] * gx * gx)[None, :] + (2 * S_inv[0, 1]) * np.outer(gy, gx) \
+                + (S_inv[1, 1] * gy * gy)[:, None]
+            inside &= d2 <= gate_d2 + 1.0  # +1: the grid is integer, the refined centre is not
+            if not inside.any():
+                return None
         masked = np.where(inside, res, -2.0)
-        r, c = np.unravel_index(int(np.argmax(masked)), res.shape)
+        r, c = divmod(int(np.argmax(masked)), res.shape[1])
         peak = float(res[r, c])
         sx = _parabola(res[r, c - 1], peak, res[r, c + 1]) if 0 < c < res.shape[1] - 1 else 0.0
         sy = _parabola(res[r - 1, c], peak, res[r + 1, c]) if 0 < r < res.shape[0] - 1 else 0.0
@@ -97,25 +106,50 @@ class TemplateMatcher:
         return Match(x=mx + x0, y=my + y0, score=peak, psr=psr, colour_frac=frac, used_centroid=bool(used))
 
     def centroid(self, score: np.ndarray, x: float, y: float, iterations: int = 2) -> tuple[float, float, float]:
-        """Colour-weighted centroid near (x, y) in `score`'s coordinates; returns (x, y, coverage)."""
-        rad = self.model.radius + 1.5
-        R = int(np.ceil(rad)) + 1
+        """Colour-weighted centroid near (x, y) in `score`'s coordinates; returns (x, y, coverage).
+
+        The window is a disc of radius r + 1.5 around the rounded estimate: the whole marker plus
+        a rim of sand, whose weights are ~0, so rounding the window's centre costs no accuracy."""
+        R, disc = self._centroid_window()
         frac = 0.0
         for _ in range(iterations):
             ix, iy = int(round(x)), int(round(y))
-            xa, ya = max(ix - R, 0), max(iy - R, 0)
-            xb, yb = min(ix + R + 1, score.shape[1]), min(iy + R + 1, score.shape[0])
-            if xb <= xa or yb <= ya:
-                return x, y, 0.0
-            wts = self.model.weights(score[ya:yb, xa:xb])
-            yy, xx = np.mgrid[ya:yb, xa:xb]
-            wts = wts * (((xx - x) ** 2 + (yy - y) ** 2) <= rad * rad)
-            tot = float(wts.sum())
+            if ix - R < 0 or iy - R < 0 or ix + R + 1 > score.shape[1] or iy + R + 1 > score.shape[0]:
+                return self._centroid_clipped(score, x, y)
+            wts = self.model.weights(score[iy - R:iy + R + 1, ix - R:ix + R + 1]) * disc
+            mom = cv2.moments(wts)
+            tot = mom["m00"]
             frac = tot / self.model.disc_area
             if tot < 1e-6:
                 return x, y, 0.0
-            x, y = float((wts * xx).sum() / tot), float((wts * yy).sum() / tot)
+            x, y = ix - R + mom["m10"] / tot, iy - R + mom["m01"] / tot
         return x, y, frac
+
+    def _centroid_window(self):
+        w = getattr(self, "_cw", None)
+        if w is None:
+            rad = self.model.radius + 1.5
+            R = int(np.ceil(rad))
+            yy, xx = np.mgrid[-R:R + 1, -R:R + 1]
+            w = (R, ((xx * xx + yy * yy) <= rad * rad).astype(np.float32))
+            self._cw = w
+        return w
+
+    def _centroid_clipped(self, score: np.ndarray, x: float, y: float) -> tuple[float, float, float]:
+        """Near the image border: the same centroid on the part of the window inside the image."""
+        rad = self.model.radius + 1.5
+        R = int(np.ceil(rad))
+        ix, iy = int(round(x)), int(round(y))
+        xa, ya = max(ix - R, 0), max(iy - R, 0)
+        xb, yb = min(ix + R + 1, score.shape[1]), min(iy + R + 1, score.shape[0])
+        if xb <= xa or yb <= ya:
+            return x, y, 0.0
+        yy, xx = np.mgrid[ya:yb, xa:xb]
+        wts = self.model.weights(score[ya:yb, xa:xb]) * (((xx - ix) ** 2 + (yy - iy) ** 2) <= rad * rad)
+        tot = float(wts.sum())
+        if tot < 1e-6:
+            return x, y, 0.0
+        return float((wts * xx).sum() / tot), float((wts * yy).sum() / tot), tot / self.model.disc_area
 
     def refine_at(self, frame_bgr: np.ndarray, x: float, y: float) -> tuple[float, float, float]:
         """Colour centroid around a given point of the frame (seeding, re-acquisition)."""
@@ -146,10 +180,13 @@ def _parabola(a: float, b: float, c: float) -> float:
 
 
 def _psr(res: np.ndarray, r: int, c: int, excl: int) -> float:
-    mask = np.ones(res.shape, dtype=bool)
-    mask[max(r - excl, 0):r + excl + 1, max(c - excl, 0):c + excl + 1] = False
-    side = res[mask]
-    if side.size < 16:
+    """(peak - mean) / std of the correlation outside a window around the peak."""
+    win = res[max(r - excl, 0):r + excl + 1, max(c - excl, 0):c + excl + 1]
+    n = res.size - win.size
+    if n < 16:
         return float("nan")
-    sd = float(side.std())
-    return float((res[r, c] - side.mean()) / max(sd, 1e-3))
+    s1 = float(res.sum(dtype=np.float64)) - float(win.sum(dtype=np.float64))
+    s2 = float(np.square(res, dtype=np.float64).sum()) - float(np.square(win, dtype=np.float64).sum())
+    mean = s1 / n
+    sd = max(s2 / n - mean * mean, 0.0) ** 0.5
+    return float((res[r, c] - mean) / max(sd, 1e-3))

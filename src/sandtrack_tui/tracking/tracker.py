@@ -103,7 +103,7 @@ class MarkerTrack:
         """Best acceptable match inside the gate (after predict), or None."""
         px, py = self.kf.position
         hx, hy = self.search_halfsize()
-        S_inv = np.linalg.inv(self.kf.innovation_cov())
+        S_inv = self.kf.innovation_inv()
         m = self.matcher.match(frame_bgr, px, py, hx, hy, S_inv, self.params.gate_d2)
         if m is None:
             return None

@@ -1,0 +1,171 @@
+"""Tracker parts against exact synthetic truth: colour model, Kalman gate, matcher, engine, stereo."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from sandtrack_tui.errors import SandtrackError
+from sandtrack_tui.tracking import colour, synthetic
+from sandtrack_tui.tracking.engine import Engine
+from sandtrack_tui.tracking.kalman import ConstantVelocityKF
+from sandtrack_tui.tracking.seeding import detect_markers, snap_to_marker
+from sandtrack_tui.tracking.stereo import StereoCheck, interpolate_track
+from sandtrack_tui.tracking.tracker import MarkerTrack
+
+N = 70
+TOOL = (60, 200, 60, -80, 4.0)  # grey bar sweeping right over markers 1 and 3
+
+
+def _run(clip, seeds=None, offset=(0.8, -0.6)):
+    eng = Engine()
+    seeds = clip.seeds if seeds is None else seeds
+    for r in seeds.itertuples():
+        eng.add(MarkerTrack(r.marker, "cam", clip.frames[0], 0, r.x + offset[0], r.y + offset[1], r.w, r.h), 0)
+    obs = []
+    for f in range(len(clip)):
+        obs += eng.step({"cam": (f, clip.frames[f], 0.0)})
+    df = pd.DataFrame([o.row() for o in obs], columns=["frame", "camera", "marker", "x", "y", "status", "score",
+                                                       "psr", "colour_frac"])
+    m = df.merge(clip.truth, on=["frame", "marker"])
+    m["err"] = np.hypot(m.x - m.x_px, m.y - m.y_px)
+    return m, eng
+
+
+def _figures(m):
+    vis = m[m.visible & (m.status == "tracked")]
+    hidden = m[~m.visible]
+    flagged = m[m.status.isin(["occluded", "lost"])]
+    return {
+        "mean": vis.err.mean(), "p95": vis.err.quantile(0.95), "max": vis.err.max(),
+        "tracked_visible": (m[m.visible & (m.frame > 0)].status == "tracked").mean(),
+        "hidden_flagged": hidden.status.isin(["occluded", "lost"]).mean() if len(hidden) else np.nan,
+        "flag_precision": (~flagged.visible).mean() if len(flagged) else np.nan,
+        "n_hidden": len(hidden),
+    }
+
+
+@pytest.fixture(scope="module")
+def clean_clip():
+    return synthetic.render(synthetic.standard_paths(N), N, tool=TOOL)
+
+
+@pytest.fixture(scope="module")
+def dusty_clip():
+    return synthetic.render(synthetic.standard_paths(N, seed=3), N, tool=TOOL, dusty=0.45, seed=5)
+
+
+def test_clean_markers_subpixel_and_occlusion_flagged(clean_clip):
+    m, eng = _run(clean_clip)
+    f = _figures(m)
+    assert f["mean"] < 0.1 and f["p95"] < 0.3 and f["max"] < 1.0, f
+    assert f["tracked_visible"] > 0.97, f
+    assert f["n_hidden"] >= 10 and f["hidden_flagged"] >= 0.95, f
+    assert f["flag_precision"] >= 0.8, f
+    # Markers 5 and 6 pass ~14 px apart: neither may swap onto the other.
+    near = m[m.marker.isin([5, 6]) & (m.status == "tracked")]
+    assert near.err.max() < 1.0
+
+
+def test_dusty_markers_still_tracked(dusty_clip):
+    m, _ = _run(dusty_clip)
+    f = _figures(m)
+    assert f["tracked_visible"] > 0.95, f
+    assert f["mean"] < 0.3 and f["max"] < 3.0, f
+
+
+def test_reacquired_soon_after_reappearing(clean_clip):
+    m, eng = _run(clean_clip)
+    for mk, g in m.sort_values("frame").groupby("marker"):
+        vis = g.visible.to_numpy()
+        for k in np.nonzero(~vis[:-1] & vis[1:])[0] + 1:
+            after = g.iloc[k:k + 4]
+            assert (after.status == "tracked").any(), f"marker {mk} not re-acquired within 3 frames of {k}"
+
+
+def test_colour_model_dusty_passes_sand_does_not():
+    rng = np.random.default_rng(0)
+    img = synthetic.sand_texture(80, 80, rng)
+    yy, xx = np.mgrid[0:80, 0:80]
+    disc = (xx - 40) ** 2 + (yy - 40) ** 2 <= 25
+    img[disc] = synthetic.MARKER_BGR
+    img = np.clip(img, 0, 255).astype(np.uint8)
+    model = colour.learn(img, 40, 40, 14, 14)
+    sand = model.score(img)[~disc & ((xx - 40) ** 2 + (yy - 40) ** 2 > 64)]
+    assert np.mean(sand >= model.threshold) < 0.001
+    dusty = (0.55 * synthetic.MARKER_BGR + 0.45 * synthetic.SAND_BGR).astype(np.uint8)
+    assert model.score(dusty[None, None, :].copy())[0, 0] >= model.threshold
+    grey = np.full((1, 1, 3), 100, np.uint8)
+    assert model.score(grey)[0, 0] < 1.0
+
+
+def test_bad_seed_boxes_raise_clear_errors():
+    img = np.clip(synthetic.sand_texture(60, 60, np.random.default_rng(1)), 0, 255).astype(np.uint8)
+    with pytest.raises(SandtrackError, match="outside"):
+        colour.learn(img, 100, 10, 12, 12)
+    with pytest.raises(SandtrackError, match="no marker"):
+        colour.learn(img, 30, 30, 12, 12)
+    with pytest.raises(SandtrackError, match="too small"):
+        colour.learn(img, 30, 30, 0, 0)
+    with pytest.raises(SandtrackError, match="outside"):
+        MarkerTrack(1, "cam", img, 0, -5, 10)
+
+
+def test_kalman_predicts_constant_velocity_and_gate_widens_while_hidden():
+    kf = ConstantVelocityKF(0.0, 0.0)
+    for k in range(1, 12):
+        kf.predict()
+        kf.update((2.0 * k, -1.0 * k))
+    kf.predict()
+    assert np.allclose(kf.position, (24.0, -12.0), atol=0.2)
+    g0 = kf.gate_halfsize()
+    for _ in range(5):
+        kf.coast()
+        kf.predict()
+    g1 = kf.gate_halfsize()
+    assert g1[0] > 2 * g0[0] and g1[1] > 2 * g0[1]
+    assert kf.mahalanobis2(kf.position)[0] == pytest.approx(0.0)
+
+
+def test_snap_and_detect_find_marker_centres(clean_clip):
+    img = clean_clip.frames[0]
+    truth = clean_clip.truth.query("frame == 0")
+    det = detect_markers(img)
+    assert len(det) == len(truth)
+    for r in truth.itertuples():
+        s = snap_to_marker(img, r.x_px + 6, r.y_px - 5)
+        assert s is not None and np.hypot(s[0] - r.x_px, s[1] - r.y_px) < 0.3
+    assert snap_to_marker(img, 20, 340) is None  # plain sand
+    assert snap_to_marker(img, -3, 5) is None
+
+
+def test_stereo_jump_is_flagged_and_corrected():
+    """The front track is seeded on the wrong (neighbouring) marker: the epipolar check must flag it,
+    and the search along the epipolar band must move it to the right marker."""
+    cal, clips = synthetic.render_stereo(25)
+    eng = Engine(stereo=StereoCheck(cal, "side", "front"))
+    ts, tf = clips["side"].truth, clips["front"].truth
+    s0 = ts.query("frame == 0 and marker == 2").iloc[0]
+    wrong = tf.query("frame == 0 and marker == 3").iloc[0]
+    eng.add(MarkerTrack(2, "side", clips["side"].frames[0], 0, s0.x_px, s0.y_px, 14, 14), 0)
+    eng.add(MarkerTrack(2, "front", clips["front"].frames[0], 0, wrong.x_px, wrong.y_px, 14, 14), 0)
+    obs = []
+    for f in range(25):
+        obs += eng.step({c: (f, clips[c].frames[f], 0.0) for c in clips})
+    assert eng.stereo_flags and eng.stereo_flags[0]["camera"] == "front"
+    df = pd.DataFrame([o.row() for o in obs if o.camera == "front"],
+                      columns=["frame", "camera", "marker", "x", "y", "status", "s", "p", "c"])
+    right = df.merge(tf.query("marker == 2")[["frame", "x_px", "y_px"]], on="frame")
+    err = np.hypot(right.x - right.x_px, right.y - right.y_px)
+    assert (err[right.frame >= 5] < 0.5).all() and (right.status[right.frame >= 5] == "tracked").all()
+
+
+def test_interpolate_track_to_other_camera_times():
+    times = np.arange(10) / 50.0
+    frames = np.arange(10)
+    xy = np.stack([frames * 2.0, frames * -1.0], axis=1)
+    xy[5] = np.nan  # hidden frame: no interpolation across it
+    q = interpolate_track(frames, xy, times, np.array([0.5 / 50, 2.25 / 50, 4.5 / 50, 9 / 50]))
+    assert np.allclose(q[0], (1.0, -0.5)) and np.allclose(q[1], (4.5, -2.25))
+    assert np.isnan(q[2]).all() and np.allclose(q[3], (18.0, -9.0))
