@@ -1,10 +1,114 @@
-"""`sandtrack compare`: not available in this version yet."""
+"""`sandtrack compare EXPERIMENT DEM... [--json] [--plots DIR]`: measured vs simulated trajectories."""
 
-from .common import add_json_flag, not_available
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import SandtrackError
+from .common import add_json_flag, emit, log
 
 
 def register(sub) -> None:
-    p = sub.add_parser("compare", help="(compare: not available yet)")
-    p.add_argument("args", nargs="*")
+    p = sub.add_parser("compare", help="compare 3D trajectories with DEM runs (align, metrics, ranking, plots)",
+                       description="EXPERIMENT: a project file or an exported trajectory CSV/Parquet "
+                                   "(marker, time_s, X_mm, Y_mm, Z_mm). DEM: exchange CSVs "
+                                   "(particle_id, time_s, x, y, z) or LIGGGHTS/LAMMPS dump files; several "
+                                   "runs are ranked by agreement.")
+    p.add_argument("experiment", help="project file or trajectory CSV/Parquet")
+    p.add_argument("dem", nargs="+", help="DEM run(s): exchange CSV or dump file (a quoted glob for per-step dumps)")
+    p.add_argument("--method", choices=["triangulation", "mlp"], help="3D method of the experiment to use")
+    p.add_argument("--dem-format", choices=["csv", "dump"], help="default: detected from the content")
+    p.add_argument("--dem-units", choices=["m", "cm", "mm"], default=None,
+                   help="DEM length unit (default: from column names such as x_mm, else m)")
+    p.add_argument("--axes", default="x,y,z", help="DEM axes -> rig X,Y,Z, e.g. x,-z,y (default x,y,z)")
+    p.add_argument("--offset-mm", default="0,0,0", help="DEM origin in rig coordinates, mm: X,Y,Z")
+    p.add_argument("--dem-time-offset", type=float, default=0.0, help="added to DEM times (s)")
+    p.add_argument("--dt", type=float, help="DEM time step (s), for dumps without ITEM: TIME")
+    p.add_argument("--match", choices=["auto", "id", "nearest"], default="auto",
+                   help="pair markers with particles by id or by nearest start (default: id if possible)")
+    p.add_argument("--max-lag", type=float, default=0.5, help="time-shift search half-width around the onset (s)")
+    p.add_argument("--time-shift", type=float, help="use this time shift (s) instead of aligning")
+    p.add_argument("--exp-tool", help="tool track of the experiment (time_s, X_mm, Y_mm, Z_mm) for the onset")
+    p.add_argument("--dem-tool", help="tool track of the DEM run(s) for the onset")
+    p.add_argument("--onset-mm", type=float, default=3.0, help="motion onset threshold (mm, default 3)")
+    p.add_argument("--flag-mm", type=float, default=2.0, help="never flag particles with RMSE below this (mm)")
+    p.add_argument("--fps", type=float, help="experiment frame rate (default: from the data)")
+    p.add_argument("--plots", metavar="DIR", help="write PNG plots here")
     add_json_flag(p)
-    p.set_defaults(func=not_available("sandtrack compare"))
+    p.set_defaults(func=run)
+
+
+def _triple(text: str) -> tuple[float, float, float]:
+    try:
+        v = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        v = ()
+    if len(v) != 3 or not all(np.isfinite(v)):
+        raise SandtrackError(f"--offset-mm {text!r}: give three numbers X,Y,Z")
+    return v  # type: ignore[return-value]
+
+
+def run(args) -> int:
+    from ..compare import compare, error_text_plot, plot_comparison, rank, read_experiment, read_tool
+    from ..dem import read_dem
+
+    exp = read_experiment(args.experiment, args.method)
+    fps = args.fps
+    if fps is None:
+        dts = exp.groupby("marker")["time_s"].diff().dropna()
+        dts = dts[dts > 0]
+        fps = float(1.0 / dts.median()) if len(dts) else 50.0
+    exp_tool = read_tool(args.exp_tool) if args.exp_tool else None
+    dem_tool = read_tool(args.dem_tool) if args.dem_tool else None
+    offset = _triple(args.offset_mm)
+    runs = []
+    for path in args.dem:
+        log(f"compare: reading {path}")
+        kw = {"units": args.dem_units, "axes": args.axes, "offset_mm": offset, "time_offset_s": args.dem_time_offset}
+        if args.dem_format != "csv":
+            kw["dt"] = args.dt
+            if kw["units"] is None and (args.dem_format == "dump" or "ITEM" in _head(path)):
+                kw["units"] = "m"
+        dem = read_dem(path, args.dem_format, **kw)
+        cmp = compare(exp, dem, name=Path(path).stem if "*" not in path else path, match=args.match, fps=fps,
+                      max_lag_s=args.max_lag, onset_mm=args.onset_mm, exp_tool=exp_tool, dem_tool=dem_tool,
+                      time_shift_s=args.time_shift, flag_mm=args.flag_mm)
+        runs.append(cmp)
+    ranking = rank(runs)
+    plots = []
+    if args.plots:
+        for cmp in runs:
+            plots += [str(p) for p in plot_comparison(cmp, args.plots)]
+    result = {"experiment": str(args.experiment), "fps": fps, "runs": [c.to_dict() for c in runs],
+              "ranking": ranking.to_dict("records"), "plots": plots}
+    emit(result, args.json, text=_text(runs, ranking, fps, error_text_plot))
+    return 0
+
+
+def _head(path: str) -> str:
+    try:
+        with open(path, errors="replace") as fh:
+            return fh.read(200)
+    except OSError:
+        return ""
+
+
+def _text(runs, ranking, fps, error_text_plot) -> str:
+    lines = []
+    cols = ["marker", "particle_id", "rmse_3d_mm", "rmse_x_mm", "rmse_y_mm", "rmse_z_mm", "final_error_mm",
+            "frechet_mm", "dtw_norm_mm", "max_dev_mm", "drift_mm_per_s", "flagged"]
+    for c in runs:
+        s = c.summary
+        lines.append(f"== {c.name}: time shift {c.time_shift_s * 1000:+.1f} ms ({c.time_shift_s * fps:+.2f} frames; "
+                     f"onset from {c.onset.get('source')}), {s['particles']} particles")
+        lines.append(f"   RMSE 3D all {s['rmse_3d_mm_all']:.2f} mm, median {s['rmse_3d_mm_median']:.2f} mm; "
+                     f"Fréchet median {s['frechet_mm_median']:.2f} mm; DTW median {s['dtw_norm_mm_median']:.2f} mm; "
+                     f"flagged: {', '.join(map(str, s['flagged_markers'])) or 'none'}")
+        lines.append(c.per_particle[cols].to_string(index=False, float_format=lambda v: f"{v:.2f}"))
+        lines.append(error_text_plot(c))
+    if len(runs) > 1:
+        lines.append("== ranking (best first)")
+        lines.append(ranking.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
+    return "\n".join(lines)

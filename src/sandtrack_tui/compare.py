@@ -1,0 +1,533 @@
+"""Measured (experiment) versus simulated (DEM) particle trajectories.
+
+Inputs: experiment ``marker, time_s, X_mm, Y_mm, Z_mm`` and DEM ``particle_id, time_s, X_mm,
+Y_mm, Z_mm`` (see `dem`), both in the rig's world frame.
+
+Matching
+    "id": marker id = particle id; "nearest": by initial positions (Hungarian assignment on the
+    first positions, pairs farther than `max_match_mm` dropped); "auto": id when every marker has a
+    particle of the same id, else nearest.
+
+Time alignment
+    ``time_shift_s`` = experiment time - DEM time of the same instant (DEM time t shows the state
+    seen at experiment time t + shift). First from the motion onset: the tool's onset when tool
+    tracks are given (first time it has moved `onset_mm` from its start), else the median over
+    matched particles of the difference of their onsets (first time a particle is `onset_mm` from
+    its start). Then the shift minimising the RMSE over all matched particles is searched within
+    +-`max_lag_s` of that start (grid of one frame, a parabola through the minimum, then a tenth-of-a-frame pass); when
+    particles get flagged (below), the shift is searched again without them, so a drifting
+    particle cannot pull the alignment towards itself.
+
+Metrics per particle (on the experiment's samples within the common time span, DEM linearly
+interpolated): RMSE in 3D and per axis, final position error (at the last common sample), discrete
+Fréchet distance, normalised DTW, maximum deviation, error drift (slope of the 3D error over time,
+mm/s). A particle is flagged when its RMSE or its drift is an outlier among the particles (above
+the median + 4 robust sigmas) and its RMSE exceeds `flag_mm`.
+
+DTW, pinned here: Euclidean local cost d(i, j); step pattern "symmetric2": D(i, j) = min(D(i-1, j)
++ d, D(i, j-1) + d, D(i-1, j-1) + 2 d), D(0, 0) = 2 d(0, 0), no window; normalised DTW = D(n-1,
+m-1) / (n + m), a weighted mean distance in mm (every path has total weight n + m).
+Discrete Fréchet (Eiter & Mannila 1994): F(i, j) = max(d(i, j), min(F(i-1, j), F(i, j-1),
+F(i-1, j-1))). Both are computed by anti-diagonals (vectorised).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .errors import SandtrackError
+
+AXES = ("X_mm", "Y_mm", "Z_mm")
+METRICS = ["rmse_3d_mm", "rmse_x_mm", "rmse_y_mm", "rmse_z_mm", "final_error_mm", "frechet_mm", "dtw_norm_mm",
+           "max_dev_mm", "drift_mm_per_s"]
+
+
+# -- distances ------------------------------------------------------------------------------------
+def _cost(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.sqrt(((a[:, None, :] - b[None, :, :]) ** 2).sum(axis=2))
+
+
+def _antidiagonal_dp(d: np.ndarray, combine) -> np.ndarray:
+    """DP over anti-diagonals for a batch of cost matrices d (B, n, m):
+    combine(d_cells, up, left, diag) -> values; diag is None for the first cell. Returns (B,)."""
+    _, n, m = d.shape
+    prev2 = None  # diagonal k-2, indexed by row i
+    prev1 = None  # diagonal k-1
+    for k in range(n + m - 1):
+        i = np.arange(max(0, k - m + 1), min(n, k + 1))
+        j = k - i
+        dc = d[:, i, j]
+        if k == 0:
+            prev2, prev1 = prev1, combine(dc, None, None, None)
+            continue
+        shape = dc.shape
+        up = np.full(shape, np.inf)  # (i-1, j): diagonal k-1, row i-1
+        left = np.full(shape, np.inf)  # (i, j-1): diagonal k-1, row i
+        diag = np.full(shape, np.inf)  # (i-1, j-1): diagonal k-2, row i-1
+        p0 = max(0, k - m)
+        ok = (i - 1 >= p0) & (i - 1 < p0 + prev1.shape[1])
+        up[:, ok] = prev1[:, i[ok] - 1 - p0]
+        ok = (i >= p0) & (i < p0 + prev1.shape[1]) & (j >= 1)
+        left[:, ok] = prev1[:, i[ok] - p0]
+        if prev2 is not None:
+            q0 = max(0, k - 1 - m)
+            ok = (i - 1 >= q0) & (i - 1 < q0 + prev2.shape[1]) & (j >= 1)
+            diag[:, ok] = prev2[:, i[ok] - 1 - q0]
+        prev2, prev1 = prev1, combine(dc, up, left, diag)
+    return prev1[:, -1]
+
+
+def _dtw_combine(dc, up, left, diag):
+    if diag is None:
+        return 2 * dc
+    return np.minimum(np.minimum(up, left) + dc, diag + 2 * dc)
+
+
+def _frechet_combine(dc, up, left, diag):
+    if diag is None:
+        return dc
+    return np.maximum(dc, np.minimum(np.minimum(up, left), diag))
+
+
+def dtw_normalised(a: np.ndarray, b: np.ndarray) -> float:
+    """Normalised DTW (symmetric2, Euclidean; see module docstring), mm."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    if len(a) == 0 or len(b) == 0:
+        return float("nan")
+    return float(_antidiagonal_dp(_cost(a, b)[None], _dtw_combine)[0]) / (len(a) + len(b))
+
+
+def discrete_frechet(a: np.ndarray, b: np.ndarray) -> float:
+    """Discrete Fréchet distance (Eiter & Mannila), mm."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    if len(a) == 0 or len(b) == 0:
+        return float("nan")
+    return float(_antidiagonal_dp(_cost(a, b)[None], _frechet_combine)[0])
+
+
+def _batch_distances(pairs: list[tuple[np.ndarray, np.ndarray]]) -> list[tuple[float, float]]:
+    """(Fréchet, normalised DTW) for many pairs; pairs of equal lengths share one DP pass."""
+    out: list[tuple[float, float] | None] = [None] * len(pairs)
+    groups: dict[tuple[int, int], list[int]] = {}
+    for k, (a, b) in enumerate(pairs):
+        groups.setdefault((len(a), len(b)), []).append(k)
+    for (n, m), idx in groups.items():
+        if n == 0 or m == 0:
+            for k in idx:
+                out[k] = (float("nan"), float("nan"))
+            continue
+        d = np.stack([_cost(pairs[k][0], pairs[k][1]) for k in idx])
+        fr = _antidiagonal_dp(d, _frechet_combine)
+        dt = _antidiagonal_dp(d, _dtw_combine) / (n + m)
+        for q, k in enumerate(idx):
+            out[k] = (float(fr[q]), float(dt[q]))
+    return out  # type: ignore[return-value]
+
+
+# -- inputs ---------------------------------------------------------------------------------------
+def read_experiment(path: str | Path, method: str | None = None) -> pd.DataFrame:
+    """Experiment trajectories from a project (via xyz.compute_xyz) or a CSV/Parquet with columns
+    marker, time_s, X_mm, Y_mm, Z_mm (an exported tidy table; `method` picks one if several)."""
+    p = Path(path)
+    if not p.is_file():
+        raise SandtrackError(f"file not found: {p}")
+    with p.open("rb") as fh:
+        head = fh.read(16)
+    if head == b"SQLite format 3\x00":
+        from .store import Project
+        from .trajectories import trajectory_table
+
+        with Project.open(p) as proj:
+            df = trajectory_table(proj, method=method or "both")
+    elif p.suffix.lower() in (".parquet", ".pq"):
+        try:
+            df = pd.read_parquet(p)
+        except Exception as exc:  # noqa: BLE001 - pyarrow raises many types
+            raise SandtrackError(f"{p}: not a readable Parquet file ({str(exc)[:100]})") from None
+    else:
+        try:
+            df = pd.read_csv(p, skipinitialspace=True)
+        except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError, ValueError) as exc:
+            raise SandtrackError(f"{p}: not a readable CSV ({str(exc).splitlines()[0][:100] or 'empty'})") from None
+    return experiment_table(df, method, str(p))
+
+
+def experiment_table(df: pd.DataFrame, method: str | None = None, source: str = "experiment") -> pd.DataFrame:
+    need = ["marker", "time_s", *AXES]
+    missing = [c for c in need if c not in df.columns]
+    if missing:
+        raise SandtrackError(f"{source}: lacks columns {', '.join(missing)} (needs {', '.join(need)})")
+    if "method" in df.columns:
+        methods = list(dict.fromkeys(df["method"].dropna()))
+        if method is None or method == "both":
+            method = "triangulation" if "triangulation" in methods else (methods[0] if methods else None)
+        if method is not None:
+            if method not in methods:
+                raise SandtrackError(f"{source}: no rows with method {method!r}")
+            df = df[df["method"] == method]
+    out = df[need].apply(pd.to_numeric, errors="coerce")
+    out = out[np.isfinite(out.to_numpy()).all(axis=1)]
+    if out.empty:
+        raise SandtrackError(f"{source}: no rows with a finite time and 3D position")
+    out["marker"] = out["marker"].astype(np.int64)
+    return out.sort_values(["marker", "time_s"], kind="stable").drop_duplicates(["marker", "time_s"]).reset_index(
+        drop=True)
+
+
+def read_tool(path: str | Path) -> pd.DataFrame:
+    """A tool track: time_s and position columns (X_mm, Y_mm, Z_mm or x, y, z)."""
+    p = Path(path)
+    if not p.is_file():
+        raise SandtrackError(f"file not found: {p}")
+    try:
+        df = pd.read_csv(p, skipinitialspace=True)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError, ValueError):
+        raise SandtrackError(f"{p}: not a readable tool CSV") from None
+    cols = {c.lower(): c for c in df.columns}
+    tcol = cols.get("time_s") or cols.get("time")
+    pos = [cols.get(f"{a}_mm") or cols.get(a) for a in "xyz"]
+    if tcol is None or any(c is None for c in pos):
+        raise SandtrackError(f"{p}: a tool track needs time_s and X_mm, Y_mm, Z_mm columns")
+    out = pd.DataFrame({"time_s": df[tcol], "X_mm": df[pos[0]], "Y_mm": df[pos[1]], "Z_mm": df[pos[2]]})
+    out = out.apply(pd.to_numeric, errors="coerce").dropna().sort_values("time_s")
+    if len(out) < 2:
+        raise SandtrackError(f"{p}: the tool track has fewer than two rows")
+    return out
+
+
+# -- onset, matching, alignment -------------------------------------------------------------------
+def motion_onset(t: np.ndarray, xyz: np.ndarray, threshold_mm: float) -> float | None:
+    """First time the position is `threshold_mm` from its start (median of the first samples),
+    interpolated between samples."""
+    if len(t) < 3:
+        return None
+    start = np.median(xyz[: max(3, min(10, len(t) // 10))], axis=0)
+    dist = np.linalg.norm(xyz - start, axis=1)
+    above = np.nonzero(dist >= threshold_mm)[0]
+    if len(above) == 0 or above[0] == 0:
+        return None
+    k = int(above[0])
+    f = (threshold_mm - dist[k - 1]) / max(dist[k] - dist[k - 1], 1e-12)
+    return float(t[k - 1] + f * (t[k] - t[k - 1]))
+
+
+def match_particles(exp: pd.DataFrame, dem: pd.DataFrame, how: str = "auto",
+                    max_match_mm: float = 50.0) -> dict[int, int]:
+    """marker -> particle_id."""
+    markers = sorted(exp["marker"].unique().tolist())
+    pids = set(dem["particle_id"].unique().tolist())
+    if how == "auto":
+        how = "id" if all(m in pids for m in markers) else "nearest"
+    if how == "id":
+        pairs = {int(m): int(m) for m in markers if m in pids}
+    elif how == "nearest":
+        from scipy.optimize import linear_sum_assignment
+
+        e0 = exp.groupby("marker")[list(AXES)].first()
+        d0 = dem.groupby("particle_id")[list(AXES)].first()
+        cost = _cost(e0.to_numpy(), d0.to_numpy())
+        r, c = linear_sum_assignment(cost)
+        pairs = {int(e0.index[i]): int(d0.index[j]) for i, j in zip(r, c, strict=True) if cost[i, j] <= max_match_mm}
+    else:
+        raise SandtrackError(f"unknown matching {how!r} (auto, id, nearest)")
+    if not pairs:
+        raise SandtrackError("no experiment marker matches a DEM particle (ids differ and no particle starts "
+                             f"within {max_match_mm:g} mm of a marker)")
+    return pairs
+
+
+class _Pairs:
+    """Per matched pair: experiment samples and the DEM track, ready for fast shifted interpolation."""
+
+    def __init__(self, exp: pd.DataFrame, dem: pd.DataFrame, pairs: dict[int, int]):
+        self.items = []
+        eg = dict(tuple(exp.groupby("marker")))
+        dg = dict(tuple(dem.groupby("particle_id")))
+        for m, pid in sorted(pairs.items()):
+            e, d = eg[m], dg[pid]
+            if len(e) < 2 or len(d) < 2:
+                continue
+            self.items.append((m, pid, e["time_s"].to_numpy(), e[list(AXES)].to_numpy(),
+                               d["time_s"].to_numpy(), d[list(AXES)].to_numpy()))
+        if not self.items:
+            raise SandtrackError("matched particles have fewer than two samples each")
+
+    def aligned(self, shift: float, item):
+        """Experiment samples within the DEM's span (shifted) and the DEM interpolated there."""
+        m, pid, te, xe, td, xd = item
+        tq = te - shift
+        ok = (tq >= td[0]) & (tq <= td[-1])
+        if ok.sum() < 2:
+            return te[ok], xe[ok], np.zeros((ok.sum(), 3))
+        xi = np.column_stack([np.interp(tq[ok], td, xd[:, k]) for k in range(3)])
+        return te[ok], xe[ok], xi
+
+    def rmse(self, shift: float) -> float:
+        sq, n = 0.0, 0
+        for item in self.items:
+            _, xe, xi = self.aligned(shift, item)
+            if len(xe) >= 2:
+                sq += float(((xe - xi) ** 2).sum())
+                n += len(xe)
+        return float(np.sqrt(sq / n)) if n else float("inf")
+
+
+def align_time(pairs: _Pairs, start_shift: float, max_lag_s: float, step_s: float) -> tuple[float, float]:
+    """Shift (s) minimising the RMSE within start +- max_lag; returns (shift, rmse)."""
+    grid = start_shift + np.arange(-max_lag_s, max_lag_s + step_s / 2, step_s)
+    vals = np.array([pairs.rmse(s) for s in grid])
+    if not np.isfinite(vals).any():
+        raise SandtrackError("the experiment and DEM trajectories do not overlap in time")
+    k = int(np.nanargmin(vals))
+    shift = float(grid[k])
+    if 0 < k < len(grid) - 1 and np.isfinite(vals[k - 1:k + 2]).all():
+        a, b, c = vals[k - 1], vals[k], vals[k + 1]
+        den = a - 2 * b + c
+        if den > 0:
+            shift += 0.5 * (a - c) / den * step_s
+    # one finer pass around the grid minimum
+    fine = shift + np.linspace(-step_s, step_s, 21)
+    fv = np.array([pairs.rmse(s) for s in fine])
+    j = int(np.argmin(fv))
+    return float(fine[j]), float(fv[j])
+
+
+# -- comparison -------------------------------------------------------------------------------------
+@dataclass
+class Comparison:
+    name: str
+    time_shift_s: float
+    onset: dict
+    pairs: dict[int, int]
+    per_particle: pd.DataFrame
+    summary: dict
+    errors: dict = field(default_factory=dict)  # marker -> DataFrame[time_s, err_3d_mm, exp X.., dem X..]
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "time_shift_s": self.time_shift_s, "onset": self.onset,
+                "pairs": {str(k): v for k, v in self.pairs.items()}, "summary": self.summary,
+                "per_particle": self.per_particle.to_dict("records")}
+
+
+def compare(exp: pd.DataFrame, dem: pd.DataFrame, name: str = "dem", match: str = "auto", fps: float = 50.0,
+            max_lag_s: float = 0.5, onset_mm: float = 3.0, exp_tool: pd.DataFrame | None = None,
+            dem_tool: pd.DataFrame | None = None, time_shift_s: float | None = None, flag_mm: float = 2.0,
+            max_match_mm: float = 50.0) -> Comparison:
+    """Align and compare (see module docstring). `time_shift_s` given: no alignment search."""
+    exp = experiment_table(exp)
+    pairs_map = match_particles(exp, dem, match, max_match_mm)
+    pairs = _Pairs(exp, dem, pairs_map)
+    onset: dict = {"source": None}
+    if time_shift_s is None:
+        start = None
+        if exp_tool is not None and dem_tool is not None:
+            oe = motion_onset(exp_tool["time_s"].to_numpy(), exp_tool[list(AXES)].to_numpy(), onset_mm)
+            od = motion_onset(dem_tool["time_s"].to_numpy(), dem_tool[list(AXES)].to_numpy(), onset_mm)
+            if oe is not None and od is not None:
+                start = oe - od
+                onset = {"source": "tool", "experiment_s": oe, "dem_s": od}
+        if start is None:
+            diffs = []
+            for _m, _pid, te, xe, td, xd in pairs.items:
+                oe, od = motion_onset(te, xe, onset_mm), motion_onset(td, xd, onset_mm)
+                if oe is not None and od is not None:
+                    diffs.append(oe - od)
+            if diffs:
+                start = float(np.median(diffs))
+                onset = {"source": "particles", "particles_used": len(diffs)}
+            else:
+                start = 0.0
+                onset = {"source": "none (no particle moved)"}
+        onset["initial_shift_s"] = start
+        shift, _ = align_time(pairs, start, max_lag_s, 1.0 / fps)
+    else:
+        shift = float(time_shift_s)
+        onset = {"source": "given"}
+
+    per, errors = _metrics(pairs, shift, flag_mm, distances=False)
+    if time_shift_s is None and per["flagged"].any() and (~per["flagged"]).sum() >= 1:
+        # Re-align without the outliers: a drifting particle would pull the shift towards itself.
+        keep = set(per.loc[~per["flagged"], "marker"].astype(int))
+        clean = _Pairs.__new__(_Pairs)
+        clean.items = [it for it in pairs.items if it[0] in keep]
+        shift, _ = align_time(clean, shift, min(max_lag_s, 3.0 / fps), 1.0 / fps)
+        onset["realigned_without"] = sorted(set(pairs_map) - keep)
+    per, errors = _metrics(pairs, shift, flag_mm)
+    summary = {"particles": len(per), "time_shift_s": shift, "time_shift_frames": shift * fps,
+               "flagged_markers": per.loc[per["flagged"], "marker"].astype(int).tolist()}
+    for col in METRICS:
+        summary[f"{col}_median"] = float(per[col].median())
+        summary[f"{col}_mean"] = float(per[col].mean())
+        summary[f"{col}_max"] = float(per[col].max())
+    all_sq = sum(float((e["err_3d_mm"] ** 2).sum()) for e in errors.values())
+    summary["rmse_3d_mm_all"] = float(np.sqrt(all_sq / sum(len(e) for e in errors.values())))
+    return Comparison(name, shift, onset, pairs_map, per, summary, errors)
+
+
+def _metrics(pairs: _Pairs, shift: float, flag_mm: float, distances: bool = True) -> tuple[pd.DataFrame, dict]:
+    rows, errors = [], {}
+    for item in pairs.items:
+        m, pid = item[0], item[1]
+        t, xe, xi = pairs.aligned(shift, item)
+        if len(t) < 2:
+            continue
+        diff = xe - xi
+        err = np.linalg.norm(diff, axis=1)
+        slope = float(np.polyfit(t - t[0], err, 1)[0]) if t[-1] > t[0] else 0.0
+        rows.append({
+            "marker": m, "particle_id": pid, "samples": len(t), "t_start_s": float(t[0]), "t_end_s": float(t[-1]),
+            "rmse_3d_mm": float(np.sqrt(np.mean(err ** 2))),
+            "rmse_x_mm": float(np.sqrt(np.mean(diff[:, 0] ** 2))),
+            "rmse_y_mm": float(np.sqrt(np.mean(diff[:, 1] ** 2))),
+            "rmse_z_mm": float(np.sqrt(np.mean(diff[:, 2] ** 2))),
+            "final_error_mm": float(err[-1]),
+            "frechet_mm": np.nan,
+            "dtw_norm_mm": np.nan,
+            "max_dev_mm": float(err.max()),
+            "drift_mm_per_s": slope,
+        })
+        errors[m] = pd.DataFrame({"time_s": t, "err_3d_mm": err, "exp_X_mm": xe[:, 0], "exp_Y_mm": xe[:, 1],
+                                  "exp_Z_mm": xe[:, 2], "dem_X_mm": xi[:, 0], "dem_Y_mm": xi[:, 1],
+                                  "dem_Z_mm": xi[:, 2]})
+    if not rows:
+        raise SandtrackError("the experiment and DEM trajectories do not overlap in time after alignment")
+    per = pd.DataFrame(rows)
+    if distances:
+        dist = _batch_distances([(errors[m][["exp_X_mm", "exp_Y_mm", "exp_Z_mm"]].to_numpy(),
+                                  errors[m][["dem_X_mm", "dem_Y_mm", "dem_Z_mm"]].to_numpy()) for m in per["marker"]])
+        per["frechet_mm"] = [f for f, _ in dist]
+        per["dtw_norm_mm"] = [d for _, d in dist]
+    per["flagged"] = _flags(per, flag_mm)
+    return per, errors
+
+
+def _flags(per: pd.DataFrame, flag_mm: float) -> np.ndarray:
+    out = np.zeros(len(per), bool)
+    for col in ("rmse_3d_mm", "drift_mm_per_s"):
+        v = per[col].to_numpy(float)
+        med = float(np.median(v))
+        sigma = 1.4826 * float(np.median(np.abs(v - med)))
+        sigma = max(sigma, 0.05 * abs(med), 1e-9)
+        out |= v > med + 4 * sigma
+    return out & (per["rmse_3d_mm"].to_numpy(float) > flag_mm)
+
+
+def rank(comparisons: list[Comparison], by: str = "rmse_3d_mm_all") -> pd.DataFrame:
+    """DEM runs ranked by agreement (lower is better): overall RMSE, then median Fréchet."""
+    rows = [{"rank": 0, "name": c.name, "rmse_3d_mm_all": c.summary["rmse_3d_mm_all"],
+             "rmse_3d_mm_median": c.summary["rmse_3d_mm_median"], "frechet_mm_median": c.summary["frechet_mm_median"],
+             "dtw_norm_mm_median": c.summary["dtw_norm_mm_median"], "time_shift_s": c.time_shift_s,
+             "flagged": len(c.summary["flagged_markers"])} for c in comparisons]
+    df = pd.DataFrame(rows).sort_values([by, "frechet_mm_median"], kind="stable").reset_index(drop=True)
+    df["rank"] = np.arange(1, len(df) + 1)
+    return df
+
+
+# -- plots ------------------------------------------------------------------------------------------
+def plot_comparison(cmp: Comparison, out_dir: str | Path, max_particles: int = 50) -> list[Path]:
+    """PNGs: per particle, experiment vs DEM in the three planes; the 3D error over time of all."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    files = []
+    flagged = set(cmp.summary["flagged_markers"])
+    for m in sorted(cmp.errors)[:max_particles]:
+        e = cmp.errors[m]
+        fig, axes = plt.subplots(1, 3, figsize=(12, 4), constrained_layout=True)
+        for ax, (a, b) in zip(axes, (("X", "Y"), ("X", "Z"), ("Y", "Z")), strict=True):
+            ax.plot(e[f"exp_{a}_mm"], e[f"exp_{b}_mm"], "-", color="tab:blue", label="experiment")
+            ax.plot(e[f"dem_{a}_mm"], e[f"dem_{b}_mm"], "--", color="tab:orange", label="DEM")
+            ax.plot(e[f"exp_{a}_mm"].iloc[0], e[f"exp_{b}_mm"].iloc[0], "o", color="k", ms=3)
+            ax.set_xlabel(f"{a} (mm)")
+            ax.set_ylabel(f"{b} (mm)")
+            ax.set_aspect("equal", adjustable="datalim")
+            ax.grid(alpha=0.3)
+        axes[0].legend(fontsize=8)
+        row = cmp.per_particle.set_index("marker").loc[m]
+        fig.suptitle(f"{cmp.name}: marker {m} vs particle {int(row['particle_id'])}  RMSE {row['rmse_3d_mm']:.2f} mm"
+                     f"{'  FLAGGED' if m in flagged else ''}")
+        p = out / f"{_safe(cmp.name)}_marker{m}.png"
+        fig.savefig(p, dpi=90)
+        plt.close(fig)
+        files.append(p)
+    fig, ax = plt.subplots(figsize=(9, 4.5), constrained_layout=True)
+    for m, e in sorted(cmp.errors.items()):
+        ax.plot(e["time_s"], e["err_3d_mm"], color="tab:red" if m in flagged else "0.5",
+                lw=1.6 if m in flagged else 0.8, label=f"marker {m}" if m in flagged else None)
+    ax.set_xlabel("experiment time (s)")
+    ax.set_ylabel("3D error (mm)")
+    ax.set_title(f"{cmp.name}: error over time (shift {cmp.time_shift_s * 1000:+.1f} ms)")
+    ax.grid(alpha=0.3)
+    if flagged:
+        ax.legend(fontsize=8)
+    p = out / f"{_safe(cmp.name)}_error_over_time.png"
+    fig.savefig(p, dpi=90)
+    plt.close(fig)
+    files.append(p)
+    return files
+
+
+def _safe(name: str) -> str:
+    return "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in name)
+
+
+_BRAILLE_BITS = ((0x01, 0x08), (0x02, 0x10), (0x04, 0x20), (0x40, 0x80))  # [row 0..3][col 0..1]
+
+
+def text_plot(series: list[tuple[str, np.ndarray, np.ndarray]], width: int = 60, height: int = 12,
+              y_label: str = "", x_label: str = "") -> str:
+    """A plain-text line plot (Unicode braille, 2x4 dots per cell) for the terminal: one line per
+    series drawn over the same axes, then a legend with each series' min/max."""
+    width, height = max(width, 10), max(height, 3)
+    pts = [(lab, np.asarray(x, float), np.asarray(y, float)) for lab, x, y in series]
+    pts = [(lab, x[np.isfinite(x) & np.isfinite(y)], y[np.isfinite(x) & np.isfinite(y)]) for lab, x, y in pts]
+    pts = [p for p in pts if len(p[1])]
+    if not pts:
+        return "(no data)"
+    x0 = min(p[1].min() for p in pts)
+    x1 = max(p[1].max() for p in pts)
+    y0 = min(p[2].min() for p in pts)
+    y1 = max(p[2].max() for p in pts)
+    if x1 == x0:
+        x1 = x0 + 1
+    if y1 == y0:
+        y1 = y0 + 1
+    W, H = width * 2, height * 4
+    grid = np.zeros((height, width), np.int32)
+    for _lab, x, y in pts:
+        # dense sampling along the polyline so lines are continuous
+        fx = np.interp(np.linspace(0, len(x) - 1, max(len(x), W * 2)), np.arange(len(x)), x)
+        fy = np.interp(np.linspace(0, len(y) - 1, max(len(y), W * 2)), np.arange(len(y)), y)
+        cx = np.clip(((fx - x0) / (x1 - x0) * (W - 1)).round().astype(int), 0, W - 1)
+        cy = np.clip(((y1 - fy) / (y1 - y0) * (H - 1)).round().astype(int), 0, H - 1)
+        for px, py in set(zip(cx.tolist(), cy.tolist(), strict=True)):
+            grid[py // 4, px // 2] |= _BRAILLE_BITS[py % 4][px % 2]
+    lab_w = max(len(f"{y1:.3g}"), len(f"{y0:.3g}"))
+    lines = []
+    for r in range(height):
+        tick = f"{y1:.3g}" if r == 0 else (f"{y0:.3g}" if r == height - 1 else "")
+        lines.append(f"{tick:>{lab_w}} ┤" + "".join(chr(0x2800 + v) if v else " " for v in grid[r]))
+    lines.append(" " * lab_w + " └" + "─" * width)
+    lines.append(" " * (lab_w + 2) + f"{x0:.3g}".ljust(width - len(f"{x1:.3g}")) + f"{x1:.3g}")
+    if x_label or y_label:
+        lines.append(" " * (lab_w + 2) + f"x: {x_label}   y: {y_label}".strip())
+    for lab, _x, y in pts:
+        lines.append(f"  {lab}: {y.min():.3g} .. {y.max():.3g}")
+    return "\n".join(lines)
+
+
+def error_text_plot(cmp: Comparison, width: int = 60, height: int = 10, markers: list[int] | None = None) -> str:
+    """Terminal plot of the 3D error over time (flagged markers by default, else the worst three)."""
+    if markers is None:
+        markers = cmp.summary["flagged_markers"] or cmp.per_particle.nlargest(3, "rmse_3d_mm")["marker"].tolist()
+    series = [(f"marker {m}", cmp.errors[m]["time_s"].to_numpy(), cmp.errors[m]["err_3d_mm"].to_numpy())
+              for m in markers if m in cmp.errors]
+    return text_plot(series, width, height, y_label="3D error (mm)", x_label="time (s)")
