@@ -1,9 +1,79 @@
-"""`sandtrack [tui] [PROJECT]`: the terminal UI (not available yet)."""
+"""`sandtrack [tui] [PROJECT]`: the terminal UI.
 
-from .common import not_available
+Without a project it opens the sample project: a project file in the user's data folder
+(``$XDG_DATA_HOME/sandtrack/sample.sandtrack``, else ``~/.local/share/sandtrack/``) that links the
+bundled sample videos (``sample_data/experiment/side.mp4``, ``front.mp4``) and, when present, the
+sample calibration. It is made on first run and made again if the sample videos change.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+from ..errors import SandtrackError
+
+REPO_ROOT = Path(__file__).resolve().parents[3]
+SAMPLE_DATA = Path(os.environ.get("SANDTRACK_SAMPLE_DATA", REPO_ROOT / "sample_data"))
+CALIBRATION_CANDIDATES = ("experiment/calibration.toml", "calibration.toml", "ground_truth/cameras.toml")
 
 
 def register(sub) -> None:
     p = sub.add_parser("tui", help="open the terminal UI (default)")
     p.add_argument("project", nargs="?", help="project file; the bundled sample project if omitted")
-    p.set_defaults(func=not_available("the terminal UI"))
+    p.add_argument("--colors", choices=["truecolor", "256"],
+                   help="force the colour mode (default: detected; over SSH set COLORTERM=truecolor)")
+    p.set_defaults(func=run)
+
+
+def data_dir() -> Path:
+    base = os.environ.get("XDG_DATA_HOME") or str(Path.home() / ".local" / "share")
+    return Path(base) / "sandtrack"
+
+
+def sample_project(sample_data: Path = SAMPLE_DATA, target: Path | None = None) -> Path:
+    """The sample project file, made (or remade if the sample videos changed) as needed."""
+    from ..camera import Calibration
+    from ..store import Project
+
+    side, front = sample_data / "experiment" / "side.mp4", sample_data / "experiment" / "front.mp4"
+    if not (side.is_file() and front.is_file()):
+        raise SandtrackError(f"no project given and the sample videos are missing ({side}); "
+                             "make them with `make sample`, or open a project: sandtrack PROJECT.sandtrack")
+    path = target or data_dir() / "sample.sandtrack"
+    if path.exists():
+        try:
+            with Project.open(path) as proj:
+                problems = proj.video_problems()
+        except SandtrackError:
+            problems = ["unreadable"]
+        if not problems:
+            return path
+        backup = path.with_suffix(".sandtrack.old")
+        shutil.move(path, backup)  # the sample changed: keep the old edits aside, start afresh
+        for suffix in ("-wal", "-shm"):
+            Path(str(path) + suffix).unlink(missing_ok=True)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SandtrackError(f"cannot create {path.parent}: {exc.strerror}") from None
+    with Project.create(path, {"side": side, "front": front}) as proj:
+        for rel in CALIBRATION_CANDIDATES:
+            cal_path = sample_data / rel
+            if cal_path.is_file():
+                try:
+                    proj.set_calibration(Calibration.load(cal_path))
+                    break
+                except SandtrackError:
+                    continue
+    return path
+
+
+def run(args) -> int:
+    path = Path(args.project) if args.project else sample_project()
+    from ..tui.app import SandtrackApp
+
+    app = SandtrackApp(path, colors=args.colors)
+    app.run()
+    return int(app.return_code or 0)

@@ -1,0 +1,1033 @@
+"""The sandtrack terminal UI: step through both cameras, seed, track, correct, and watch XYZ live.
+
+The app only calls the core (store, video, tracking, corrections, xyz, ...). Decoding and
+downscaling run on a feeder thread, tracking/sync/training in Textual thread workers that post
+messages; widgets are only touched on the UI thread.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from textual import on
+from textual.app import App, ComposeResult, SystemCommand
+from textual.binding import Binding
+from textual.containers import Horizontal
+from textual.message import Message
+from textual.screen import Screen
+from textual.widgets import Footer, Label, ProgressBar, Static
+from textual.worker import Worker, WorkerState, get_current_worker
+
+from .. import corrections
+from ..errors import NotAvailableYet, SandtrackError
+from ..store import Project
+from ..video import FramePair
+from .core import available, core
+from .feeder import FrameFeeder, FrameRequest, FrameResult
+from .frame_view import FrameView, MarkerMark, Overlays, ViewTransform
+from .screens.help import HelpScreen
+from .screens.prompts import AskNumber, Confirm
+from .table import MarkerRow, MarkerTable
+from .timeline import Timeline, next_problem, status_codes
+
+GOOD = ("tracked", "manual", "interpolated", "imported")
+
+# (key, action, description, group, shown in footer)
+KEYS = [
+    ("right,full_stop", "step(1)", "next frame", "Navigate", True),
+    ("left,comma", "step(-1)", "previous frame", "Navigate", False),
+    ("shift+right", "step(10)", "+10 frames", "Navigate", False),
+    ("shift+left", "step(-10)", "-10 frames", "Navigate", False),
+    ("pagedown", "step(50)", "+50 frames", "Navigate", False),
+    ("pageup", "step(-50)", "-50 frames", "Navigate", False),
+    ("home", "go(0)", "first frame", "Navigate", False),
+    ("end", "go(-1)", "last frame", "Navigate", False),
+    ("g", "goto", "go to frame…", "Navigate", False),
+    ("space", "play", "play / pause", "Navigate", True),
+    ("n", "problem(1)", "next problem (lost, occluded, gap)", "Navigate", True),
+    ("N", "problem(-1)", "previous problem", "Navigate", False),
+    ("1,2,3,4,5,6,7,8", "", "select marker 1-8 (a new number starts a new marker)", "Markers", False),
+    ("tab", "switch_view", "switch active view (side / front)", "Markers", False),
+    ("h,j,k,l", "", "move the cursor (H J K L: 8x)", "Seed", False),
+    ("enter", "seed_cursor", "place the selected marker at the cursor", "Seed", True),
+    ("A", "auto_seed", "auto-seed all markers (confirm list)", "Seed", False),
+    ("t", "track(1,0)", "track the selected marker forward", "Track", True),
+    ("T", "track(-1,0)", "track the selected marker backward", "Track", False),
+    ("r", "track(1,1)", "track all markers forward", "Track", False),
+    ("R", "track(-1,1)", "track all markers backward", "Track", False),
+    ("escape", "cancel", "cancel the running task", "Track", False),
+    ("w,a,s,d", "", "nudge the selected point 1 px (W A S D: 5 px)", "Correct", False),
+    ("o", "occlude", "mark occluded (range if set, else this frame)", "Correct", False),
+    ("left_square_bracket", "mark_in", "range start [", "Correct", False),
+    ("right_square_bracket", "mark_out", "range end ]", "Correct", False),
+    ("delete,backspace", "delete", "delete points (range if set, else this frame)", "Correct", False),
+    ("i", "interpolate", "interpolate the gap (range if set, else the gap here)", "Correct", False),
+    ("X", "swap", "swap identities with another marker over the range", "Correct", False),
+    ("u,ctrl+z", "undo", "undo", "Correct", True),
+    ("U,ctrl+y", "redo", "redo", "Correct", False),
+    ("z", "zoom_marker", "zoom to the selected marker and follow it", "View", True),
+    ("plus,equals_sign", "zoom(2)", "zoom in", "View", False),
+    ("minus", "zoom(0.5)", "zoom out", "View", False),
+    ("0", "zoom_fit", "fit the whole frame", "View", False),
+    ("b", "toggle_boost", "marker boost on / off", "View", False),
+    ("v", "cycle_layout", "layout: views + timeline + table / no table / views only", "View", False),
+    ("f2", "screen('sync')", "sync", "Screens", False),
+    ("f3", "screen('calibration')", "calibration", "Screens", False),
+    ("f4", "screen('training')", "train the regression model", "Screens", False),
+    ("f5,e", "screen('export')", "export trajectories", "Screens", True),
+    ("f6", "screen('compare')", "DEM comparison", "Screens", False),
+    ("question_mark", "help", "help", "Screens", True),
+    ("q", "quit", "quit", "Screens", True),
+]
+
+KEY_DISPLAY = {"left_square_bracket": "[", "right_square_bracket": "]", "question_mark": "?",
+               "full_stop": ".", "comma": ",", "plus": "+", "equals_sign": "=", "minus": "-"}
+
+
+FOOTER = {"step(1)": "next", "play": "play", "problem(1)": "problem", "seed_cursor": "place", "track(1,0)": "track",
+          "undo": "undo", "zoom_marker": "zoom", "screen('export')": "export", "help": "help", "quit": "quit"}
+
+
+def _bindings() -> list[Binding]:
+    out = []
+    for keys, action, desc, _group, show in KEYS:
+        if not action:
+            continue
+        first = keys.split(",")[0]
+        out.append(Binding(keys, action, FOOTER.get(action, desc.split(" (")[0]), show=show,
+                           key_display=KEY_DISPLAY.get(first), priority=keys == "tab"))
+    for n in range(1, 9):
+        out.append(Binding(str(n), f"select({n})", f"marker {n}", show=False))
+    for k, (dx, dy) in {"h": (-1, 0), "j": (0, 1), "k": (0, -1), "l": (1, 0)}.items():
+        out.append(Binding(k, f"cursor({dx},{dy},1)", "cursor", show=False))
+        out.append(Binding(k.upper(), f"cursor({dx},{dy},8)", "cursor fast", show=False))
+    for k, (dx, dy) in {"a": (-1, 0), "s": (0, 1), "w": (0, -1), "d": (1, 0)}.items():
+        out.append(Binding(k, f"nudge({dx},{dy})", "nudge", show=False))
+        out.append(Binding(k.upper(), f"nudge({5 * dx},{5 * dy})", "nudge 5 px", show=False))
+    return out
+
+
+@dataclass
+class Task:
+    name: str
+    worker: Worker | None = None
+    cancel_requested: bool = False
+
+
+class TaskProgress(Message):
+    def __init__(self, name: str, done: int, total: int, text: str = "") -> None:
+        super().__init__()
+        self.name, self.done, self.total, self.text = name, done, total, text
+
+
+class TaskFinished(Message):
+    def __init__(self, name: str, text: str, error: str | None = None, refresh_points: bool = True) -> None:
+        super().__init__()
+        self.name, self.text, self.error, self.refresh_points = name, text, error, refresh_points
+
+
+class FrameReady(Message):
+    def __init__(self, result: FrameResult) -> None:
+        super().__init__()
+        self.result = result
+
+
+class SandtrackApp(App):
+    TITLE = "sandtrack"
+    CSS = """
+    Screen { layout: vertical; }
+    #status { height: 1; background: $panel; color: $text; padding: 0 1; }
+    #views { height: 1fr; min-height: 6; }
+    #task { height: 1; display: none; padding: 0 1; }
+    #task.-running { display: block; }
+    #task Label { width: auto; margin-right: 1; }
+    #task ProgressBar { width: 1fr; }
+    Screen.-no-table MarkerTable { display: none; }
+    Screen.-views-only MarkerTable, Screen.-views-only Timeline { display: none; }
+    """
+    BINDINGS = _bindings()
+
+    def __init__(self, project: Project | str | Path, colors: str | None = None, prefetch: int = 4):
+        super().__init__()
+        self.project = project if isinstance(project, Project) else Project.open(project)
+        self.sources = self.project.open_sources(cache_mb=160)
+        cams = self.project.cameras()
+        if "side" not in self.sources or "front" not in self.sources:
+            raise SandtrackError(f"{self.project.path}: needs a side and a front video (has {', '.join(cams)})")
+        self.cameras = ["side", "front"]
+        self.pair = FramePair(self.sources["side"], self.sources["front"], self.project.sync_offset_s)
+        self.n_frames = len(self.sources["side"])
+        self.frame = 0
+        self.selected: int | None = None
+        self.active = "side"
+        self.cursor: dict[str, tuple[float, float]] = {
+            c: (self.sources[c].width / 2, self.sources[c].height / 2) for c in self.cameras}
+        self.zoom = {c: 1.0 for c in self.cameras}
+        self.center: dict[str, tuple[float, float] | None] = {c: None for c in self.cameras}
+        self.follow = False
+        self.boost = True
+        self.range_in: int | None = None
+        self.range_out: int | None = None
+        self.layout_mode = 0
+        self.colors_override = colors
+        self.prefetch = prefetch
+        self.bg_task: Task | None = None
+        self._playing = None
+        self._direction = 1
+        self._wanted: dict[str, tuple] = {}
+        self._step_t0: float | None = None
+        self.step_latencies_ms: list[float] = []
+        self.points = pd.DataFrame()
+        self._by_cam_frame: dict[tuple[str, int], list] = {}
+        self.marker_list: list[tuple[int, str]] = []
+        self._side_to: dict[str, np.ndarray | None] = {}
+        self._calibration = None
+        self._xyz_note_shown = False
+        self.feeder: FrameFeeder | None = None
+        self._compute_frame_maps()
+
+    # -- layout ------------------------------------------------------------------------------
+    def compose(self) -> ComposeResult:
+        yield Static("", id="status")
+        with Horizontal(id="views"):
+            yield FrameView("side", id="view-side", classes="-active")
+            yield FrameView("front", id="view-front")
+        yield Timeline(id="timeline")
+        yield MarkerTable(id="table")
+        with Horizontal(id="task"):
+            yield Label("", id="task-label")
+            yield ProgressBar(id="task-bar", show_eta=True)
+        yield Footer()
+
+    def on_mount(self) -> None:
+        colors = self.colors_override or (self.console.color_system or "256")
+        for v in self.views():
+            v.color_mode = "truecolor" if colors == "truecolor" else "256"
+            v.border_title = v.camera
+        self.feeder = FrameFeeder(self.sources, lambda r: self.post_message(FrameReady(r)), self.prefetch)
+        if self.size.height < 40:
+            self._set_layout(1)
+        self._calibration = self._load_calibration()
+        self.reload_points()
+        if self.marker_list:
+            self.selected = self.marker_list[0][0]
+        self.call_after_refresh(self.refresh_all)
+        warnings = self.pair.mismatch_warnings()
+        if warnings:
+            self.notify("; ".join(warnings), severity="warning", timeout=8)
+
+    def on_unmount(self) -> None:
+        if self.feeder is not None:
+            self.feeder.stop()
+
+    def views(self) -> list[FrameView]:
+        return [self.query_one(f"#view-{c}", FrameView) for c in self.cameras]
+
+    def view(self, camera: str) -> FrameView:
+        return self.query_one(f"#view-{camera}", FrameView)
+
+    def on_resize(self, event) -> None:
+        self.call_after_refresh(self.request_frames)
+
+    @on(FrameView.Resized)
+    def _view_resized(self) -> None:
+        self.request_frames()
+
+    # -- frame bookkeeping -------------------------------------------------------------------
+    def _compute_frame_maps(self) -> None:
+        side, front = self.sources["side"], self.sources["front"]
+        tf = side.times_s - self.pair.offset_s
+        j = np.clip(np.searchsorted(front.times_s, tf), 1, len(front.times_s) - 1)
+        nearer_left = (tf - front.times_s[j - 1]) <= (front.times_s[j] - tf)
+        self._side_to = {"side": None, "front": np.where(nearer_left, j - 1, j).astype(int)}
+
+    def cam_index(self, camera: str, frame: int | None = None) -> int:
+        f = self.frame if frame is None else frame
+        m = self._side_to.get(camera)
+        return f if m is None else int(m[f])
+
+    def _load_calibration(self):
+        try:
+            return self.project.calibration()
+        except SandtrackError as exc:
+            self.notify(f"calibration unreadable: {exc}", severity="warning")
+            return None
+
+    def reload_points(self) -> None:
+        self.points = self.project.points()
+        self._by_cam_frame = {}
+        if len(self.points):
+            for key, grp in self.points.groupby(["camera", "frame"], sort=False):
+                self._by_cam_frame[(str(key[0]), int(key[1]))] = list(grp.itertuples(index=False))
+        labels = dict(self.project.markers()[["id", "label"]].itertuples(index=False, name=None))
+        ids = sorted(set(labels) | set(self.points["marker"].unique().tolist() if len(self.points) else []))
+        self.marker_list = [(int(m), str(labels.get(m, m))) for m in ids]
+        codes = {}
+        for mid, _ in self.marker_list:
+            for cam in self.cameras:
+                codes[(mid, cam)] = status_codes(self.points, mid, cam, self.n_frames, self._side_to[cam])
+        self.codes = codes
+        self.query_one(Timeline).set_data(self.marker_list, codes, self.n_frames, self.cameras)
+
+    def point(self, camera: str, marker: int, frame: int | None = None):
+        for rec in self._by_cam_frame.get((camera, self.cam_index(camera, frame)), ()):
+            if rec.marker == marker:
+                return rec
+        return None
+
+    # -- rendering ---------------------------------------------------------------------------
+    def _transform(self, camera: str) -> ViewTransform | None:
+        v = self.view(camera)
+        cols, rows = v.content_size.width, v.content_size.height
+        if cols < 2 or rows < 1:
+            return None
+        src = self.sources[camera]
+        return ViewTransform.make(src.width, src.height, cols, rows, self.zoom[camera], self.center[camera])
+
+    def request_frames(self) -> None:
+        if self.feeder is None:
+            return
+        for cam in self.cameras:
+            if self.follow and self.selected is not None:
+                rec = self.point(cam, self.selected)
+                if rec is not None and np.isfinite(rec.x_px):
+                    self.center[cam] = (float(rec.x_px), float(rec.y_px))
+            tf = self._transform(cam)
+            if tf is None:
+                continue
+            req = FrameRequest(cam, self.cam_index(cam), tf, self.boost)
+            self._wanted[cam] = req.key
+            v = self.view(cam)
+            if v.pixels_key == req.key:
+                self.update_overlays(cam)
+                continue
+            self.feeder.request(req, self._direction)
+
+    @on(FrameReady)
+    def _frame_ready(self, msg: FrameReady) -> None:
+        r = msg.result
+        cam = r.request.camera
+        if self._wanted.get(cam) != r.request.key:
+            return
+        v = self.view(cam)
+        if r.error:
+            v.show_message(r.error)
+            self.notify(r.error, severity="error")
+            return
+        v.pixels, v.pixels_key, v.tf = r.pixels, r.request.key, r.request.tf
+        self.update_overlays(cam)
+        if self._step_t0 is not None and self.views_ready():
+            self.step_latencies_ms.append((time.perf_counter() - self._step_t0) * 1000)
+            self._step_t0 = None
+
+    def views_ready(self) -> bool:
+        return all(self.view(c).pixels_key == self._wanted.get(c) and c in self._wanted for c in self.cameras)
+
+    def update_overlays(self, camera: str | None = None) -> None:
+        for cam in [camera] if camera else self.cameras:
+            v = self.view(cam)
+            if v.tf is None:
+                continue
+            shown = v.pixels_key[0] if v.pixels_key else self.cam_index(cam)
+            ov = Overlays()
+            for rec in self._by_cam_frame.get((cam, shown), ()):
+                label = dict(self.marker_list).get(rec.marker, str(rec.marker))
+                x = float(rec.x_px) if rec.x_px is not None else math.nan
+                y = float(rec.y_px) if rec.y_px is not None else math.nan
+                ov.marks.append(MarkerMark(int(rec.marker), label, x, y, rec.status, rec.marker == self.selected))
+            if cam == self.active:
+                ov.cursor = self.cursor[cam]
+            ov.search = self._search_window(cam)
+            ov.epipolar = self._epipolar(cam)
+            v.overlays = ov
+            v.recompose()
+
+    def _search_window(self, camera: str):
+        """Where the tracker will look in the next frame: the tracker's own constant-velocity Kalman
+        filter run over the selected marker's last points, its prediction and 99 % gate."""
+        if self.selected is None:
+            return None
+        idx = self.cam_index(camera)
+        pts = self.points
+        if pts.empty:
+            return None
+        sel = pts[(pts["marker"] == self.selected) & (pts["camera"] == camera) & (pts["frame"] <= idx)
+                  & (pts["frame"] > idx - 12) & pts["status"].isin(GOOD)].sort_values("frame")
+        if sel.empty or int(sel["frame"].iloc[-1]) != idx:
+            return None
+        try:
+            kalman = core("tracking.kalman", "ConstantVelocityKF")
+            params = core("tracking.tracker", "TrackParams").TrackParams()
+        except NotAvailableYet:
+            return None
+        kf = kalman.ConstantVelocityKF(float(sel["x_px"].iloc[0]), float(sel["y_px"].iloc[0]),
+                                       params.accel_px, params.meas_px)
+        prev = int(sel["frame"].iloc[0])
+        for r in sel.iloc[1:].itertuples(index=False):
+            for _ in range(int(r.frame) - prev):
+                kf.predict()
+            kf.update((float(r.x_px), float(r.y_px)))
+            prev = int(r.frame)
+        kf.predict()
+        hx, hy = kf.gate_halfsize(params.gate_d2)
+        cap = params.max_search_px
+        px, py = kf.position
+        return (float(px), float(py), min(hx, cap), min(hy, cap))
+
+    def _epipolar(self, camera: str):
+        """The selected marker's epipolar curve from the other (active) view, drawn in this view."""
+        if self._calibration is None or self.selected is None or camera == self.active:
+            return None
+        rec = self.point(self.active, self.selected)
+        if rec is None or rec.x_px is None or not np.isfinite(rec.x_px):
+            return None
+        if self.active not in self._calibration.cameras or camera not in self._calibration.cameras:
+            return None
+        from ..epipolar import epipolar_curve
+
+        return epipolar_curve(self._calibration, self.active, (rec.x_px, rec.y_px), camera)
+
+    def refresh_all(self) -> None:
+        self.request_frames()
+        self.update_status()
+        self.update_table()
+        self.query_one(Timeline).set_position(self.frame, self.selected, (self.range_in, self.range_out))
+
+    def update_status(self) -> None:
+        t = float(self.sources["side"].times_s[self.frame])
+        p = self.pair.index(self.frame)
+        sel = "none" if self.selected is None else dict(self.marker_list).get(self.selected, str(self.selected))
+        rng = ""
+        if self.range_in is not None or self.range_out is not None:
+            a = "" if self.range_in is None else self.range_in
+            b = "" if self.range_out is None else self.range_out
+            rng = f"  range \\[{a}..{b}]"
+        zoom = f"  zoom {self.zoom[self.active]:g}x" + (" follow" if self.follow else "")
+        play = "  ▶" if self._playing else ""
+        self.query_one("#status", Static).update(
+            f"[b]{self.project.path.stem}[/]  frame [b]{self.frame}[/]/{self.n_frames - 1}  t={t:.3f} s  "
+            f"front {p.front} ({p.remainder_frames:+.2f})  marker [b]{sel}[/]  view [b]{self.active}[/]"
+            f"{rng}{zoom}{play}", layout=False)
+
+    def update_table(self) -> None:
+        if self.layout_mode != 0:
+            return
+        self.query_one(MarkerTable).set_rows(self.table_rows(), self.selected)
+
+    def table_rows(self) -> list[MarkerRow]:
+        rows = []
+        for mid, label in self.marker_list:
+            r = MarkerRow(mid, label)
+            s, f = self.point("side", mid), self.point("front", mid)
+            if s is not None:
+                r.status_side, r.score = s.status, s.score
+                r.side_px = (s.x_px, s.y_px) if s.x_px is not None else None
+            if f is not None:
+                r.status_front = f.status
+                r.front_px = (f.x_px, f.y_px) if f.x_px is not None else None
+                if r.score is None or (f.score is not None and f.score < r.score):
+                    r.score = f.score
+            rows.append(r)
+        self._fill_xyz(rows)
+        return rows
+
+    def _fill_xyz(self, rows: list[MarkerRow]) -> None:
+        by_id = {r.marker: r for r in rows}
+        try:
+            xyz = core("xyz", "xyz_at_frame").xyz_at_frame(self.project, self.frame)
+        except NotAvailableYet:
+            xyz = None
+        except SandtrackError as exc:
+            if not self._xyz_note_shown:
+                self.notify(f"XYZ: {exc}", severity="warning")
+                self._xyz_note_shown = True
+            xyz = None
+        if xyz is not None and len(xyz):
+            for rec in xyz.itertuples(index=False):
+                r = by_id.get(int(rec.marker))
+                if r is None:
+                    continue
+                method = str(getattr(rec, "method", "triangulation")).lower()
+                val = (rec.X_mm, rec.Y_mm, rec.Z_mm)
+                if method.startswith(("tri", "dlt")):
+                    r.xyz_tri = val
+                    r.residual_px = getattr(rec, "residual_px", None)
+                else:
+                    r.xyz_net = val
+            return
+        if self._calibration is None:
+            return
+        from ..triangulation import triangulate
+
+        seen = [r for r in rows if r.side_px is not None and r.front_px is not None]
+        if not seen:
+            return
+        try:
+            pts, res = triangulate(self._calibration, {"side": np.array([r.side_px for r in seen], float),
+                                                       "front": np.array([r.front_px for r in seen], float)})
+        except (ValueError, KeyError):
+            return
+        for r, p, e in zip(seen, pts, res, strict=True):
+            r.xyz_tri, r.residual_px = tuple(float(v) for v in p), float(e)
+
+    # -- navigation --------------------------------------------------------------------------
+    def go_to(self, frame: int) -> None:
+        frame = int(np.clip(frame, 0, self.n_frames - 1))
+        self._direction = 1 if frame >= self.frame else -1
+        if frame == self.frame:
+            return
+        self.frame = frame
+        self._step_t0 = time.perf_counter()
+        self.refresh_all()
+
+    def action_step(self, n: int) -> None:
+        self.go_to(self.frame + n)
+
+    def action_go(self, frame: int) -> None:
+        self.go_to(self.n_frames - 1 if frame < 0 else frame)
+
+    def action_goto(self) -> None:
+        def done(v):
+            if v is not None:
+                self.go_to(v)
+
+        self.push_screen(AskNumber(f"Go to frame (0-{self.n_frames - 1}):", self.frame, 0, self.n_frames - 1), done)
+
+    def action_play(self) -> None:
+        if self._playing is not None:
+            self._playing.stop()
+            self._playing = None
+        else:
+            self._playing = self.set_interval(1 / 25, self._play_tick)
+        self.update_status()
+
+    def _play_tick(self) -> None:
+        if not self.views_ready():
+            return  # never queue frames faster than they are shown
+        if self.frame >= self.n_frames - 1:
+            self.action_play()
+            return
+        self.frame += 1
+        self._direction = 1
+        self.request_frames()
+        self.update_status()
+        self.query_one(Timeline).set_position(self.frame, self.selected, (self.range_in, self.range_out))
+        if self.frame % 10 == 0:
+            self.update_table()
+
+    def action_problem(self, direction: int) -> None:
+        codes = self.codes if self.selected is None else {
+            k: v for k, v in self.codes.items() if k[0] == self.selected} or self.codes
+        f = next_problem(codes, self.frame, direction)
+        if f is None:
+            self.notify("no more problems in that direction" + ("" if self.selected is None else
+                                                               f" for marker {self.selected}"))
+            return
+        self.go_to(f)
+
+    # -- markers, cursor, views --------------------------------------------------------------
+    def action_select(self, n: int) -> None:
+        self.selected = n
+        rec = self.point(self.active, n)
+        if rec is not None and rec.x_px is not None and np.isfinite(rec.x_px):
+            self.cursor[self.active] = (float(rec.x_px), float(rec.y_px))
+        if n not in dict(self.marker_list):
+            self.notify(f"marker {n} is new: click it or move the cursor onto it and press enter")
+        self.refresh_all()
+
+    def action_switch_view(self) -> None:
+        self.active = "front" if self.active == "side" else "side"
+        for v in self.views():
+            v.set_class(v.camera == self.active, "-active")
+        self.update_overlays()
+        self.update_status()
+
+    def action_cursor(self, dx: int, dy: int, k: int) -> None:
+        v = self.view(self.active)
+        s = v.tf.s if v.tf else 1.0
+        src = self.sources[self.active]
+        x, y = self.cursor[self.active]
+        x = float(np.clip(x + dx * k * s, 0, src.width - 1))
+        y = float(np.clip(y + dy * k * s, 0, src.height - 1))
+        self.cursor[self.active] = (x, y)
+        if v.tf is not None and self.zoom[self.active] > 1 and not v.tf.contains(x, y):
+            self.center[self.active] = (x, y)
+            self.follow = False
+            self.request_frames()
+        self.update_overlays(self.active)
+
+    def action_zoom(self, factor: float) -> None:
+        cam = self.active
+        self.zoom[cam] = float(np.clip(self.zoom[cam] * factor, 1.0, 64.0))
+        self.center[cam] = self.cursor[cam]
+        self.request_frames()
+        self.update_status()
+
+    def action_zoom_fit(self) -> None:
+        self.follow = False
+        for c in self.cameras:
+            self.zoom[c], self.center[c] = 1.0, None
+        self.request_frames()
+        self.update_status()
+
+    def action_zoom_marker(self) -> None:
+        if self.follow:
+            self.action_zoom_fit()
+            return
+        if self.selected is None:
+            self.notify("select a marker first (1-8)", severity="warning")
+            return
+        self.follow = True
+        for c in self.cameras:
+            self.zoom[c] = max(self.zoom[c], 8.0)
+        self.request_frames()
+        self.update_status()
+
+    def action_toggle_boost(self) -> None:
+        self.boost = not self.boost
+        self.notify(f"marker boost {'on' if self.boost else 'off'}")
+        self.request_frames()
+
+    def _set_layout(self, mode: int) -> None:
+        self.layout_mode = mode
+        self.screen.set_class(mode == 1, "-no-table")
+        self.screen.set_class(mode == 2, "-views-only")
+
+    def action_cycle_layout(self) -> None:
+        self._set_layout((self.layout_mode + 1) % 3)
+        self.update_table()
+        self.call_after_refresh(self.request_frames)
+
+    @on(FrameView.Zoom)
+    def _wheel_zoom(self, msg: FrameView.Zoom) -> None:
+        cam = msg.view.camera
+        self.zoom[cam] = float(np.clip(self.zoom[cam] * msg.factor, 1.0, 64.0))
+        self.center[cam] = (msg.x, msg.y)
+        self.follow = False
+        self.request_frames()
+        self.update_status()
+
+    @on(Timeline.Seek)
+    def _timeline_seek(self, msg: Timeline.Seek) -> None:
+        if msg.marker is not None:
+            self.selected = msg.marker
+        if msg.frame != self.frame:
+            self.go_to(msg.frame)
+        else:
+            self.refresh_all()
+
+    # -- seeding -----------------------------------------------------------------------------
+    @on(FrameView.Clicked)
+    def _clicked(self, msg: FrameView.Clicked) -> None:
+        cam = msg.view.camera
+        if cam != self.active:
+            self.active = cam
+            for v in self.views():
+                v.set_class(v.camera == cam, "-active")
+        self.cursor[cam] = (msg.x, msg.y)
+        if msg.button == 3:
+            self._select_near(cam, msg.x, msg.y)
+            return
+        self.seed_at(cam, msg.x, msg.y)
+
+    def _select_near(self, cam: str, x: float, y: float) -> None:
+        best, best_d = None, math.inf
+        for rec in self._by_cam_frame.get((cam, self.cam_index(cam)), ()):
+            if rec.x_px is None or not np.isfinite(rec.x_px):
+                continue
+            d = math.hypot(rec.x_px - x, rec.y_px - y)
+            if d < best_d:
+                best, best_d = int(rec.marker), d
+        tf = self.view(cam).tf
+        if best is not None and best_d <= max(20.0, 3 * (tf.s if tf else 1.0)):
+            self.selected = best
+        self.refresh_all()
+
+    def action_seed_cursor(self) -> None:
+        x, y = self.cursor[self.active]
+        self.seed_at(self.active, x, y)
+
+    def snap(self, camera: str, x: float, y: float) -> tuple[float, float] | None:
+        """The marker centroid near (x, y), or None when there is no marker there."""
+        tf = self.view(camera).tf
+        radius = max(12.0, 2.0 * (tf.s if tf else 1.0))  # a click is good to about ±s
+        tracking = core("tracking.run", "snap_to_marker")
+        frame = self.sources[camera].frame(self.cam_index(camera))
+        return tracking.snap_to_marker(frame, x, y, radius=int(math.ceil(radius)))
+
+    def seed_at(self, camera: str, x: float, y: float) -> None:
+        if self.selected is None:
+            existing = [m for m, _ in self.marker_list]
+            self.selected = next(n for n in range(1, 1000) if n not in existing)
+        marker = self.selected
+        try:
+            snapped = self.snap(camera, x, y)
+        except NotAvailableYet as exc:
+            self.notify(f"{exc}: placed where clicked", severity="warning")
+            snapped = (x, y)
+        except SandtrackError as exc:
+            self.notify(str(exc), severity="error")
+            return
+        if snapped is None:
+            self.notify(f"no marker found near ({x:.0f}, {y:.0f}) in {camera}: zoom in (+) or try closer",
+                        severity="warning")
+            self.update_overlays(camera)
+            return
+        sx, sy = float(snapped[0]), float(snapped[1])
+        frame = self.cam_index(camera)
+        try:
+            corrections.ensure_marker(self.project, marker)
+            if available("tracking.run", "seed_marker"):
+                core("tracking.run").seed_marker(self.project, marker, camera, frame, sx, sy)
+            else:
+                corrections.set_manual(self.project, marker, camera, frame, sx, sy)
+        except SandtrackError as exc:
+            self.notify(str(exc), severity="error")
+            return
+        self.cursor[camera] = (sx, sy)
+        self.after_edit(f"marker {marker} placed in {camera} at ({sx:.1f}, {sy:.1f})")
+
+    def after_edit(self, message: str | None = None) -> None:
+        self.reload_points()
+        self.refresh_all()
+        if message:
+            self.notify(message, timeout=3)
+
+    def action_auto_seed(self) -> None:
+        try:
+            tracking = core("tracking.run", "auto_seed", "accept_seeds")
+        except NotAvailableYet as exc:
+            self.notify(str(exc), severity="warning")
+            return
+        from .screens.autoseed import AutoSeedScreen
+
+        self.run_task("auto-seed", lambda progress, stop: tracking.auto_seed(self._worker_project(), self.frame),
+                      on_result=lambda seeds: self.push_screen(AutoSeedScreen(seeds), self._accept_seeds))
+
+    def _accept_seeds(self, seeds) -> None:
+        if seeds is None or len(seeds) == 0:
+            return
+        try:
+            core("tracking.run", "accept_seeds").accept_seeds(self.project, seeds)
+        except SandtrackError as exc:
+            self.notify(str(exc), severity="error")
+            return
+        self.after_edit(f"{seeds['marker'].nunique()} markers seeded")
+        if self.selected is None and self.marker_list:
+            self.selected = self.marker_list[0][0]
+
+    # -- tracking and other background tasks -------------------------------------------------
+    def _worker_project(self) -> Project:
+        """Workers use their own connection: SQLite transactions must not interleave with the UI's."""
+        return Project.open(self.project.path)
+
+    def action_track(self, direction: int, all_markers: int) -> None:
+        if all_markers:
+            markers = None
+            what = "all markers"
+        else:
+            if self.selected is None:
+                self.notify("select a marker first (1-8), or press r to track all", severity="warning")
+                return
+            markers = [self.selected]
+            what = f"marker {self.selected}"
+        try:
+            tracking = core("tracking.run", "track_project")
+        except NotAvailableYet as exc:
+            self.notify(str(exc), severity="warning")
+            return
+        start = self.frame
+        stop = self.n_frames - 1 if direction > 0 else 0
+        d = "forward" if direction > 0 else "backward"
+
+        def job(progress, should_stop):
+            proj = self._worker_project()
+            try:
+                return tracking.track_project(proj, markers=markers, start=start, stop=stop, direction=d,
+                                              progress=progress, should_stop=should_stop)
+            finally:
+                proj.close()
+
+        self.run_task(f"tracking {what} {d}", job, on_result=self._tracking_done)
+
+    def _tracking_done(self, result) -> None:
+        text = "tracking finished"
+        if isinstance(result, dict):
+            parts = [f"{k} {v}" for k, v in result.items() if isinstance(v, (int, float, str)) and k != "markers"]
+            if parts:
+                text += ": " + ", ".join(parts[:5])
+        self.notify(text, timeout=6)
+
+    def run_task(self, name: str, fn, on_result=None, refresh_points: bool = True) -> None:
+        """Run fn(progress, should_stop) in a thread worker; progress(done, total) posts throttled
+        messages; the result goes to on_result on the UI thread; errors become notifications."""
+        if self.bg_task is not None:
+            self.notify(f"{self.bg_task.name} is still running (escape cancels it)", severity="warning")
+            return
+        task = Task(name)
+        self.bg_task = task
+        bar = self.query_one("#task-bar", ProgressBar)
+        bar.update(total=None, progress=0)
+        self.query_one("#task-label", Label).update(f"{name} (esc cancels)")
+        self.query_one("#task").add_class("-running")
+        self._task_results: dict = {}
+
+        app = self
+
+        def worker() -> None:
+            last = [0.0]
+            me = get_current_worker()
+
+            def progress(done, total, *_, **__):
+                now = time.perf_counter()
+                if now - last[0] >= 0.2 or done >= total:
+                    last[0] = now
+                    app.post_message(TaskProgress(name, int(done), int(total)))
+
+            def should_stop() -> bool:
+                return task.cancel_requested or me.is_cancelled
+
+            try:
+                result = fn(progress, should_stop)
+            except NotAvailableYet as exc:
+                app.post_message(TaskFinished(name, "", str(exc), refresh_points))
+                return
+            except SandtrackError as exc:
+                app.post_message(TaskFinished(name, "", str(exc), refresh_points))
+                return
+            except Exception as exc:  # noqa: BLE001 - any failure becomes a notification, never a dead app
+                app.post_message(TaskFinished(name, "", f"{type(exc).__name__}: {exc}", refresh_points))
+                return
+            app._task_results[name] = (result, on_result)
+            stopped = " (cancelled, kept what was done)" if task.cancel_requested else ""
+            app.post_message(TaskFinished(name, f"{name} done{stopped}", None, refresh_points))
+
+        task.worker = self.run_worker(worker, name=name, group="task", exclusive=True, thread=True,
+                                      exit_on_error=False)
+
+    @on(TaskProgress)
+    def _task_progress(self, msg: TaskProgress) -> None:
+        bar = self.query_one("#task-bar", ProgressBar)
+        bar.update(total=max(msg.total, 1), progress=msg.done)
+        if self.bg_task is not None and self.bg_task.name.startswith("tracking") and time.perf_counter() - getattr(
+                self, "_last_live_reload", 0.0) > 1.0:
+            self._last_live_reload = time.perf_counter()
+            self.reload_points()
+            self.update_overlays()
+
+    @on(TaskFinished)
+    def _task_finished(self, msg: TaskFinished) -> None:
+        self.bg_task = None
+        self.query_one("#task").remove_class("-running")
+        self.query_one("#task-bar", ProgressBar).update(total=100, progress=0)
+        if msg.refresh_points:
+            self.reload_points()
+            self.refresh_all()
+        if msg.error:
+            self.notify(f"{msg.name}: {msg.error}", severity="error", timeout=10)
+            return
+        result, on_result = self._task_results.pop(msg.name, (None, None))
+        if on_result is not None:
+            on_result(result)
+        elif msg.text:
+            self.notify(msg.text)
+
+    def on_worker_state_changed(self, event: Worker.StateChanged) -> None:
+        if event.state == WorkerState.ERROR and self.bg_task is not None and event.worker is self.bg_task.worker:
+            self.post_message(TaskFinished(self.bg_task.name, "", str(event.worker.error)))
+
+    def action_cancel(self) -> None:
+        if self.bg_task is None:
+            if self.range_in is not None or self.range_out is not None:
+                self.range_in = self.range_out = None
+                self.refresh_all()
+            return
+        self.bg_task.cancel_requested = True
+        if self.bg_task.worker is not None:
+            self.bg_task.worker.cancel()
+        self.notify(f"cancelling {self.bg_task.name}…")
+
+    # -- corrections -------------------------------------------------------------------------
+    def _range(self) -> tuple[int, int] | None:
+        if self.range_in is None and self.range_out is None:
+            return None
+        a = self.range_in if self.range_in is not None else self.frame
+        b = self.range_out if self.range_out is not None else self.frame
+        return (min(a, b), max(a, b))
+
+    def _cam_range(self, camera: str, rng: tuple[int, int]) -> tuple[int, int]:
+        return self.cam_index(camera, rng[0]), self.cam_index(camera, rng[1])
+
+    def _need_selected(self) -> int | None:
+        if self.selected is None:
+            self.notify("select a marker first (1-8)", severity="warning")
+        return self.selected
+
+    def _edit(self, fn, message: str | None = None) -> None:
+        try:
+            result = fn()
+        except SandtrackError as exc:
+            self.notify(str(exc), severity="error")
+            return
+        self.after_edit(message(result) if callable(message) else message)
+
+    def action_nudge(self, dx: int, dy: int) -> None:
+        m = self._need_selected()
+        if m is None:
+            return
+        cam = self.active
+
+        def fn():
+            corrections.nudge(self.project, m, cam, self.cam_index(cam), dx, dy)
+            rec = self.project.points(frame=self.cam_index(cam), camera=cam, marker=m).iloc[0]
+            self.cursor[cam] = (float(rec.x_px), float(rec.y_px))
+
+        self._edit(fn)
+
+    def action_occlude(self) -> None:
+        m = self._need_selected()
+        if m is None:
+            return
+        rng = self._range() or (self.frame, self.frame)
+        cam = self.active
+        self._edit(lambda: corrections.mark_occluded(self.project, m, cam, self._cam_range(cam, rng)),
+                   f"marker {m} marked occluded in {cam}")
+
+    def action_mark_in(self) -> None:
+        self.range_in = self.frame
+        self.refresh_all()
+
+    def action_mark_out(self) -> None:
+        self.range_out = self.frame
+        self.refresh_all()
+
+    def action_delete(self) -> None:
+        m = self._need_selected()
+        if m is None:
+            return
+        rng = self._range() or (self.frame, self.frame)
+        cam = self.active
+        self._edit(lambda: corrections.delete_range(self.project, m, cam, self._cam_range(cam, rng)),
+                   f"deleted marker {m} in {cam}, frames {rng[0]}-{rng[1]} (u undoes)")
+
+    def action_interpolate(self) -> None:
+        m = self._need_selected()
+        if m is None:
+            return
+        cam = self.active
+        rng = self._range()
+        if rng is None:
+            gap = corrections.gap_around(self.project, m, cam, self.cam_index(cam))
+            if gap is None:
+                self.notify("no gap here: set a range with [ and ], or go into a gap (n)", severity="warning")
+                return
+            cam_rng = gap
+        else:
+            cam_rng = self._cam_range(cam, rng)
+        self._edit(lambda: corrections.interpolate_gap(self.project, m, cam, cam_rng),
+                   lambda n: f"interpolated {n} frames of marker {m} in {cam} (marked 'interpolated')")
+
+    def action_swap(self) -> None:
+        m = self._need_selected()
+        if m is None:
+            return
+        rng = self._range() or (self.frame, self.n_frames - 1)
+
+        def done(other):
+            if other is None:
+                return
+            # both cameras: the range is in side frames; swap each camera over its own frames
+            def fn():
+                n = 0
+                for cam in self.cameras:
+                    with contextlib.suppress(SandtrackError):
+                        n += corrections.swap_markers(self.project, m, other, self._cam_range(cam, rng), [cam])
+                if n == 0:
+                    raise SandtrackError(f"markers {m} and {other} have no points in frames {rng[0]}-{rng[1]}")
+                return n
+
+            self._edit(fn, lambda n: f"swapped markers {m} and {other} over frames {rng[0]}-{rng[1]} ({n} points)")
+
+        self.push_screen(AskNumber(f"Swap marker {m} with which marker, frames {rng[0]}-{rng[1]}?", None, 1, 999),
+                         done)
+
+    def action_undo(self) -> None:
+        try:
+            what = self.project.undo()
+        except SandtrackError as exc:
+            self.notify(str(exc), severity="error")
+            return
+        self._after_history(what, "undone")
+
+    def action_redo(self) -> None:
+        try:
+            what = self.project.redo()
+        except SandtrackError as exc:
+            self.notify(str(exc), severity="error")
+            return
+        self._after_history(what, "redone")
+
+    def _after_history(self, what: str | None, verb: str) -> None:
+        if what is None:
+            self.notify(f"nothing to {verb[:-2]}")
+            return
+        if what.startswith("set sync_offset_s") or "sync" in what:
+            self.apply_sync_offset(self.project.sync_offset_s, save=False)
+        if "calibration" in what:
+            self._calibration = self._load_calibration()
+        self.after_edit(f"{verb}: {what}")
+
+    # -- screens -----------------------------------------------------------------------------
+    def apply_sync_offset(self, offset_s: float, save: bool = True) -> None:
+        if save:
+            self.project.set("sync_offset_s", float(offset_s), f"set sync offset to {offset_s * 1000:.2f} ms")
+        self.pair = FramePair(self.sources["side"], self.sources["front"], float(offset_s))
+        self._compute_frame_maps()
+        self.reload_points()
+        self.refresh_all()
+
+    def calibration_changed(self) -> None:
+        self._calibration = self._load_calibration()
+        self.refresh_all()
+
+    def action_screen(self, name: str) -> None:
+        from .screens import open_screen
+
+        try:
+            screen = open_screen(name, self)
+        except NotAvailableYet as exc:
+            self.notify(str(exc), severity="warning")
+            return
+        self.push_screen(screen)
+
+    def action_help(self) -> None:
+        groups: dict[str, list[tuple[str, str]]] = {}
+        for keys, _action, desc, group, _show in KEYS:
+            shown = " ".join(KEY_DISPLAY.get(k, k) for k in keys.split(","))
+            groups.setdefault(group, []).append((shown, desc))
+        self.push_screen(HelpScreen(list(groups.items())))
+
+    def get_system_commands(self, screen: Screen):
+        yield from super().get_system_commands(screen)
+        for keys, action, desc, _group, _show in KEYS:
+            if not action or action in ("help", "quit"):
+                continue
+            yield SystemCommand(desc[0].upper() + desc[1:], f"key: {keys.split(',')[0]}",
+                                lambda a=action: self.run_action(a))
+
+    async def action_quit(self) -> None:
+        if self.bg_task is not None:
+            def done(ok):
+                if ok:
+                    self.bg_task.cancel_requested = True
+                    self.exit()
+
+            self.push_screen(Confirm(f"{self.bg_task.name} is running; quit anyway? (points so far are saved)"), done)
+            return
+        self.exit()

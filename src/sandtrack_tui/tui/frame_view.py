@@ -1,0 +1,395 @@
+"""Camera frames drawn with half-block characters.
+
+A terminal cell holds two display pixels: "▀" with the upper pixel as foreground colour and the
+lower one as background. The visible part of the frame is area-averaged down to the cell grid
+(`cv2.resize(INTER_AREA)`), so fine texture becomes its mean colour rather than aliasing. Small
+blue markers would fade to a faint tint at a 10-20x downscale, so a blue mask is computed at full
+resolution and every display pixel covering at least `BOOST_FRACTION` of marker pixels is painted
+vivid blue ("marker boost").
+
+Rows become Rich segments with runs of equal colour pairs merged and `Style` objects cached by
+colour pair; in 256-colour terminals the pixels are first snapped to the xterm colour cube, which
+both matches what the terminal can show and makes runs longer.
+
+Mapping between cells and source pixels (s = source px per display px):
+    x = x0 + (col + 0.5) * s,  y = y0 + (2 * row + 1) * s
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from rich.color import Color as RichColor
+from rich.segment import Segment
+from rich.style import Style
+from textual import events
+from textual.message import Message
+from textual.strip import Strip
+from textual.widget import Widget
+
+HALF = "▀"
+BOOST_FRACTION = 0.03
+BOOST_RGB = (40, 110, 255)
+# OpenCV HSV (H in 0..180): blue marker paint, well away from sand (H ~ 10-30).
+BLUE_LO = np.array([95, 90, 45], np.uint8)
+BLUE_HI = np.array([135, 255, 255], np.uint8)
+
+STATUS_RGB = {
+    "tracked": (60, 220, 90),
+    "manual": (80, 220, 255),
+    "interpolated": (240, 200, 40),
+    "imported": (210, 120, 255),
+    "occluded": (170, 170, 170),
+    "lost": (255, 60, 60),
+}
+SELECTED_RGB = (255, 255, 255)
+CURSOR_RGB = (255, 230, 0)
+EPIPOLAR_RGB = (255, 80, 200)
+SEARCH_RGB = (255, 160, 40)
+
+_CUBE = np.array([0, 95, 135, 175, 215, 255], np.int16)
+# value -> nearest cube level, for every uint8 value
+_CUBE_LUT = _CUBE[np.abs(np.arange(256)[:, None] - _CUBE[None, :]).argmin(axis=1)].astype(np.uint8)
+
+
+# --------------------------------------------------------------------------------------------
+# geometry of a view
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ViewTransform:
+    """Which source region a view of `cols` x `rows` cells shows: display pixel (i, j) covers source
+    [x0 + i s, x0 + (i+1) s) x [y0 + j s, y0 + (j+1) s); there are cols x 2*rows display pixels."""
+
+    x0: float
+    y0: float
+    s: float
+    cols: int
+    rows: int
+
+    @classmethod
+    def make(cls, width: int, height: int, cols: int, rows: int, zoom: float = 1.0,
+             center: tuple[float, float] | None = None) -> ViewTransform:
+        cols, rows = max(int(cols), 1), max(int(rows), 1)
+        s = max(width / cols, height / (2 * rows)) / max(zoom, 1e-6)
+        vw, vh = cols * s, 2 * rows * s
+        cx, cy = center if center is not None else (width / 2, height / 2)
+        cx = width / 2 if vw >= width else min(max(cx, vw / 2), width - vw / 2)
+        cy = height / 2 if vh >= height else min(max(cy, vh / 2), height - vh / 2)
+        return cls(cx - vw / 2, cy - vh / 2, s, cols, rows)
+
+    @property
+    def center(self) -> tuple[float, float]:
+        return self.x0 + self.cols * self.s / 2, self.y0 + self.rows * self.s
+
+    def cell_to_source(self, col: int, row: int) -> tuple[float, float]:
+        return self.x0 + (col + 0.5) * self.s, self.y0 + (2 * row + 1) * self.s
+
+    def source_to_cell(self, x: float, y: float) -> tuple[int, int]:
+        return math.floor((x - self.x0) / self.s), math.floor((y - self.y0) / self.s / 2)
+
+    def source_to_display(self, x, y):
+        """Continuous display-pixel coordinates with pixel centres at integers."""
+        return (np.asarray(x) - self.x0) / self.s - 0.5, (np.asarray(y) - self.y0) / self.s - 0.5
+
+    def contains(self, x: float, y: float) -> bool:
+        return self.x0 <= x < self.x0 + self.cols * self.s and self.y0 <= y < self.y0 + 2 * self.rows * self.s
+
+
+# --------------------------------------------------------------------------------------------
+# pixels
+# --------------------------------------------------------------------------------------------
+def marker_mask(bgr: np.ndarray) -> np.ndarray:
+    """uint8 mask (255 = blue marker paint) at the resolution of `bgr`."""
+    return cv2.inRange(cv2.cvtColor(bgr, cv2.COLOR_BGR2HSV), BLUE_LO, BLUE_HI)
+
+
+def render_pixels(frame_bgr: np.ndarray, tf: ViewTransform, boost: bool = True) -> np.ndarray:
+    """The display image (2*rows, cols, 3) RGB uint8 of the region `tf` shows; black outside the frame."""
+    h, w = frame_bgr.shape[:2]
+    out = np.zeros((2 * tf.rows, tf.cols, 3), np.uint8)
+    ix0, iy0 = max(0, math.floor(tf.x0)), max(0, math.floor(tf.y0))
+    ix1 = min(w, math.ceil(tf.x0 + tf.cols * tf.s))
+    iy1 = min(h, math.ceil(tf.y0 + 2 * tf.rows * tf.s))
+    if ix1 <= ix0 or iy1 <= iy0:
+        return out
+    dc0 = min(max(round((ix0 - tf.x0) / tf.s), 0), tf.cols)
+    dc1 = min(max(round((ix1 - tf.x0) / tf.s), 0), tf.cols)
+    dr0 = min(max(round((iy0 - tf.y0) / tf.s), 0), 2 * tf.rows)
+    dr1 = min(max(round((iy1 - tf.y0) / tf.s), 0), 2 * tf.rows)
+    if dc1 <= dc0 or dr1 <= dr0:
+        return out
+    crop = frame_bgr[iy0:iy1, ix0:ix1]
+    size = (dc1 - dc0, dr1 - dr0)
+    shrinking = tf.s > 1.0
+    small = cv2.resize(crop, size, interpolation=cv2.INTER_AREA if shrinking else cv2.INTER_NEAREST)
+    if boost and tf.s >= 2.0:
+        frac = cv2.resize(marker_mask(crop), size, interpolation=cv2.INTER_AREA)
+        small[frac >= int(255 * BOOST_FRACTION)] = BOOST_RGB[::-1]
+    out[dr0:dr1, dc0:dc1] = small[:, :, ::-1]
+    return out
+
+
+def quantize(rgb: np.ndarray, colors: str) -> np.ndarray:
+    """Snap colours to what the terminal shows: the xterm cube for 256 colours, 5 bits per channel
+    otherwise (invisible at this scale, and it lets neighbouring cells share a style)."""
+    if colors == "truecolor":
+        return rgb & 0xF8
+    return _CUBE_LUT[rgb]
+
+
+# --------------------------------------------------------------------------------------------
+# overlays (drawn into the display image; labels go into cells)
+# --------------------------------------------------------------------------------------------
+@dataclass
+class MarkerMark:
+    marker: int
+    label: str
+    x: float
+    y: float
+    status: str
+    selected: bool = False
+    half_size_px: float = 10.0
+
+
+@dataclass
+class Overlays:
+    marks: list[MarkerMark] = field(default_factory=list)
+    cursor: tuple[float, float] | None = None
+    search: tuple[float, float, float, float] | None = None  # x, y, half_w, half_h (source px)
+    epipolar: np.ndarray | None = None  # (N, 2) source px along the selected marker's epipolar line
+
+
+def draw_overlays(rgb: np.ndarray, tf: ViewTransform, ov: Overlays) -> dict[tuple[int, int], tuple[str, Style]]:
+    """Draw boxes, crosshair, search window and epipolar line into `rgb` (in place); return the
+    text labels as {(row, col): (char, style)}."""
+    labels: dict[tuple[int, int], tuple[str, Style]] = {}
+    if ov.epipolar is not None and len(ov.epipolar) >= 2:
+        u, v = tf.source_to_display(ov.epipolar[:, 0], ov.epipolar[:, 1])
+        ok = np.isfinite(u) & np.isfinite(v) & (np.abs(u) < 1e5) & (np.abs(v) < 1e5)
+        pts = np.round(np.stack([u[ok], v[ok]], axis=1)).astype(np.int32)
+        if len(pts) >= 2:
+            cv2.polylines(rgb, [pts.reshape(-1, 1, 2)], False, EPIPOLAR_RGB, 1, cv2.LINE_8)
+    if ov.search is not None:
+        x, y, hw, hh = ov.search
+        _rect(rgb, tf, x - hw, y - hh, x + hw, y + hh, SEARCH_RGB)
+    for m in ov.marks:
+        if not (np.isfinite(m.x) and np.isfinite(m.y)):
+            continue
+        colour = STATUS_RGB.get(m.status, (255, 255, 255))
+        hs = max(m.half_size_px, 1.5 * tf.s)
+        _rect(rgb, tf, m.x - hs, m.y - hs, m.x + hs, m.y + hs, SELECTED_RGB if m.selected else colour)
+        if m.selected:
+            _rect(rgb, tf, m.x - hs - tf.s, m.y - hs - tf.s, m.x + hs + tf.s, m.y + hs + tf.s, colour)
+        col, row = tf.source_to_cell(m.x + hs, m.y - hs)
+        style = Style(color=RichColor.from_triplet(_t(colour)), bgcolor=RichColor.from_rgb(0, 0, 0),
+                      bold=m.selected, reverse=m.selected)
+        for k, ch in enumerate(m.label):
+            cell = (row - 1 if row > 0 else row, col + 1 + k)
+            if 0 <= cell[0] < tf.rows and 0 <= cell[1] < tf.cols:
+                labels[cell] = (ch, style)
+    if ov.cursor is not None:
+        u, v = tf.source_to_display(*ov.cursor)
+        u, v = int(round(float(u))), int(round(float(v)))
+        for d in (2, 3, 4):
+            for du, dv in ((d, 0), (-d, 0), (0, d), (0, -d)):
+                _put(rgb, u + du, v + dv, CURSOR_RGB)
+        _put(rgb, u, v, CURSOR_RGB)
+    return labels
+
+
+def _t(rgb) -> tuple[int, int, int]:
+    from rich.color_triplet import ColorTriplet
+
+    return ColorTriplet(*rgb)
+
+
+def _put(rgb: np.ndarray, u: int, v: int, colour) -> None:
+    if 0 <= v < rgb.shape[0] and 0 <= u < rgb.shape[1]:
+        rgb[v, u] = colour
+
+
+def _rect(rgb, tf: ViewTransform, xa, ya, xb, yb, colour) -> None:
+    (ua, ub), (va, vb) = tf.source_to_display(np.array([xa, xb]), np.array([ya, yb]))
+    pa = (int(np.floor(ua)), int(np.floor(va)))
+    pb = (int(np.ceil(ub)), int(np.ceil(vb)))
+    if max(abs(pa[0]), abs(pa[1]), abs(pb[0]), abs(pb[1])) > 100_000:
+        return
+    cv2.rectangle(rgb, pa, pb, colour, 1, cv2.LINE_8)
+
+
+# --------------------------------------------------------------------------------------------
+# segments
+# --------------------------------------------------------------------------------------------
+class StripBuilder:
+    """Turns a display image into one `Strip` per cell row, caching a `Style` per colour pair."""
+
+    MAX_STYLES = 60_000
+
+    def __init__(self) -> None:
+        self._styles: dict[int, Style] = {}
+        self._runs: dict[int, str] = {}
+
+    def _style(self, key: int) -> Style:
+        style = self._styles.get(key)
+        if style is None:
+            if len(self._styles) > self.MAX_STYLES:
+                self._styles.clear()
+            top, bot = key >> 24, key & 0xFFFFFF
+            style = Style(color=RichColor.from_rgb(top >> 16, (top >> 8) & 255, top & 255),
+                          bgcolor=RichColor.from_rgb(bot >> 16, (bot >> 8) & 255, bot & 255))
+            self._styles[key] = style
+        return style
+
+    def _text(self, n: int) -> str:
+        text = self._runs.get(n)
+        if text is None:
+            text = self._runs[n] = HALF * n
+        return text
+
+    def build(self, rgb: np.ndarray, labels: dict[tuple[int, int], tuple[str, Style]] | None = None) -> list[Strip]:
+        h2, cols = rgb.shape[:2]
+        rows = h2 // 2
+        px = rgb.astype(np.int64)
+        packed = (px[..., 0] << 16) | (px[..., 1] << 8) | px[..., 2]
+        keys = (packed[0:2 * rows:2] << 24) | packed[1:2 * rows:2]
+        label_rows: dict[int, dict[int, tuple[str, Style]]] = {}
+        for (r, c), v in (labels or {}).items():
+            label_rows.setdefault(r, {})[c] = v
+        strips = []
+        style_of, text_of = self._style, self._text
+        for r in range(rows):
+            row_keys = keys[r]
+            row_labels = label_rows.get(r)
+            if row_labels:
+                row_keys = row_keys.copy()
+                for c in row_labels:
+                    row_keys[c] = -1 - c  # unique, so labels always break runs
+            cuts = np.flatnonzero(row_keys[1:] != row_keys[:-1]) + 1
+            starts = [0, *cuts.tolist()]
+            ends = [*cuts.tolist(), cols]
+            segs = []
+            append = segs.append
+            for a, b in zip(starts, ends, strict=True):
+                k = int(row_keys[a])
+                if k < 0:
+                    ch, style = row_labels[a]
+                    append(Segment(ch, style))
+                else:
+                    append(Segment(text_of(b - a), style_of(k)))
+            strips.append(Strip(segs, cols))
+        return strips
+
+
+# --------------------------------------------------------------------------------------------
+# widget
+# --------------------------------------------------------------------------------------------
+class FrameView(Widget):
+    """One camera's frame. The app hands it display images (`set_pixels`) computed off the UI thread,
+    plus overlays; the widget only composes and draws lines."""
+
+    DEFAULT_CSS = """
+    FrameView { width: 1fr; height: 1fr; border: round $panel; }
+    FrameView.-active { border: round $accent; }
+    """
+
+    class Clicked(Message):
+        """A click in the view, mapped to source pixels of this view's camera."""
+
+        def __init__(self, view: FrameView, x: float, y: float, button: int) -> None:
+            super().__init__()
+            self.view, self.x, self.y, self.button = view, x, y, button
+
+    class Resized(Message):
+        pass
+
+    class Zoom(Message):
+        def __init__(self, view: FrameView, factor: float, x: float, y: float) -> None:
+            super().__init__()
+            self.view, self.factor, self.x, self.y = view, factor, x, y
+
+    def __init__(self, camera: str, *, name: str | None = None, id: str | None = None,
+                 classes: str | None = None) -> None:
+        super().__init__(name=name, id=id, classes=classes)
+        self.camera = camera
+        self.tf: ViewTransform | None = None
+        self.pixels: np.ndarray | None = None  # display image for `tf`, no overlays
+        self.pixels_key = None  # what the pixels show: (frame index, tf)
+        self.overlays = Overlays()
+        self.color_mode = "truecolor"
+        self.message_text = ""
+        self._builder = StripBuilder()
+        self._strips: list[Strip] = []
+        self.last_compose_ms = 0.0
+
+    # -- data in -----------------------------------------------------------------------------
+    def set_pixels(self, pixels: np.ndarray, key, tf: ViewTransform) -> None:
+        self.pixels, self.pixels_key, self.tf = pixels, key, tf
+        self.recompose()
+
+    def set_overlays(self, overlays: Overlays) -> None:
+        self.overlays = overlays
+        self.recompose()
+
+    def show_message(self, text: str) -> None:
+        self.message_text = text
+        self.recompose()
+
+    def recompose(self) -> None:
+        import time
+
+        t0 = time.perf_counter()
+        rows = self.content_size.height
+        cols = self.content_size.width
+        if self.pixels is None or self.tf is None:
+            self._strips = []
+        else:
+            rgb = quantize(self.pixels, self.color_mode)
+            labels = draw_overlays(rgb, self.tf, self.overlays)
+            if self.message_text:
+                style = Style(color="black", bgcolor="yellow", bold=True)
+                for k, ch in enumerate(self.message_text[: self.tf.cols]):
+                    labels[(0, k)] = (ch, style)
+            self._strips = self._builder.build(rgb, labels)
+        if not self._strips and self.message_text and rows:
+            self._strips = [Strip([Segment(self.message_text[:cols].ljust(cols), Style(color="yellow"))], cols)]
+        self.last_compose_ms = (time.perf_counter() - t0) * 1000
+        self.refresh()
+
+    # -- drawing -----------------------------------------------------------------------------
+    def render_line(self, y: int) -> Strip:
+        width = self.content_size.width
+        if y < len(self._strips):
+            strip = self._strips[y]
+            if strip.cell_length != width:
+                strip = strip.crop_extend(0, width, Style())
+            return strip
+        return Strip.blank(width)
+
+    def on_resize(self, event: events.Resize) -> None:
+        self.post_message(self.Resized())
+
+    # -- mouse -------------------------------------------------------------------------------
+    def on_click(self, event: events.Click) -> None:
+        off = event.get_content_offset(self)
+        if off is None or self.tf is None:
+            return
+        x, y = self.tf.cell_to_source(off.x, off.y)
+        event.stop()
+        self.post_message(self.Clicked(self, x, y, event.button))
+
+    def _zoom_event(self, event: events.MouseEvent, factor: float) -> None:
+        off = event.get_content_offset(self)
+        if off is None or self.tf is None:
+            return
+        event.stop()
+        x, y = self.tf.cell_to_source(off.x, off.y)
+        self.post_message(self.Zoom(self, factor, x, y))
+
+    def on_mouse_scroll_up(self, event: events.MouseScrollUp) -> None:
+        self._zoom_event(event, 1.5)
+
+    def on_mouse_scroll_down(self, event: events.MouseScrollDown) -> None:
+        self._zoom_event(event, 1 / 1.5)

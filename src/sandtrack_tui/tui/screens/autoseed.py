@@ -1,0 +1,73 @@
+"""Auto-seed confirmation: the proposed seeds, one row per marker; space toggles, enter accepts."""
+
+from __future__ import annotations
+
+import pandas as pd
+from rich.text import Text
+from textual.app import ComposeResult
+from textual.binding import Binding
+from textual.containers import Vertical
+from textual.screen import ModalScreen
+from textual.widgets import DataTable, Label
+
+
+class AutoSeedScreen(ModalScreen[pd.DataFrame | None]):
+    DEFAULT_CSS = """
+    AutoSeedScreen { align: center middle; }
+    AutoSeedScreen > Vertical { width: 90%; max-width: 100; height: 80%; border: round $accent;
+                                background: $surface; padding: 0 1; }
+    AutoSeedScreen DataTable { height: 1fr; }
+    """
+    BINDINGS = [Binding("space", "toggle", "use / skip"), Binding("enter", "accept", "accept"),
+                Binding("escape", "cancel", "cancel")]
+
+    def __init__(self, seeds: pd.DataFrame):
+        super().__init__()
+        self.seeds = seeds if seeds is not None else pd.DataFrame()
+        self.markers = sorted(self.seeds["marker"].unique().tolist()) if len(self.seeds) else []
+        self.use = {m: True for m in self.markers}
+
+    def compose(self) -> ComposeResult:
+        with Vertical():
+            yield Label(f"[b]Auto-seed[/]: {len(self.markers)} markers found. space: use / skip, "
+                        "enter: accept the used ones, escape: cancel")
+            yield DataTable(id="seeds", cursor_type="row")
+
+    def on_mount(self) -> None:
+        t = self.query_one(DataTable)
+        t.add_column("use", key="use", width=4)
+        t.add_column("marker", key="marker", width=6)
+        t.add_column("side px", key="side", width=16)
+        t.add_column("front px", key="front", width=16)
+        t.add_column("epipolar px", key="epi", width=11)
+        for m in self.markers:
+            rows = self.seeds[self.seeds["marker"] == m]
+            cells = {}
+            for cam in ("side", "front"):
+                r = rows[rows["camera"] == cam]
+                cells[cam] = f"{r['x_px'].iloc[0]:7.1f},{r['y_px'].iloc[0]:7.1f}" if len(r) else "—"
+            epi = rows["epipolar_px"].max() if "epipolar_px" in rows else float("nan")
+            epi_txt = Text(f"{epi:.2f}" if epi == epi else "—", style="red" if epi == epi and epi > 2 else "")
+            t.add_row(self._mark(m), str(m), cells["side"], cells["front"], epi_txt, key=str(m))
+        t.focus()
+
+    def _mark(self, m) -> Text:
+        return Text("[x]", style="green") if self.use[m] else Text("[ ]", style="dim")
+
+    def action_toggle(self) -> None:
+        t = self.query_one(DataTable)
+        if not self.markers:
+            return
+        m = self.markers[t.cursor_row]
+        self.use[m] = not self.use[m]
+        t.update_cell(str(m), "use", self._mark(m))
+
+    def action_accept(self) -> None:
+        keep = [m for m in self.markers if self.use[m]]
+        self.dismiss(self.seeds[self.seeds["marker"].isin(keep)] if keep else None)
+
+    def action_cancel(self) -> None:
+        self.dismiss(None)
+
+    def on_data_table_row_selected(self, event: DataTable.RowSelected) -> None:
+        self.action_accept()

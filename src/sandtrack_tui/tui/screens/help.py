@@ -1,0 +1,48 @@
+"""`?`: every key binding, grouped, plus tips for SSH and tmux."""
+
+from __future__ import annotations
+
+from textual.app import ComposeResult
+from textual.binding import Binding
+from textual.containers import VerticalScroll
+from textual.screen import ModalScreen
+from textual.widgets import Markdown
+
+TIPS = """
+### Mouse
+- **click** in a view: place the selected marker there (snaps to the blob centre)
+- **right-click**: select the marker under the pointer
+- **wheel**: zoom about the pointer; **click the timeline**: go to that frame
+
+### Over SSH / tmux
+- sshd does not forward `COLORTERM`: start with `COLORTERM=truecolor sandtrack` (otherwise 256 colours).
+- tmux: `set -as terminal-features ',*:RGB'` in `~/.tmux.conf`, and `set -g mouse on` is not needed
+  (the app asks for the mouse itself).
+- Every edit is saved at once: a dropped link loses nothing; run `sandtrack PROJECT` again.
+"""
+
+
+class HelpScreen(ModalScreen[None]):
+    DEFAULT_CSS = """
+    HelpScreen { align: center middle; }
+    HelpScreen > VerticalScroll { width: 90%; max-width: 110; height: 90%; border: round $accent;
+                                  background: $surface; padding: 0 1; }
+    """
+    BINDINGS = [Binding("escape,q,question_mark", "close", "close")]
+
+    def __init__(self, groups: list[tuple[str, list[tuple[str, str]]]]):
+        super().__init__()
+        self.groups = groups
+
+    def compose(self) -> ComposeResult:
+        parts = ["# sandtrack keys\n"]
+        for title, rows in self.groups:
+            parts.append(f"### {title}\n\n| key | what it does |\n|---|---|")
+            parts.extend(f"| `{k}` | {d} |" for k, d in rows)
+            parts.append("")
+        parts.append(TIPS)
+        with VerticalScroll():
+            yield Markdown("\n".join(parts))
+
+    def action_close(self) -> None:
+        self.dismiss(None)

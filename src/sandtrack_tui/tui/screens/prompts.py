@@ -1,0 +1,67 @@
+"""Small modal prompts: a number, a yes/no question."""
+
+from __future__ import annotations
+
+from textual.app import ComposeResult
+from textual.binding import Binding
+from textual.containers import Vertical
+from textual.screen import ModalScreen
+from textual.widgets import Input, Label
+
+
+class AskNumber(ModalScreen[int | None]):
+    """Ask for an integer; dismisses with it, or None on Escape."""
+
+    DEFAULT_CSS = """
+    AskNumber { align: center middle; }
+    AskNumber > Vertical { width: 50; height: auto; border: round $accent; padding: 0 1; background: $surface; }
+    AskNumber Label { width: 100%; }
+    """
+    BINDINGS = [Binding("escape", "cancel", "cancel")]
+
+    def __init__(self, question: str, default: int | None = None, lo: int | None = None, hi: int | None = None):
+        super().__init__()
+        self.question, self.default, self.lo, self.hi = question, default, lo, hi
+
+    def compose(self) -> ComposeResult:
+        with Vertical():
+            yield Label(self.question)
+            yield Input(value="" if self.default is None else str(self.default), type="integer", id="number")
+            yield Label("", id="problem")
+
+    def on_input_submitted(self, event: Input.Submitted) -> None:
+        try:
+            value = int(event.value)
+        except ValueError:
+            self.query_one("#problem", Label).update("[red]type a whole number[/]")
+            return
+        if (self.lo is not None and value < self.lo) or (self.hi is not None and value > self.hi):
+            self.query_one("#problem", Label).update(f"[red]between {self.lo} and {self.hi}[/]")
+            return
+        self.dismiss(value)
+
+    def action_cancel(self) -> None:
+        self.dismiss(None)
+
+
+class Confirm(ModalScreen[bool]):
+    DEFAULT_CSS = """
+    Confirm { align: center middle; }
+    Confirm > Vertical { width: 60; height: auto; border: round $warning; padding: 0 1; background: $surface; }
+    """
+    BINDINGS = [Binding("y,enter", "yes", "yes"), Binding("n,escape", "no", "no")]
+
+    def __init__(self, question: str):
+        super().__init__()
+        self.question = question
+
+    def compose(self) -> ComposeResult:
+        with Vertical():
+            yield Label(self.question)
+            yield Label("[b]y[/] / enter: yes    [b]n[/] / escape: no")
+
+    def action_yes(self) -> None:
+        self.dismiss(True)
+
+    def action_no(self) -> None:
+        self.dismiss(False)

@@ -1,0 +1,196 @@
+"""The terminal UI driven by Pilot on a small synthetic experiment with known marker centres."""
+
+from __future__ import annotations
+
+import asyncio
+import functools
+import math
+
+import numpy as np
+import pytest
+
+from sandtrack_tui.tui.app import SandtrackApp
+from tui_synth import N_FRAMES, make_frames, make_project, true_xy
+
+SIZE = (100, 30)
+
+
+def aio(fn):
+    """Run an async test without a pytest asyncio plugin."""
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        return asyncio.run(fn(*args, **kwargs))
+
+    return wrapper
+
+
+@pytest.fixture(scope="module")
+def frames(tmp_path_factory):
+    return make_frames(tmp_path_factory.mktemp("frames"))
+
+
+@pytest.fixture
+def project(tmp_path, frames):
+    proj = make_project(tmp_path, frames=frames)
+    yield proj
+    proj.close()
+
+
+async def settle(pilot, app, cond=None, timeout=10.0):
+    """Wait until both views show what was asked for (and `cond()` holds)."""
+    import time
+
+    t0 = time.perf_counter()
+    while time.perf_counter() - t0 < timeout:
+        await pilot.pause(0.02)
+        if app.views_ready() and (cond is None or cond()):
+            return
+    raise AssertionError("the UI did not settle")
+
+
+async def click_source(pilot, app, camera, x, y, dcol=0, drow=0):
+    """Click the cell showing source pixel (x, y) of `camera`, shifted by (dcol, drow) cells."""
+    v = app.view(camera)
+    col, row = v.tf.source_to_cell(x, y)
+    await pilot.click(f"#view-{camera}", offset=(col + dcol + v.gutter.left, row + drow + v.gutter.top))
+    await pilot.pause(0.05)
+
+
+def stored(project, marker, camera, frame):
+    p = project.points(marker=marker, camera=camera, frame=frame)
+    assert len(p) == 1, f"no point for marker {marker} {camera} frame {frame}"
+    r = p.iloc[0]
+    return (math.nan if r["x_px"] is None else float(r["x_px"]), math.nan if r["y_px"] is None else float(r["y_px"]),
+            r["status"])
+
+
+@pytest.mark.parametrize("dcol,drow", [(0, 0), (1, 0), (-1, 0)])
+@aio
+async def test_click_maps_to_true_centre(project, dcol, drow):
+    app = SandtrackApp(project)
+    async with app.run_test(size=SIZE) as pilot:
+        await settle(pilot, app)
+        await pilot.press("2")
+        x, y = true_xy(2, 0)
+        await click_source(pilot, app, "side", x, y, dcol, drow)
+        sx, sy, status = stored(project, 2, "side", 0)
+        assert math.hypot(sx - x, sy - y) < 1.0
+        assert status == "manual"
+        # the mapping itself is good to about one cell: s source px per display px
+        v = app.view("side")
+        cx, cy = v.tf.cell_to_source(*v.tf.source_to_cell(x, y))
+        assert abs(cx - x) <= v.tf.s / 2 + 1e-9 and abs(cy - y) <= v.tf.s + 1e-9
+
+
+@aio
+async def test_click_when_zoomed_and_in_front_view(project):
+    app = SandtrackApp(project)
+    async with app.run_test(size=SIZE) as pilot:
+        await settle(pilot, app)
+        await pilot.press("3", "tab")
+        app.cursor["front"] = true_xy(3, 0, "front")
+        await pilot.press("plus", "plus")
+        await settle(pilot, app)
+        v = app.view("front")
+        assert v.tf.s < 4 and v.tf.x0 > 0
+        x, y = true_xy(3, 0, "front")
+        await click_source(pilot, app, "front", x, y, 2, 1)
+        sx, sy, _ = stored(project, 3, "front", 0)
+        assert math.hypot(sx - x, sy - y) < 1.0
+
+
+@aio
+async def test_keyboard_seed_and_step(project):
+    app = SandtrackApp(project)
+    async with app.run_test(size=SIZE) as pilot:
+        await settle(pilot, app)
+        await pilot.press("1")
+        tx, ty = true_xy(1, 0)
+        s = app.view("side").tf.s
+        cx, cy = app.cursor["side"]
+        keys = ["h" if tx < cx else "l"] * round(abs(tx - cx) / s) + ["k" if ty < cy else "j"] * round(abs(ty - cy) / s)
+        await pilot.press(*keys)
+        assert math.hypot(app.cursor["side"][0] - tx, app.cursor["side"][1] - ty) < s
+        await pilot.press("enter")
+        sx, sy, _ = stored(project, 1, "side", 0)
+        assert math.hypot(sx - tx, sy - ty) < 1.0
+        # navigation
+        await pilot.press("right")
+        await settle(pilot, app)
+        assert app.frame == 1 and app.view("side").pixels_key[0] == 1
+        await pilot.press("shift+right", "pagedown")
+        assert app.frame == N_FRAMES - 1  # clamped
+        await pilot.press("home")
+        assert app.frame == 0
+        await pilot.press("g")
+        await pilot.pause()
+        await pilot.press("1", "2", "enter")
+        await settle(pilot, app)
+        assert app.frame == 12 and app.view("front").pixels_key[0] == 12
+
+
+@aio
+async def test_track_correct_undo(project):
+    app = SandtrackApp(project)
+    async with app.run_test(size=SIZE) as pilot:
+        await settle(pilot, app)
+        await pilot.press("1")
+        await click_source(pilot, app, "side", *true_xy(1, 0))
+        await click_source(pilot, app, "front", *true_xy(1, 0, "front"))
+        assert len(project.points(marker=1)) == 2
+        await pilot.press("t")
+        await settle(pilot, app, lambda: app.bg_task is None, timeout=60)
+        pts = project.points(marker=1, camera="side")
+        assert len(pts) == N_FRAMES
+        err = [math.hypot(r.x_px - true_xy(1, r.frame)[0], r.y_px - true_xy(1, r.frame)[1])
+               for r in pts.itertuples() if r.status in ("tracked", "manual")]
+        assert len(err) >= N_FRAMES - 2 and np.mean(err) < 1.0
+        # the timeline shows the marker as tracked all along
+        assert (app.codes[(1, "side")] > 0).all()
+
+        # delete frames 10..14 in the side view, find the gap as a problem, interpolate, undo all
+        await pilot.press("tab", "home")  # the last click made the front view active
+        assert app.active == "side"
+        for _ in range(10):
+            await pilot.press("right")
+        await pilot.press("left_square_bracket")
+        await pilot.press("right", "right", "right", "right", "right_square_bracket", "backspace")
+        assert project.points(marker=1, camera="side", frames=(10, 14)).empty
+        await pilot.press("escape", "home", "n")
+        assert app.frame == 10
+        await pilot.press("i")
+        filled = project.points(marker=1, camera="side", frames=(10, 14))
+        assert len(filled) == 5 and (filled["status"] == "interpolated").all()
+        await pilot.press("u")
+        assert project.points(marker=1, camera="side", frames=(10, 14)).empty
+        await pilot.press("u")
+        assert len(project.points(marker=1, camera="side", frames=(10, 14))) == 5
+        await pilot.press("U")
+        assert project.points(marker=1, camera="side", frames=(10, 14)).empty
+
+        # nudge and occlude at frame 3
+        await pilot.press("home", "right", "right", "right", "d", "d", "S")
+        x, y, status = stored(project, 1, "side", 3)
+        tx, ty = true_xy(1, 3)
+        assert status == "manual" and abs(x - tx - 2) < 1.0 and abs(y - ty - 5) < 1.0
+        await pilot.press("o")
+        assert stored(project, 1, "side", 3)[2] == "occluded"
+
+
+@aio
+async def test_worker_error_is_a_notification(project, monkeypatch):
+    import sandtrack_tui.tracking.run as run
+
+    def broken(*a, **k):
+        raise RuntimeError("boom")
+
+    monkeypatch.setattr(run, "track_project", broken)
+    app = SandtrackApp(project)
+    async with app.run_test(size=SIZE) as pilot:
+        await settle(pilot, app)
+        await pilot.press("r")
+        await settle(pilot, app, lambda: app.bg_task is None)
+        assert any("boom" in n.message for n in app._notifications)
+        await pilot.press("right")  # still alive
+        await settle(pilot, app)
+        assert app.frame == 1
