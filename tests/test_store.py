@@ -204,3 +204,21 @@ def test_full_disk_gives_clear_message_and_keeps_committed_edits(project):
     project.conn.execute("PRAGMA max_page_count = 1000000")
     assert len(project.points()) == 5 and project.points(camera="front").empty
     assert project.undo() == "before the disk filled"
+
+
+def test_version_1_project_is_migrated(tmp_path):
+    from sandtrack_tui import store
+
+    path = tmp_path / "old.sandtrack"
+    conn = sqlite3.connect(path)
+    conn.executescript(store.MIGRATIONS[0])
+    conn.execute("INSERT INTO meta VALUES ('schema_version', '1')")
+    conn.execute("INSERT INTO markers VALUES (3, 'old marker')")
+    conn.commit()
+    conn.close()
+    with Project.open(path) as proj:
+        assert proj.markers().label.tolist() == ["old marker"]
+        version = proj.conn.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()[0]
+        assert int(version) == SCHEMA_VERSION
+        indexes = {r[0] for r in proj.conn.execute("SELECT name FROM sqlite_master WHERE type='index'")}
+        assert "edit_rows_by_key" in indexes

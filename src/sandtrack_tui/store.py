@@ -33,7 +33,7 @@ import pandas as pd
 
 from .errors import SandtrackError
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 STATUSES = ("tracked", "occluded", "lost", "manual", "interpolated", "imported")
 POINT_COLUMNS = ["frame", "camera", "marker", "x_px", "y_px", "status", "score", "psr", "colour_frac"]
 _POINT_VALUES = POINT_COLUMNS[3:]
@@ -58,8 +58,12 @@ CREATE TABLE IF NOT EXISTS edit_rows (
     key TEXT NOT NULL, before TEXT, after TEXT, PRIMARY KEY (edit_id, seq));
 """
 
+_V1_TO_V2 = """
+CREATE INDEX IF NOT EXISTS edit_rows_by_key ON edit_rows (edit_id, key);
+"""
+
 # Migrations from version N to N+1; index 0 creates version 1.
-MIGRATIONS: list[str] = [_SCHEMA_V1]
+MIGRATIONS: list[str] = [_SCHEMA_V1, _V1_TO_V2]
 
 
 @dataclass
@@ -246,7 +250,7 @@ class Project:
                 out.append(VideoProblem(ref.camera, ref.path, "changed"))
         return out
 
-    def open_sources(self, cache_mb: float = 512) -> dict:
+    def open_sources(self, cache_mb: float = 256) -> dict:
         """FrameSource per camera; raises one clear error if a video moved or changed."""
         from .video import FrameSource
 
@@ -463,7 +467,6 @@ class _Edit:
         self.kind = kind
         self.edit_id: int | None = None
         self.seq = 0
-        self._seq_of: dict[str, int] = {}
 
     def write(self, rows) -> int:
         records = list(_as_point_tuples(rows))
@@ -477,22 +480,29 @@ class _Edit:
             for rec in records:
                 key = json.dumps(list(rec[:3]))
                 after = json.dumps(list(rec[3:]))
-                if key in self._seq_of:
+                prior = self._prior_seq(key)
+                if prior is not None:  # a row this edit already wrote keeps its first "before"
                     conn.execute("UPDATE edit_rows SET after=? WHERE edit_id=? AND seq=?",
-                                 (after, self.edit_id, self._seq_of[key]))
+                                 (after, self.edit_id, prior))
                     continue
                 old = conn.execute(
                     f"SELECT {', '.join(_POINT_VALUES)} FROM points WHERE frame=? AND camera=? AND marker=?",
                     rec[:3]).fetchone()
                 self.project._log_row(self.edit_id, self.seq, "points", key,
                                       json.dumps(list(old)) if old else None, after)
-                self._seq_of[key] = self.seq
                 self.seq += 1
             conn.executemany(f"INSERT OR REPLACE INTO points ({', '.join(POINT_COLUMNS)}) "
                              f"VALUES (?,?,?,?,?,?,?,?,?)", records)
 
         self.project._write(fn)
         return len(records)
+
+    def _prior_seq(self, key: str) -> int | None:
+        if not self.seq:
+            return None
+        row = self.project.conn.execute("SELECT seq FROM edit_rows WHERE edit_id=? AND key=?",
+                                        (self.edit_id, key)).fetchone()
+        return None if row is None else int(row[0])
 
     def delete(self, keys) -> int:
         """Delete points by (frame, camera, marker) as part of this edit (undone with it)."""
@@ -506,9 +516,10 @@ class _Edit:
                 self.edit_id = self.project._new_edit(self.kind, self.description)
             for key in keys:
                 jkey = json.dumps(list(key))
-                if jkey in self._seq_of:
+                prior = self._prior_seq(jkey)
+                if prior is not None:
                     conn.execute("UPDATE edit_rows SET after=NULL WHERE edit_id=? AND seq=?",
-                                 (self.edit_id, self._seq_of[jkey]))
+                                 (self.edit_id, prior))
                 else:
                     old = conn.execute(
                         f"SELECT {', '.join(_POINT_VALUES)} FROM points WHERE frame=? AND camera=? AND marker=?",
@@ -516,7 +527,6 @@ class _Edit:
                     if old is None:
                         continue
                     self.project._log_row(self.edit_id, self.seq, "points", jkey, json.dumps(list(old)), None)
-                    self._seq_of[jkey] = self.seq
                     self.seq += 1
                 conn.execute("DELETE FROM points WHERE frame=? AND camera=? AND marker=?", key)
 

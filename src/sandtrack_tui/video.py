@@ -76,7 +76,7 @@ class _LRU:
 class FrameSource:
     """Random and sequential, frame-accurate access to a video file or an image folder."""
 
-    def __init__(self, path: str | Path, cache_mb: float = 512, fps: float | None = None):
+    def __init__(self, path: str | Path, cache_mb: float = 256, fps: float | None = None):
         self.path = Path(path)
         self._lock = threading.RLock()
         self._cache = _LRU(int(cache_mb * 1024 * 1024))
