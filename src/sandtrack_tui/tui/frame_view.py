@@ -123,13 +123,35 @@ def render_pixels(frame_bgr: np.ndarray, tf: ViewTransform, boost: bool = True) 
         return out
     crop = frame_bgr[iy0:iy1, ix0:ix1]
     size = (dc1 - dc0, dr1 - dr0)
-    shrinking = tf.s > 1.0
-    small = cv2.resize(crop, size, interpolation=cv2.INTER_AREA if shrinking else cv2.INTER_NEAREST)
-    if boost and tf.s >= 2.0:
-        frac = cv2.resize(marker_mask(crop), size, interpolation=cv2.INTER_AREA)
-        small[frac >= int(255 * BOOST_FRACTION)] = BOOST_RGB[::-1]
+    if tf.s <= 1.0:
+        small = cv2.resize(crop, size, interpolation=cv2.INTER_NEAREST)
+    else:
+        # INTER_AREA is fast for whole-number factors and slow otherwise, so shrink by whole
+        # factors first (2x, then k x) and do the fractional rest on the small image.
+        work, frac = crop, None
+        if tf.s >= 2.0:
+            work = _shrink(work, 2)
+            if boost:
+                frac = marker_mask(work)
+            k = int(tf.s / 2.0)
+            if k >= 2:
+                work = _shrink(work, k)
+                frac = None if frac is None else _shrink(frac, k)
+        small = cv2.resize(work, size, interpolation=cv2.INTER_AREA)
+        if frac is not None:
+            frac = cv2.resize(frac, size, interpolation=cv2.INTER_AREA)
+            # a marker split over several display pixels may cover < 3 % of each: keep its peak too
+            peak = (frac >= 2) & (frac == cv2.dilate(frac, np.ones((3, 3), np.uint8)))
+            small[(frac >= int(255 * BOOST_FRACTION)) | peak] = BOOST_RGB[::-1]
     out[dr0:dr1, dc0:dc1] = small[:, :, ::-1]
     return out
+
+
+def _shrink(img: np.ndarray, k: int) -> np.ndarray:
+    """Area-average by a whole factor k (the last rows/columns that do not fill a block are dropped)."""
+    h, w = img.shape[:2]
+    h2, w2 = max(h // k, 1), max(w // k, 1)
+    return cv2.resize(img[: h2 * k, : w2 * k], (w2, h2), interpolation=cv2.INTER_AREA)
 
 
 def quantize(rgb: np.ndarray, colors: str) -> np.ndarray:
