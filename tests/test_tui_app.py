@@ -7,10 +7,11 @@ import functools
 import math
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from sandtrack_tui.tui.app import SandtrackApp
-from tui_synth import N_FRAMES, make_frames, make_project, true_xy
+from tui_synth import N_FRAMES, make_frames, make_project, true_xy, true_xyz
 
 SIZE = (100, 30)
 
@@ -194,3 +195,41 @@ async def test_worker_error_is_a_notification(project, monkeypatch):
         await pilot.press("right")  # still alive
         await settle(pilot, app)
         assert app.frame == 1
+
+
+@aio
+async def test_table_and_export_give_true_xyz(tmp_path, frames):
+    project = make_project(tmp_path, frames=frames, calibrated=True)
+    app = SandtrackApp(project)
+    async with app.run_test(size=(120, 50)) as pilot:
+        await settle(pilot, app)
+        await pilot.press("2")
+        await click_source(pilot, app, "side", *true_xy(2, 0))
+        await click_source(pilot, app, "front", *true_xy(2, 0, "front"))
+        # live table: XYZ by triangulation at the current frame, tiny residual
+        row = next(r for r in app.table_rows() if r.marker == 2)
+        assert np.linalg.norm(np.array(row.xyz_tri) - true_xyz(2, 0)) < 3.0
+        assert row.residual_px < 1.0
+        # the front view shows the side point's epipolar curve through the true front position
+        app.active = "side"
+        app.update_overlays()
+        curve = app.view("front").overlays.epipolar
+        fx, fy = true_xy(2, 0, "front")
+        a, b = curve[:-1], curve[1:]
+        t = np.clip(np.sum((np.array([fx, fy]) - a) * (b - a), 1) / np.sum((b - a) ** 2, 1), 0, 1)
+        assert np.hypot(*(a + t[:, None] * (b - a) - [fx, fy]).T).min() < 1.0
+        await pilot.press("t")
+        await settle(pilot, app, lambda: app.bg_task is None, timeout=60)
+        await pilot.press("e")
+        await pilot.pause(0.2)
+        out = tmp_path / "out.csv"
+        app.screen.query_one("#path").value = str(out)
+        await pilot.click("#export")
+        await settle(pilot, app, lambda: app.bg_task is None and out.exists(), timeout=60)
+        df = pd.read_csv(out)
+        tri = df[(df["method"] == "triangulation") & (df["marker"] == 2)].dropna(subset=["X_mm"])
+        assert len(tri) >= N_FRAMES - 2
+        err = [np.linalg.norm(np.array([r.X_mm, r.Y_mm, r.Z_mm]) - true_xyz(2, r.frame)) for r in tri.itertuples()]
+        assert np.median(err) < 3.0
+        await pilot.press("escape")
+        assert app.screen is app._main_screen

@@ -8,21 +8,37 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from sandtrack_tui.camera import Calibration, Camera
 from sandtrack_tui.store import Project
 
 WIDTH, HEIGHT, N_FRAMES = 640, 360, 30
 RADIUS = 5
-# start (x, y) and velocity (px/frame) per marker; front positions are shifted copies
-MARKERS = {1: ((150.3, 120.6), (2.0, 0.5)), 2: ((420.7, 230.2), (-1.5, 0.25)), 3: ((300.4, 80.8), (0.5, 1.0))}
-FRONT_SHIFT = (-40.0, 25.0)
+FOCAL = 800.0
+# start XYZ (mm, rig = world frame = side camera frame) and velocity (mm/frame) per marker
+MARKERS = {1: ((-120.0, -40.0, 1000.0), (2.5, 0.6, 0.0)), 2: ((110.0, 40.0, 1040.0), (-1.8, 0.3, -1.0)),
+           3: ((20.0, -70.0, 980.0), (0.6, 1.2, 0.5))}
+
+
+def calibration() -> Calibration:
+    K = [[FOCAL, 0, WIDTH / 2], [0, FOCAL, HEIGHT / 2], [0, 0, 1]]
+    R = cv2.Rodrigues(np.array([0.0, 0.25, 0.0]))[0]
+    centre = np.array([250.0, 0.0, 0.0])
+    cams = {"side": Camera("side", WIDTH, HEIGHT, K, np.zeros(5)),
+            "front": Camera("front", WIDTH, HEIGHT, K, np.zeros(5), cv2.Rodrigues(R)[0].ravel(), -R @ centre)}
+    return Calibration(cams)
+
+
+_CAL = calibration()
+
+
+def true_xyz(marker: int, frame: int) -> np.ndarray:
+    p, v = MARKERS[marker]
+    return np.array(p) + frame * np.array(v)
 
 
 def true_xy(marker: int, frame: int, camera: str = "side") -> tuple[float, float]:
-    (x, y), (vx, vy) = MARKERS[marker]
-    x, y = x + vx * frame, y + vy * frame
-    if camera == "front":
-        x, y = x + FRONT_SHIFT[0], y + FRONT_SHIFT[1]
-    return x, y
+    x, y = _CAL.cameras[camera].project(true_xyz(marker, frame)[None])[0]
+    return float(x), float(y)
 
 
 _SAND: dict[str, np.ndarray] = {}
@@ -56,7 +72,11 @@ def make_frames(folder: Path) -> Path:
     return folder
 
 
-def make_project(folder: Path, name: str = "synthetic", frames: Path | None = None) -> Project:
+def make_project(folder: Path, name: str = "synthetic", frames: Path | None = None,
+                 calibrated: bool = False) -> Project:
     """A project in `folder` linking the frames in `frames` (rendered into `folder` if not given)."""
     frames = frames or make_frames(folder)
-    return Project.create(folder / f"{name}.sandtrack", {"side": frames / "side", "front": frames / "front"})
+    proj = Project.create(folder / f"{name}.sandtrack", {"side": frames / "side", "front": frames / "front"})
+    if calibrated:
+        proj.set_calibration(calibration())
+    return proj

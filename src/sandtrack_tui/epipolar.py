@@ -12,7 +12,7 @@ from .camera import Calibration
 
 
 def epipolar_curve(calibration: Calibration, cam_a: str, px_a, cam_b: str, near_mm: float = 50.0,
-                   far_mm: float = 20_000.0, samples: int = 160) -> np.ndarray:
+                   far_mm: float = 20_000.0, samples: int = 400) -> np.ndarray:
     """(N, 2) distorted pixels of camera b along the epipolar curve of `px_a` (one pixel of camera a),
     ordered by depth in camera a; only points in front of camera b."""
     a, b = calibration.cameras[cam_a], calibration.cameras[cam_b]

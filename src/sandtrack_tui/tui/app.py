@@ -206,6 +206,9 @@ class SandtrackApp(App):
         yield Footer()
 
     def on_mount(self) -> None:
+        # Widgets of the main screen, kept so that workers' messages reach them under other screens.
+        self._main_screen = self.screen
+        self._w = {w.id: w for w in self.screen.query("*") if w.id}
         colors = self.colors_override or (self.console.color_system or "256")
         for v in self.views():
             v.color_mode = "truecolor" if colors == "truecolor" else "256"
@@ -227,10 +230,10 @@ class SandtrackApp(App):
             self.feeder.stop()
 
     def views(self) -> list[FrameView]:
-        return [self.query_one(f"#view-{c}", FrameView) for c in self.cameras]
+        return [self._w[f"view-{c}"] for c in self.cameras]
 
     def view(self, camera: str) -> FrameView:
-        return self.query_one(f"#view-{camera}", FrameView)
+        return self._w[f"view-{camera}"]
 
     def on_resize(self, event) -> None:
         self.call_after_refresh(self.request_frames)
@@ -273,7 +276,7 @@ class SandtrackApp(App):
             for cam in self.cameras:
                 codes[(mid, cam)] = status_codes(self.points, mid, cam, self.n_frames, self._side_to[cam])
         self.codes = codes
-        self.query_one(Timeline).set_data(self.marker_list, codes, self.n_frames, self.cameras)
+        self._w['timeline'].set_data(self.marker_list, codes, self.n_frames, self.cameras)
 
     def point(self, camera: str, marker: int, frame: int | None = None):
         for rec in self._by_cam_frame.get((camera, self.cam_index(camera, frame)), ()):
@@ -397,7 +400,7 @@ class SandtrackApp(App):
         self.request_frames()
         self.update_status()
         self.update_table()
-        self.query_one(Timeline).set_position(self.frame, self.selected, (self.range_in, self.range_out))
+        self._w['timeline'].set_position(self.frame, self.selected, (self.range_in, self.range_out))
 
     def update_status(self) -> None:
         t = float(self.sources["side"].times_s[self.frame])
@@ -410,7 +413,7 @@ class SandtrackApp(App):
             rng = f"  range \\[{a}..{b}]"
         zoom = f"  zoom {self.zoom[self.active]:g}x" + (" follow" if self.follow else "")
         play = "  ▶" if self._playing else ""
-        self.query_one("#status", Static).update(
+        self._w['status'].update(
             f"[b]{self.project.path.stem}[/]  frame [b]{self.frame}[/]/{self.n_frames - 1}  t={t:.3f} s  "
             f"front {p.front} ({p.remainder_frames:+.2f})  marker [b]{sel}[/]  view [b]{self.active}[/]"
             f"{rng}{zoom}{play}", layout=False)
@@ -418,7 +421,7 @@ class SandtrackApp(App):
     def update_table(self) -> None:
         if self.layout_mode != 0:
             return
-        self.query_one(MarkerTable).set_rows(self.table_rows(), self.selected)
+        self._w['table'].set_rows(self.table_rows(), self.selected)
 
     def table_rows(self) -> list[MarkerRow]:
         rows = []
@@ -517,7 +520,7 @@ class SandtrackApp(App):
         self._direction = 1
         self.request_frames()
         self.update_status()
-        self.query_one(Timeline).set_position(self.frame, self.selected, (self.range_in, self.range_out))
+        self._w['timeline'].set_position(self.frame, self.selected, (self.range_in, self.range_out))
         if self.frame % 10 == 0:
             self.update_table()
 
@@ -596,8 +599,8 @@ class SandtrackApp(App):
 
     def _set_layout(self, mode: int) -> None:
         self.layout_mode = mode
-        self.screen.set_class(mode == 1, "-no-table")
-        self.screen.set_class(mode == 2, "-views-only")
+        self._main_screen.set_class(mode == 1, "-no-table")
+        self._main_screen.set_class(mode == 2, "-views-only")
 
     def action_cycle_layout(self) -> None:
         self._set_layout((self.layout_mode + 1) % 3)
@@ -772,11 +775,13 @@ class SandtrackApp(App):
             return
         task = Task(name)
         self.bg_task = task
-        bar = self.query_one("#task-bar", ProgressBar)
+        bar = self._w['task-bar']
         bar.update(total=None, progress=0)
-        self.query_one("#task-label", Label).update(f"{name} (esc cancels)")
-        self.query_one("#task").add_class("-running")
+        self._w['task-label'].update(f"{name} (esc cancels)")
+        self._w['task'].add_class("-running")
         self._task_results: dict = {}
+        if hasattr(self.screen, "task_started"):
+            self.screen.task_started(name)
 
         app = self
 
@@ -813,8 +818,10 @@ class SandtrackApp(App):
 
     @on(TaskProgress)
     def _task_progress(self, msg: TaskProgress) -> None:
-        bar = self.query_one("#task-bar", ProgressBar)
+        bar = self._w['task-bar']
         bar.update(total=max(msg.total, 1), progress=msg.done)
+        if hasattr(self.screen, "task_progress"):
+            self.screen.task_progress(msg.done, msg.total)
         if self.bg_task is not None and self.bg_task.name.startswith("tracking") and time.perf_counter() - getattr(
                 self, "_last_live_reload", 0.0) > 1.0:
             self._last_live_reload = time.perf_counter()
@@ -824,8 +831,11 @@ class SandtrackApp(App):
     @on(TaskFinished)
     def _task_finished(self, msg: TaskFinished) -> None:
         self.bg_task = None
-        self.query_one("#task").remove_class("-running")
-        self.query_one("#task-bar", ProgressBar).update(total=100, progress=0)
+        self._w['task'].remove_class("-running")
+        self._w['task-bar'].update(total=100, progress=0)
+        for scr in self.screen_stack:
+            if hasattr(scr, "task_finished"):
+                scr.task_finished()
         if msg.refresh_points:
             self.reload_points()
             self.refresh_all()

@@ -1,12 +1,89 @@
-"""CompareScreen (waits for the core module sandtrack_tui.compare)."""
+"""DEM comparison: read a DEM trajectory file, align and compare with the tracked markers, plot errors."""
 
 from __future__ import annotations
+
+from pathlib import Path
+
+from textual.app import ComposeResult
+from textual.containers import Horizontal, VerticalScroll
+from textual.widgets import Button, Footer, Input, Label, Markdown, Select, Static
 
 from ..core import core
 from .base import TaskScreen
 
+SUMMARY_KEYS = ("particles", "time_shift_s", "rmse_3d_mm_all", "rmse_3d_mm_median", "final_error_mm_median",
+                "frechet_mm_median", "dtw_norm_mm_median", "flagged_markers")
+
 
 class CompareScreen(TaskScreen):
     def __init__(self, app) -> None:
-        core("compare", "__missing__")
+        self.cmp = core("compare", "compare", "experiment_table", "error_text_plot")
+        self.dem = core("dem", "read_dem")
+        self.traj = core("trajectories", "trajectory_table")
         super().__init__(app)
+
+    def compose(self) -> ComposeResult:
+        with VerticalScroll():
+            yield Static("Compare with a DEM simulation", classes="title")
+            with Horizontal(classes="row"):
+                yield Label("DEM file:")
+                yield Input(value=str(self.main.project.get("dem_path", "")), id="dem",
+                            placeholder="exchange CSV or LIGGGHTS/LAMMPS dump")
+            with Horizontal(classes="row"):
+                yield Label("XYZ by:")
+                yield Select([("triangulation", "triangulation"), ("network (MLP)", "mlp")],
+                             value="triangulation", allow_blank=False, id="method", compact=True)
+                yield Select([("match by id, else nearest", "auto"), ("by id", "id"), ("nearest start", "nearest")],
+                             value="auto", allow_blank=False, id="match", compact=True)
+                yield Button("Compare", id="run", variant="primary", compact=True)
+            yield self.progress_row()
+            yield Markdown("", id="summary")
+            yield Static("", id="plot")
+        yield Footer()
+
+    def on_button_pressed(self, event: Button.Pressed) -> None:
+        self.start()
+
+    def on_input_submitted(self, event: Input.Submitted) -> None:
+        self.start()
+
+    def start(self) -> None:
+        dem_path = Path(self.query_one("#dem", Input).value.strip()).expanduser()
+        if not dem_path.exists():
+            self.notify(f"file not found: {dem_path}", severity="error")
+            return
+        method = str(self.query_one("#method", Select).value)
+        match = str(self.query_one("#match", Select).value)
+        fps = self.main.sources["side"].fps
+        cmp_mod, dem_mod, traj = self.cmp, self.dem, self.traj
+        width = max(self.size.width - 12, 30)
+
+        def job(progress, should_stop):
+            proj = self.main._worker_project()
+            try:
+                exp = cmp_mod.experiment_table(traj.trajectory_table(proj, method=method), method)
+                proj.set("dem_path", str(dem_path), "remember DEM file")
+            finally:
+                proj.close()
+            dem = dem_mod.read_dem(dem_path)
+            result = cmp_mod.compare(exp, dem, name=dem_path.stem, match=match, fps=fps)
+            return result, cmp_mod.error_text_plot(result, width=width, height=12)
+
+        self.main.run_task("DEM comparison", job, on_result=self.show_result, refresh_points=False)
+
+    def show_result(self, result) -> None:
+        cmp, plot = result
+        lines = ["| figure | value |", "|---|---|"]
+        for k in SUMMARY_KEYS:
+            if k in cmp.summary:
+                v = cmp.summary[k]
+                lines.append(f"| {k} | {v:.4g} |" if isinstance(v, float) else f"| {k} | {v} |")
+        per = cmp.per_particle
+        if len(per):
+            cols = [c for c in ("marker", "particle_id", "rmse_3d_mm", "final_error_mm", "frechet_mm", "flagged")
+                    if c in per.columns]
+            lines += ["", "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+            for r in per[cols].itertuples(index=False):
+                lines.append("| " + " | ".join(f"{v:.2f}" if isinstance(v, float) else str(v) for v in r) + " |")
+        self.query_one("#summary", Markdown).update("\n".join(lines))
+        self.query_one("#plot", Static).update(plot)

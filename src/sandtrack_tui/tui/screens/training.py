@@ -1,12 +1,87 @@
-"""TrainingScreen (waits for the core module sandtrack_tui.regression)."""
+"""Train the pixel -> XYZ network on calibration points: progress, then the test metrics."""
 
 from __future__ import annotations
+
+from pathlib import Path
+
+from textual.app import ComposeResult
+from textual.containers import Horizontal, VerticalScroll
+from textual.widgets import Button, Footer, Input, Label, Markdown, Select, Static
 
 from ..core import core
 from .base import TaskScreen
 
 
+def metrics_markdown(metrics: dict) -> str:
+    rows = [(k, v) for k, v in metrics.items() if isinstance(v, (int, float)) and not isinstance(v, bool)]
+    if not rows:
+        return "(no metrics)"
+    lines = ["| metric | value |", "|---|---|"]
+    lines += [f"| {k} | {v:.4g} |" if isinstance(v, float) else f"| {k} | {v} |" for k, v in rows]
+    return "\n".join(lines)
+
+
 class TrainingScreen(TaskScreen):
     def __init__(self, app) -> None:
-        core("regression", "__missing__")
+        self.reg = core("regression", "train", "TrainConfig", "load_points")
         super().__init__(app)
+
+    def compose(self) -> ComposeResult:
+        info = self.main.project.get("model") or {}
+        with VerticalScroll():
+            yield Static("Train the regression model (pixels -> XYZ)", classes="title")
+            yield Static(f"Current model: {info.get('path', 'none')}", id="current")
+            with Horizontal(classes="row"):
+                yield Label("Calibration points CSV:")
+                yield Input(value=str(self.main.project.get("calibration_points", "")), id="points",
+                            placeholder="points.csv: frame, corner_id, xs, ys, xf, yf, X_mm, Y_mm, Z_mm")
+            with Horizontal(classes="row"):
+                yield Select([("full", "full"), ("quick preview", "fast")], value="full", allow_blank=False,
+                             id="config", compact=True)
+                yield Button("Train", id="train", variant="primary", compact=True)
+            yield self.progress_row()
+            yield Static("", id="status", classes="result")
+            yield Markdown(metrics_markdown(info.get("metrics", {})), id="metrics")
+        yield Footer()
+
+    def on_button_pressed(self, event: Button.Pressed) -> None:
+        self.start()
+
+    def start(self) -> None:
+        path = Path(self.query_one("#points", Input).value.strip()).expanduser()
+        if not path.is_file():
+            self.notify(f"file not found: {path}", severity="error")
+            return
+        reg = self.reg
+        cfg = reg.TrainConfig.fast() if self.query_one("#config", Select).value == "fast" else reg.TrainConfig()
+        cal = self.main._calibration
+        out = self.main.project.path.with_name(self.main.project.path.stem + "_model.pt")
+        status = self.query_one("#status", Static)
+
+        def job(progress, should_stop):
+            points = reg.load_points(path)
+            total = cfg.total_epochs(cal is not None)
+            last = {}
+
+            def on_epoch(epoch, loss, val_mm):
+                last.update(epoch=epoch, val_mm=val_mm)
+                progress(epoch, total)
+                self.main.call_from_thread(status.update, f"epoch {epoch}/{total}: validation error {val_mm:.2f} mm")
+
+            model = reg.train(points, cfg, calibration=cal, progress=on_epoch, should_stop=should_stop)
+            model.save(out)
+            proj = self.main._worker_project()
+            try:
+                metrics = {k: v for k, v in model.metrics.items() if isinstance(v, (int, float, str, bool))}
+                proj.set("model", {"path": str(out), "metrics": metrics}, "train regression model")
+                proj.set("calibration_points", str(path), "remember calibration points")
+            finally:
+                proj.close()
+            return model
+
+        self.main.run_task("training", job, on_result=self.show_result, refresh_points=False)
+
+    def show_result(self, model) -> None:
+        self.query_one("#status", Static).update(f"[green]model saved[/]: {self.main.project.get('model')['path']}")
+        self.query_one("#metrics", Markdown).update(metrics_markdown(model.metrics))
+        self.main.refresh_all()
