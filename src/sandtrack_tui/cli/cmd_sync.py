@@ -20,7 +20,7 @@ def register(sub) -> None:
     p.add_argument("--max-offset", type=float, default=None, metavar="S",
                    help="largest plausible |offset| in seconds (narrows the search)")
     p.add_argument("--min-confidence", type=float, default=None, metavar="C",
-                   help="refuse below this confidence (0-1, default 0.3)")
+                   help="refuse below this confidence (0-1, default 0.35)")
     add_json_flag(p)
     p.set_defaults(func=run)
 
