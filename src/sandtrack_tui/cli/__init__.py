@@ -14,7 +14,8 @@ import sys
 from ..errors import NotAvailableYet, SandtrackError
 
 COMMANDS = [
-    "tui", "new", "sample", "calibrate", "sync", "train", "track", "xyz", "export", "import", "compare", "demo", "relink",
+    "tui", "new", "sample", "calibrate", "sync", "train", "track", "xyz", "export", "import", "compare", "demo",
+    "relink",
 ]
 
 
