@@ -34,6 +34,8 @@ class Engine:
     stereo_flags: list = field(default_factory=list)
     ambiguous: list = field(default_factory=list)
     max_events: int = 500
+    ambiguity_d2: float = 6.0
+    _open_ambiguity: dict = field(default_factory=dict)
 
     def add(self, track: MarkerTrack, start_frame: int) -> None:
         self.tracks[(track.marker, track.camera)] = track
@@ -73,6 +75,7 @@ class Engine:
             self._stereo_check(frames, props, forced, only_reattached=False)
         for cam, (_j, img, _rem) in frames.items():
             self._reacquire(cam, img, live[cam], props, forced, frames)
+            self._resolve_conflicts(live[cam], props, forced)
         if self.stereo is not None:
             self._stereo_check(frames, props, forced, only_reattached=True)
         for cam, (j, img, _rem) in frames.items():
@@ -143,7 +146,8 @@ class Engine:
     def _reacquire(self, cam, img, tracks, props, forced, frames) -> None:
         explained = [(p.match.x, p.match.y) for k, p in props.items() if k[1] == cam]
         explained += [xy for k, xy in forced.items() if k[1] == cam]
-        wanted: dict[tuple, object] = {}
+        cands: dict[tuple, list] = {}  # track key -> [(d2, blob id, blob)]
+        seen: list = []  # one blob seen through several tracks' windows is one blob
         for t in tracks:
             key = (t.marker, cam)
             if key in props:
@@ -164,29 +168,69 @@ class Engine:
             if not blobs:
                 continue
             xy = np.array([(b.x, b.y) for b in blobs])
+            d2 = t.kf.mahalanobis2(xy)
             if band_from is not None:
-                d = self.stereo.distance(self.stereo.other(cam), band_from, cam, xy)
-                keep = d <= self.stereo.band_px
+                keep = self.stereo.distance(self.stereo.other(cam), band_from, cam, xy) <= self.stereo.band_px
             else:
-                keep = t.kf.mahalanobis2(xy) <= t.params.gate_d2
-            blobs = [b for b, k in zip(blobs, keep, strict=True) if k]
-            if len(blobs) == 1:
-                wanted[key] = blobs[0]
-            elif len(blobs) > 1 and len(self.ambiguous) < self.max_events:
-                self.ambiguous.append({"marker": t.marker, "camera": cam, "frame": int(frames[cam][0]),
-                                       "candidates": len(blobs)})
-        # A blob wanted by two tracks is ambiguous: neither takes it.
-        owners: dict[tuple, list] = {}
-        for key, b in wanted.items():
-            owners.setdefault((round(b.x, 1), round(b.y, 1)), []).append(key)
-        for keys in owners.values():
-            if len(keys) > 1:
-                if len(self.ambiguous) < self.max_events:
-                    self.ambiguous.append({"marker": [k[0] for k in keys], "camera": cam,
-                                           "frame": int(frames[cam][0]), "candidates": 1})
-                continue
-            key = keys[0]
-            b = wanted[key]
-            m = self.tracks[key].verify_at(img, b.x, b.y)
+                keep = d2 <= t.params.gate_d2
+            cands[key] = [(float(d), self._blob_id(seen, b, t.model.radius), b)
+                          for d, b, k in zip(d2, blobs, keep, strict=True) if k]
+        for key, blob in self._assign(cam, int(frames[cam][0]), cands).items():
+            m = self.tracks[key].verify_at(img, blob.x, blob.y)
             if m is not None:
                 props[key] = _Proposal(m, reattach=True)
+
+    @staticmethod
+    def _blob_id(seen: list, b, radius: float) -> int:
+        for i, (x, y) in enumerate(seen):
+            if np.hypot(b.x - x, b.y - y) < radius:
+                return i
+        seen.append((b.x, b.y))
+        return len(seen) - 1
+
+    def _assign(self, cam, frame, cands: dict) -> dict:
+        """Tracks to blobs, most likely pair first; a pair is taken only if neither the track nor the
+        blob has a rival nearly as likely (likelihood ratio > e^3 ≈ 20): ambiguity is left alone."""
+        out = {}
+        cands = {k: sorted(v, key=lambda c: c[0]) for k, v in cands.items() if v}
+        blocked_tracks, blocked_blobs = set(), set()
+        while True:
+            best = None
+            for key, lst in cands.items():
+                if key in blocked_tracks:
+                    continue
+                for d2, bid, blob in lst:
+                    if bid in blocked_blobs:
+                        continue
+                    if best is None or d2 < best[0]:
+                        best = (d2, key, bid, blob)
+                    break
+            if best is None:
+                return out
+            d2, key, bid, blob = best
+            rival_blob = [c[0] for c in cands[key] if c[1] != bid and c[1] not in blocked_blobs]
+            rival_track = [c[0] for k, lst in cands.items() if k != key and k not in blocked_tracks
+                           for c in lst if c[1] == bid]
+            near = [r for r in rival_blob + rival_track if r - d2 < self.ambiguity_d2]
+            blocked_tracks.add(key)
+            blocked_blobs.add(bid)
+            if near:
+                n = 1 + len(near)
+                self._note_ambiguous(key[0], cam, frame, n, shared=bool(rival_track))
+                continue
+            out[key] = blob
+
+    def _note_ambiguous(self, marker, cam, frame, n, shared=False) -> None:
+        """Record an ambiguity once per stretch (consecutive frames extend the same record)."""
+        key = (marker, cam)
+        rec = self._open_ambiguity.get(key)
+        if rec is not None and abs(frame - rec["last_frame"]) <= 1:
+            rec["last_frame"] = frame
+            rec["candidates"] = max(rec["candidates"], n)
+            return
+        if len(self.ambiguous) >= self.max_events:
+            return
+        rec = {"marker": marker, "camera": cam, "frame": frame, "last_frame": frame, "candidates": n,
+               "why": "blob wanted by two tracks" if shared else "several candidate blobs in the gate"}
+        self.ambiguous.append(rec)
+        self._open_ambiguity[key] = rec

@@ -19,7 +19,8 @@ _H = np.array([[1, 0, 0, 0], [0, 1, 0, 0]], dtype=np.float64)
 
 class ConstantVelocityKF:
     def __init__(self, x: float, y: float, accel_px: float = 2.0, meas_px: float = 0.3,
-                 init_speed_px: float = 3.0, coast_damping: float = 0.9):
+                 init_speed_px: float = 3.0, coast_damping: float = 0.9, coast_walk_px: float = 3.0,
+                 coast_cv_frames: int = 3):
         self.x = np.array([x, y, 0.0, 0.0])
         self.P = np.diag([meas_px**2, meas_px**2, init_speed_px**2, init_speed_px**2])
         q = accel_px**2
@@ -27,7 +28,10 @@ class ConstantVelocityKF:
         self.Q = q * np.array([[0.25, 0, 0.5, 0], [0, 0.25, 0, 0.5], [0.5, 0, 1, 0], [0, 0.5, 0, 1]])
         self.R = np.eye(2) * meas_px**2
         self.coast_damping = coast_damping
+        self.coast_walk_px = coast_walk_px
+        self.coast_cv_frames = coast_cv_frames
         self._coasting = False
+        self.coast_frames = 0
 
     @property
     def position(self) -> np.ndarray:
@@ -38,9 +42,17 @@ class ConstantVelocityKF:
         return self.x[2:].copy()
 
     def predict(self) -> np.ndarray:
+        if self._coasting and self.coast_frames > self.coast_cv_frames:
+            # Hidden for a while: a hidden marker has mostly stopped (buried, or the tool has passed).
+            # Its velocity is forgotten and the position does a random walk, so the gate widens
+            # like sqrt(frames), not like frames^1.5 as the constant-velocity model would.
+            self.x[2:] = 0.0
+            self.P[2:, :] = 0.0
+            self.P[:, 2:] = 0.0
+            self.P[0, 0] += self.coast_walk_px**2
+            self.P[1, 1] += self.coast_walk_px**2
+            return self.position
         if self._coasting:
-            # Hidden markers usually stop (buried, or the tool has passed): damp the velocity
-            # so a long coast does not run away, while the covariance keeps growing.
             self.x[2:] *= self.coast_damping
         self.x = _F @ self.x
         self.P = _F @ self.P @ _F.T + self.Q
@@ -73,10 +85,12 @@ class ConstantVelocityKF:
         self.P = (np.eye(4) - K @ _H) @ self.P
         self.P = 0.5 * (self.P + self.P.T)
         self._coasting = False
+        self.coast_frames = 0
 
     def coast(self) -> None:
         """Record that this frame had no measurement (the next predict damps velocity)."""
         self._coasting = True
+        self.coast_frames += 1
 
     def reset(self, x: float, y: float, speed_px: float = 3.0, velocity=None) -> None:
         """Re-attach after a long gap: position known, velocity uncertain."""
@@ -85,6 +99,7 @@ class ConstantVelocityKF:
         r = self.R[0, 0]
         self.P = np.diag([r, r, speed_px**2, speed_px**2])
         self._coasting = False
+        self.coast_frames = 0
 
 
 def _inv2(S: np.ndarray) -> np.ndarray:

@@ -317,7 +317,7 @@ def track_project(project, markers=None, start: int | None = None, stop: int | N
         prefetch = [_Prefetch(sources[c], [st[c][0] for st in steps if c in st]) for c in cams]
         feeds = dict(zip(cams, prefetch, strict=True))
         t0 = time.perf_counter()
-        t_track = 0.0
+        t_track = cpu_track = 0.0
         n_obs = 0
         buf: list[tuple] = []
         desc = f"track {direction} from frame {a}" + (f" (markers {', '.join(map(str, markers))})" if markers else "")
@@ -332,9 +332,10 @@ def track_project(project, markers=None, start: int | None = None, stop: int | N
                     if jj != j:
                         raise RuntimeError(f"frame order broken ({c}: wanted {j}, got {jj})")
                     frames[c] = (j, img, rem)
-                t1 = time.perf_counter()
+                t1, c1 = time.perf_counter(), time.thread_time()
                 obs = engine.step(frames, manual)
                 t_track += time.perf_counter() - t1
+                cpu_track += time.thread_time() - c1
                 n_obs += len(obs)
                 buf.extend(o.row() for o in obs if o.status != MANUAL)
                 if (k + 1) % chunk_steps == 0 and buf:
@@ -356,6 +357,7 @@ def track_project(project, markers=None, start: int | None = None, stop: int | N
             frames=len(steps), first_frame=a, last_frame=b, per_marker=per, stereo_flags=engine.stereo_flags,
             ambiguous=engine.ambiguous, never_found=never, elapsed_s=round(elapsed, 3),
             track_ms_per_marker_frame=round(1000 * t_track / max(n_obs, 1), 4),
+            track_cpu_ms_per_marker_frame=round(1000 * cpu_track / max(n_obs, 1), 4),
             status="stopped" if summary["stopped"] else "done")
         return summary
     finally:

@@ -1,0 +1,209 @@
+"""Marker tracking against ground truth: accuracy, occlusion flags, re-acquisition, speed, TrackerMIL.
+
+On sample_data/ (the rendered digital twin: experiment/side.mp4, front.mp4, ground_truth/...) when it
+exists, else on a synthetic 1080p stereo clip encoded to H.264. Seeds: each marker's first visible
+frame in each camera, the true centre as an operator would click it (snapped). Speed: decoding only
+(the same prefetching decoder threads) and decoding + tracking are timed in the same run, alternately.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import tempfile
+import time
+from fractions import Fraction
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "src"))
+
+from sandtrack_tui.camera import Calibration  # noqa: E402
+from sandtrack_tui.store import Project  # noqa: E402
+from sandtrack_tui.tracking import synthetic  # noqa: E402
+from sandtrack_tui.tracking.mil_baseline import track_mil_many  # noqa: E402
+from sandtrack_tui.tracking.run import _Prefetch, accept_seeds, auto_seed, track_project  # noqa: E402
+from sandtrack_tui.tracking.seeding import marker_box, snap_to_marker  # noqa: E402
+from sandtrack_tui.video import FrameSource  # noqa: E402
+
+SAMPLE = ROOT / "sample_data"
+
+
+def _encode(frames, path: Path) -> None:
+    import av
+
+    with av.open(str(path), "w") as out:
+        s = out.add_stream("libx264", rate=Fraction(50))
+        s.width, s.height, s.pix_fmt = frames[0].shape[1], frames[0].shape[0], "yuv420p"
+        s.options = {"bf": "2", "g": "25", "crf": "18", "preset": "veryfast"}
+        for img in frames:
+            for p in s.encode(av.VideoFrame.from_ndarray(img, format="bgr24")):
+                out.mux(p)
+        for p in s.encode():
+            out.mux(p)
+
+
+def _synthetic_dataset(tmp: Path, n: int = 150):
+    size = (1080, 1920)
+    tool = {"side": (300, 800, 160, -200, 14.0), "front": (350, 760, 160, -300, 16.0)}
+    cal, clips = synthetic.render_stereo(n, size=size, tool=tool)
+    videos, truth = {}, {}
+    for cam, clip in clips.items():
+        videos[cam] = tmp / f"{cam}.mp4"
+        _encode(clip.frames, videos[cam])
+        t = clip.truth.copy()
+        truth[cam] = t[["frame", "marker", "x_px", "y_px", "visible"]]
+    return videos, truth, cal, 0.0
+
+
+def _sample_dataset():
+    gt = SAMPLE / "ground_truth"
+    videos = {c: SAMPLE / "experiment" / f"{c}.mp4" for c in ("side", "front")}
+    truth = {}
+    for c in videos:
+        t = pd.read_csv(gt / f"markers_{c}.csv")
+        t["visible"] = t["visible"].astype(str).str.lower().isin(["1", "true", "yes"])
+        truth[c] = t[["frame", "marker", "x_px", "y_px", "visible"]]
+    cal = Calibration.load(gt / "cameras.toml")
+    offset = float(json.loads((gt / "sync.json").read_text()).get("offset_s", 0.0))
+    return videos, truth, cal, offset
+
+
+def _seeds(videos, truth) -> pd.DataFrame:
+    rows = []
+    for cam, t in truth.items():
+        with FrameSource(videos[cam], cache_mb=64) as src:
+            for m, g in t[t.visible].sort_values("frame").groupby("marker"):
+                r = g.iloc[0]
+                img = src.frame(int(r.frame))
+                click = (r.x_px + 1.5, r.y_px - 1.0)  # an operator's click, a little off
+                snapped = snap_to_marker(img, *click) or click
+                box = marker_box(img, *snapped) or (16.0, 16.0)
+                rows.append((int(m), cam, int(r.frame), snapped[0], snapped[1], box[0], box[1], np.nan))
+    return pd.DataFrame(rows, columns=["marker", "camera", "frame", "x_px", "y_px", "w", "h", "epipolar_px"])
+
+
+def _decode_only(videos, n_frames: dict) -> float:
+    """Seconds to decode the same frames with the same prefetching threads, no tracking."""
+    srcs = {c: FrameSource(v, cache_mb=64) for c, v in videos.items()}
+    t0 = time.perf_counter()
+    feeds = [_Prefetch(srcs[c], list(range(n_frames[c]))) for c in srcs]
+    for _ in range(max(n_frames.values())):
+        for c, f in zip(srcs, feeds, strict=True):
+            if _ < n_frames[c]:
+                f.get()
+    dt = time.perf_counter() - t0
+    for f in feeds:
+        f.close()
+    for s in srcs.values():
+        s.close()
+    return dt
+
+
+def _accuracy(points: pd.DataFrame, truth: dict, seeds: pd.DataFrame) -> dict:
+    errs, hidden_flag, flagged_hidden, reacq = [], [], [], []
+    covered = []
+    for cam, t in truth.items():
+        p = points[points.camera == cam].merge(t, on=["frame", "marker"], suffixes=("", "_true"), how="inner")
+        seed_frames = set(map(tuple, seeds[seeds.camera == cam][["marker", "frame"]].to_numpy()))
+        p = p[[(m, f) not in seed_frames for m, f in zip(p.marker, p.frame, strict=True)]]
+        p["err"] = np.hypot(p.x_px - p.x_px_true, p.y_px - p.y_px_true)
+        vis = p[p.visible]
+        covered.append(vis.status.eq("tracked").to_numpy())
+        errs.append(vis[vis.status == "tracked"].err.to_numpy())
+        hidden_flag.append(p[~p.visible].status.isin(["occluded", "lost"]).to_numpy())
+        flagged_hidden.append((~p[p.status.isin(["occluded", "lost"])].visible).to_numpy())
+        for _m, g in p.sort_values("frame").groupby("marker"):
+            v = g.visible.to_numpy()
+            ok = (g.status.eq("tracked") & (g.err < 3)).to_numpy()
+            for k in np.nonzero(~v[:-1] & v[1:])[0] + 1:
+                later = np.nonzero(ok[k:])[0]
+                reacq.append(int(later[0]) if len(later) else 10**6)
+    e = np.concatenate(errs) if errs else np.array([])
+    hf, fh, rq = np.concatenate(hidden_flag), np.concatenate(flagged_hidden), np.array(reacq)
+    return {
+        "visible_frames": int(sum(len(c) for c in covered)),
+        "visible_tracked_frac": float(np.concatenate(covered).mean()) if covered else float("nan"),
+        "err_mean_px": float(e.mean()) if len(e) else float("nan"),
+        "err_p95_px": float(np.percentile(e, 95)) if len(e) else float("nan"),
+        "err_max_px": float(e.max()) if len(e) else float("nan"),
+        "false_locks_gt3px": int((e > 3).sum()),
+        "hidden_frames": int(len(hf)),
+        "hidden_flagged_frac": float(hf.mean()) if len(hf) else float("nan"),
+        "flagged_truly_hidden_frac": float(fh.mean()) if len(fh) else float("nan"),
+        "reappearances": int(len(rq)),
+        "reacquired_within_3_frames_frac": float((rq <= 3).mean()) if len(rq) else float("nan"),
+        "reacquire_frames_max": int(rq.max()) if len(rq) and rq.max() < 10**6 else (None if len(rq) else 0),
+    }
+
+
+def _mil(videos, truth, seeds, cam: str, n: int) -> dict:
+    s = seeds[(seeds.camera == cam) & (seeds.frame == 0)].rename(columns={"x_px": "x", "y_px": "y"})
+    with FrameSource(videos[cam], cache_mb=256) as src:
+        df = track_mil_many(src, s, n - 1)
+    p = df[df.frame > 0].merge(truth[cam], on=["frame", "marker"], suffixes=("", "_true"))
+    p = p[p.visible]
+    err = np.hypot(p.x_px - p.x_px_true, p.y_px - p.y_px_true).fillna(1e9)
+    return {"mil_frames": n, "mil_markers": int(len(s)), "mil_err_mean_px": float(err[err < 1e9].mean()),
+            "mil_err_median_px": float(err.median()), "mil_false_or_lost_gt3px_frac": float((err > 3).mean()),
+            "mil_ms_per_marker_frame": float(df.ms[df.frame > 0].mean())}
+
+
+def run(mil_frames: int = 60) -> dict:
+    with tempfile.TemporaryDirectory() as tmpdir:
+        tmp = Path(tmpdir)
+        have_sample = (SAMPLE / "ground_truth" / "cameras.toml").exists()
+        if have_sample:
+            videos, truth, cal, offset = _sample_dataset()
+        else:
+            videos, truth, cal, offset = _synthetic_dataset(tmp)
+        out = {"data": "sample_data" if have_sample else "synthetic 1080p H.264 (sample_data absent)"}
+        proj = Project.create(tmp / "bench.sandtrack", videos)
+        proj.set_calibration(cal)
+        proj.set("sync_offset_s", offset)
+        # Auto-seeding: does every proposed pair join the same true marker?
+        prop = auto_seed(proj, frame=0)
+        good = 0
+        pairs = prop[prop.epipolar_px.notna()]
+        for _m, g in pairs.groupby("marker"):
+            ids = set()
+            for r in g.itertuples():
+                t = truth[r.camera].query("frame == @r.frame")
+                ids.add(int(t.marker.iloc[int(np.argmin(np.hypot(t.x_px - r.x_px, t.y_px - r.y_px)))]))
+            good += len(ids) == 1
+        out.update(autoseed_pairs=int(pairs.marker.nunique()), autoseed_pairs_correct=good)
+        seeds = _seeds(videos, truth)
+        accept_seeds(proj, seeds)
+        n_frames = {c: len(FrameSource(v, cache_mb=8)) for c, v in videos.items()}
+        proj.close()
+        # Speed: decode-only, track, decode-only (same run, alternating, on a shared machine).
+        d1 = _decode_only(videos, n_frames)
+        with Project.open(tmp / "bench.sandtrack") as proj:
+            t0 = time.perf_counter()
+            summary = track_project(proj)
+            t_track = time.perf_counter() - t0
+            points = proj.points()
+        d2 = _decode_only(videos, n_frames)
+        steps = summary["frames"]
+        n_markers = len(seeds.marker.unique())
+        out.update(frames=steps, markers=n_markers, cameras=len(videos),
+                   decode_only_fps=round(steps / (0.5 * (d1 + d2)), 2),
+                   decode_and_track_fps=round(steps / t_track, 2),
+                   track_ms_per_marker_frame=summary["track_ms_per_marker_frame"],
+                   track_cpu_ms_per_marker_frame=summary["track_cpu_ms_per_marker_frame"],
+                   stereo_flags=len(summary["stereo_flags"]), ambiguous=len(summary["ambiguous"]))
+        out["decode_and_track_vs_decode_only"] = round(out["decode_and_track_fps"] / out["decode_only_fps"], 3)
+        out.update(_accuracy(points, truth, seeds))
+        ours = _accuracy(points[points.frame < mil_frames], {"side": truth["side"][truth["side"].frame < mil_frames]},
+                         seeds)
+        out["ours_first_frames_err_mean_px"] = ours["err_mean_px"]
+        out.update(_mil(videos, truth, seeds, "side", mil_frames))
+    return out
+
+
+if __name__ == "__main__":
+    for k, v in run().items():
+        print(f"{k}: {v}")
