@@ -22,6 +22,8 @@ CALIBRATION_CANDIDATES = ("experiment/calibration.toml", "calibration.toml", "gr
 def register(sub) -> None:
     p = sub.add_parser("tui", help="open the terminal UI (default)")
     p.add_argument("project", nargs="?", help="project file; the bundled sample project if omitted")
+    p.add_argument("--video", action="append", default=[], metavar="CAMERA=PATH",
+                   help="relink a camera's video before opening (e.g. after moving the files)")
     p.add_argument("--colors", choices=["truecolor", "256"],
                    help="force the colour mode (default: detected; over SSH set COLORTERM=truecolor)")
     p.set_defaults(func=run)
@@ -70,8 +72,23 @@ def sample_project(sample_data: Path = SAMPLE_DATA, target: Path | None = None) 
     return path
 
 
+def relink(path: Path, specs: list[str]) -> None:
+    from ..store import Project
+
+    with Project.open(path) as proj:
+        for spec in specs:
+            camera, sep, video = spec.partition("=")
+            if not sep or not camera or not video:
+                raise SandtrackError(f"--video wants CAMERA=PATH, not {spec!r}")
+            if not Path(video).exists():
+                raise SandtrackError(f"video not found: {video}")
+            proj.link_video(camera, video)
+
+
 def run(args) -> int:
     path = Path(args.project) if args.project else sample_project()
+    if args.video:
+        relink(path, args.video)
     from ..tui.app import SandtrackApp
 
     app = SandtrackApp(path, colors=args.colors)

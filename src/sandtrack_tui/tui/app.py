@@ -760,12 +760,20 @@ class SandtrackApp(App):
         self.run_task(f"tracking {what} {d}", job, on_result=self._tracking_done)
 
     def _tracking_done(self, result) -> None:
-        text = "tracking finished"
-        if isinstance(result, dict):
-            parts = [f"{k} {v}" for k, v in result.items() if isinstance(v, (int, float, str)) and k != "markers"]
-            if parts:
-                text += ": " + ", ".join(parts[:5])
-        self.notify(text, timeout=6)
+        if not isinstance(result, dict):
+            self.notify("tracking finished")
+            return
+        text = f"tracking {result.get('direction', '')}: {result.get('rows_written', 0)} points written"
+        if result.get("frames") is not None:
+            text += f" over {result['frames']} frames"
+        if result.get("stereo"):
+            text += " (stereo check on)"
+        if result.get("stopped"):
+            text += "; cancelled"
+        problems = result.get("problems") or []
+        if problems:
+            text += f"; {len(problems)} problem(s): " + "; ".join(map(str, problems[:3]))
+        self.notify(text, severity="warning" if problems else "information", timeout=8)
 
     def run_task(self, name: str, fn, on_result=None, refresh_points: bool = True) -> None:
         """Run fn(progress, should_stop) in a thread worker; progress(done, total) posts throttled

@@ -218,7 +218,6 @@ def draw_overlays(rgb: np.ndarray, tf: ViewTransform, ov: Overlays) -> dict[tupl
         for d in (2, 3, 4):
             for du, dv in ((d, 0), (-d, 0), (0, d), (0, -d)):
                 _put(rgb, u + du, v + dv, CURSOR_RGB)
-        _put(rgb, u, v, CURSOR_RGB)
     return labels
 
 

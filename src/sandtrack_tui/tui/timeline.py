@@ -120,6 +120,9 @@ class Timeline(Widget):
             for f, ch in ((a, "["), (b, "]")):
                 if f is not None:
                     line[int(np.clip(np.searchsorted(edges, f, side="right") - 1, 0, cols - 1))] = ch
+            end = str(self.n_frames - 1)
+            if cols > len(end) + 2:
+                line[cols - len(end):] = list(end)
             line[col_of] = "▼"
             head = f"{self.frame:>{LABEL_WIDTH - 1}} "[-LABEL_WIDTH:]
             return Strip([Segment(head, Style(dim=True)), Segment("".join(line), Style(color="yellow", bold=True))],

@@ -14,9 +14,9 @@ from textual.widgets import DataTable, Label
 class AutoSeedScreen(ModalScreen[pd.DataFrame | None]):
     DEFAULT_CSS = """
     AutoSeedScreen { align: center middle; }
-    AutoSeedScreen > Vertical { width: 90%; max-width: 100; height: 80%; border: round $accent;
+    AutoSeedScreen > Vertical { width: 90%; max-width: 100; height: auto; max-height: 80%; border: round $accent;
                                 background: $surface; padding: 0 1; }
-    AutoSeedScreen DataTable { height: 1fr; }
+    AutoSeedScreen DataTable { height: auto; max-height: 30; }
     """
     BINDINGS = [Binding("space", "toggle", "use / skip"), Binding("enter", "accept", "accept"),
                 Binding("escape", "cancel", "cancel")]

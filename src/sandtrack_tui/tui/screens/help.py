@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+from rich.console import Group
+from rich.table import Table
 from textual.app import ComposeResult
 from textual.binding import Binding
 from textual.containers import VerticalScroll
 from textual.screen import ModalScreen
-from textual.widgets import Markdown
+from textual.widgets import Markdown, Static
 
 TIPS = """
 ### Mouse
@@ -35,14 +37,21 @@ class HelpScreen(ModalScreen[None]):
         self.groups = groups
 
     def compose(self) -> ComposeResult:
-        parts = ["# sandtrack keys\n"]
-        for title, rows in self.groups:
-            parts.append(f"### {title}\n\n| key | what it does |\n|---|---|")
-            parts.extend(f"| `{k}` | {d} |" for k, d in rows)
-            parts.append("")
-        parts.append(TIPS)
         with VerticalScroll():
-            yield Markdown("\n".join(parts))
+            yield Static(self.key_tables())
+            yield Markdown(TIPS)
+
+    def key_tables(self) -> Group:
+        parts = []
+        for title, rows in self.groups:
+            table = Table(title=title, title_justify="left", title_style="bold", box=None, show_header=False,
+                          padding=(0, 2, 0, 0), expand=False)
+            table.add_column(style="bold cyan", no_wrap=True, min_width=18)
+            table.add_column()
+            for k, d in rows:
+                table.add_row(k, d)
+            parts.append(table)
+        return Group(*parts)
 
     def action_close(self) -> None:
         self.dismiss(None)

@@ -1,0 +1,64 @@
+"""`sandtrack [tui] [PROJECT]`: the sample project, relinking, bad input (no UI is started)."""
+
+from __future__ import annotations
+
+import pytest
+
+from conftest import write_clip
+from sandtrack_tui.cli import main
+from sandtrack_tui.cli.cmd_tui import relink, sample_project
+from sandtrack_tui.errors import SandtrackError
+from sandtrack_tui.store import Project
+
+
+@pytest.fixture
+def sample_dir(tmp_path):
+    exp = tmp_path / "sample_data" / "experiment"
+    exp.mkdir(parents=True)
+    write_clip(exp / "side.mp4", n_frames=6, bframes=0)
+    write_clip(exp / "front.mp4", n_frames=6, bframes=0)
+    return tmp_path / "sample_data"
+
+
+def test_sample_project_is_made_once_and_remade_when_videos_change(sample_dir, tmp_path):
+    target = tmp_path / "data" / "sample.sandtrack"
+    p = sample_project(sample_dir, target)
+    assert p == target and p.is_file()
+    with Project.open(p) as proj:
+        assert proj.cameras() == ["side", "front"]
+        proj.add_marker("1", 1)  # an edit that must survive reopening
+    assert sample_project(sample_dir, target) == target
+    with Project.open(target) as proj:
+        assert list(proj.markers()["id"]) == [1]
+    write_clip(sample_dir / "experiment" / "side.mp4", n_frames=8, bframes=0)  # the sample was re-rendered
+    sample_project(sample_dir, target)
+    with Project.open(target) as proj:
+        assert proj.markers().empty and proj.videos()["side"].frames == 8
+    assert target.with_suffix(".sandtrack.old").is_file()
+
+
+def test_missing_sample_is_one_clear_error(tmp_path):
+    with pytest.raises(SandtrackError, match="make sample"):
+        sample_project(tmp_path / "nothing", tmp_path / "x.sandtrack")
+
+
+def test_bad_project_path_exits_1(tmp_path, capsys):
+    assert main(["tui", str(tmp_path / "missing.sandtrack")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "project file not found" in err[0]
+    (tmp_path / "junk.sandtrack").write_text("not sqlite")
+    assert main([str(tmp_path / "junk.sandtrack")]) == 1  # bare `sandtrack PROJECT` is the TUI
+    assert "not a sandtrack project" in capsys.readouterr().err
+
+
+def test_relink_moved_video(sample_dir, tmp_path):
+    target = sample_project(sample_dir, tmp_path / "s.sandtrack")
+    moved = tmp_path / "moved.mp4"
+    (sample_dir / "experiment" / "front.mp4").rename(moved)
+    with Project.open(target) as proj:
+        assert [p.camera for p in proj.video_problems()] == ["front"]
+    relink(target, [f"front={moved}"])
+    with Project.open(target) as proj:
+        assert proj.video_problems() == []
+    with pytest.raises(SandtrackError, match="CAMERA=PATH"):
+        relink(target, ["front"])
