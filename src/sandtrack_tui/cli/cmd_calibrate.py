@@ -1,10 +1,226 @@
-"""`sandtrack calibrate`: not available in this version yet."""
+"""`sandtrack calibrate`: cameras from board videos, from known points, or from Caliscope files.
 
-from .common import add_json_flag, not_available
+    sandtrack calibrate --board BOARD.toml --side SIDE --front FRONT -o calibration.toml
+        [--points points.csv] [--reference-frame N] [--reference-origin-mm X,Y,Z]
+        [--reference reference.toml] [--camera NAME=PATH ...] [--project P.sandtrack] [--json]
+    sandtrack calibrate --from-points points.csv -o calibration.toml
+    sandtrack calibrate --import-caliscope camera_array.toml [--names side,front] -o calibration.toml
+    sandtrack calibrate --calibration calibration.toml --export-caliscope camera_array.toml
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from ..errors import SandtrackError
+from .common import Progress, add_json_flag, emit, log
 
 
 def register(sub) -> None:
-    p = sub.add_parser("calibrate", help="(calibrate: not available yet)")
-    p.add_argument("args", nargs="*")
+    p = sub.add_parser("calibrate", help="calibrate the cameras (board videos, known points or Caliscope files)")
+    p.add_argument("--board", help="board file (board.toml or Caliscope charuco.toml)")
+    p.add_argument("--side", help="side camera calibration video or image folder")
+    p.add_argument("--front", help="front camera calibration video or image folder")
+    p.add_argument("--camera", action="append", default=[], metavar="NAME=PATH",
+                   help="another camera's video or image folder (repeatable; for more than two cameras)")
+    p.add_argument("-o", "--output", help="calibration file to write (calibration.toml)")
+    p.add_argument("--points", help="also write the calibration points CSV (every corner seen by both cameras)")
+    p.add_argument("--reference-frame", type=int, help="side frame where the board lies flat on the sand (world frame)")
+    p.add_argument("--reference-origin-mm", help="world position X,Y,Z (mm) of the board origin in that frame")
+    p.add_argument("--reference", help="reference.toml with `frame` and `origin_mm` (instead of the two above)")
+    p.add_argument("--known-points", help="CSV of known world points (X_mm, Y_mm, Z_mm + pixel columns) for the "
+                   "world frame (Kabsch, >= 3 points)")
+    p.add_argument("--offset-s", type=float, default=0.0,
+                   help="how much later the front camera started recording than the side camera (s)")
+    p.add_argument("--fisheye", action="append", default=[], metavar="NAME",
+                   help="use the fisheye lens model for this camera (repeatable)")
+    p.add_argument("--budget", type=int, default=60, help="frames per camera searched first (default 60)")
+    p.add_argument("--project", help="store the calibration and board in this project")
+    p.add_argument("--from-points", help="fit the cameras to known correspondences (CSV: pixel columns + X/Y/Z_mm)")
+    p.add_argument("--import-caliscope", help="read a Caliscope camera_array.toml or config.toml")
+    p.add_argument("--names", help="camera names for --import-caliscope, in camera id order (e.g. side,front)")
+    p.add_argument("--calibration", help="an existing calibration.toml (for --export-caliscope)")
+    p.add_argument("--export-caliscope", help="also write the calibration as a Caliscope camera_array.toml")
     add_json_flag(p)
-    p.set_defaults(func=not_available("sandtrack calibrate"))
+    p.set_defaults(func=run)
+
+
+def _progress_fn(enabled: bool):
+    bars: dict[str, Progress] = {}
+
+    def fn(stage: str, done: int, total: int) -> None:
+        if not enabled:
+            return
+        bar = bars.get(stage)
+        if bar is None:
+            bar = bars[stage] = Progress(total, label=stage)
+        bar.total = max(total, 1)
+        bar.update(done)
+        if done >= total:
+            bar.close()
+
+    return fn
+
+
+def run(args) -> int:
+    t0 = time.perf_counter()
+    modes = [m for m in (args.from_points, args.import_caliscope, args.calibration) if m]
+    if len(modes) > 1:
+        raise SandtrackError("use only one of --from-points, --import-caliscope, --calibration")
+    if args.from_points:
+        result = _from_points(args)
+    elif args.import_caliscope:
+        result = _import(args)
+    elif args.calibration:
+        from ..camera import Calibration
+
+        cal = Calibration.load(args.calibration)
+        result = {"calibration": cal, "report": dict(cal.report)}
+    else:
+        result = _from_videos(args)
+    cal = result["calibration"]
+    report = result["report"]
+    if args.output:
+        cal.save(args.output)
+        report["output"] = str(args.output)
+    if args.export_caliscope:
+        from ..calibration.caliscope import export_caliscope
+
+        export_caliscope(cal, args.export_caliscope)
+        report["caliscope_export"] = str(args.export_caliscope)
+    if args.project:
+        from ..store import Project
+
+        proj = Project.open(args.project)
+        try:
+            proj.set_calibration(cal)
+            if result.get("board") is not None:
+                proj.set("board", result["board"].to_json_dict(), "set board")
+        finally:
+            proj.close()
+        report["project"] = str(args.project)
+    if not (args.output or args.export_caliscope or args.project):
+        raise SandtrackError("nothing to write: give -o calibration.toml, --export-caliscope or --project")
+    report.setdefault("seconds", time.perf_counter() - t0)
+    out = _summary(report)
+    emit(out, args.json, text=_text(out))
+    return 0
+
+
+def _summary(report: dict) -> dict:
+    keys = ["reprojection_rmse_px", "board_rmse_mm", "per_camera", "views_used", "points", "seconds",
+            "seconds_detect", "seconds_calibrate", "frames_detected", "corners_detected", "world", "warnings",
+            "output", "points_csv", "caliscope_export", "project", "method", "source"]
+    out = {k: report[k] for k in keys if k in report}
+    out.setdefault("points", 0)
+    return out
+
+
+def _text(r: dict) -> str:
+    lines = []
+    if "reprojection_rmse_px" in r:
+        lines.append(f"reprojection RMSE {r['reprojection_rmse_px']:.3f} px")
+    if r.get("board_rmse_mm") is not None:
+        lines.append(f"board geometry RMSE {r['board_rmse_mm']:.3f} mm")
+    for n, c in (r.get("per_camera") or {}).items():
+        rm = c.get("reprojection_rmse_px", c.get("rmse_px"))
+        fx = c.get("fx")
+        lines.append(f"  {n}: fx {fx:.1f} px, RMSE {rm:.3f} px" if fx is not None and rm is not None else f"  {n}")
+    if "views_used" in r:
+        lines.append(f"views used {r['views_used']}, points {r.get('points', 0)}, {r.get('seconds', 0):.1f} s")
+    for w in r.get("warnings", []) or []:
+        lines.append(f"warning: {w}")
+    for k in ("output", "points_csv", "caliscope_export", "project"):
+        if k in r:
+            lines.append(f"wrote {r[k]}")
+    return "\n".join(lines)
+
+
+def _videos(args) -> dict[str, str]:
+    videos: dict[str, str] = {}
+    if args.side:
+        videos["side"] = args.side
+    if args.front:
+        videos["front"] = args.front
+    for spec in args.camera:
+        if "=" not in spec:
+            raise SandtrackError(f"--camera needs NAME=PATH, not {spec!r}")
+        name, path = spec.split("=", 1)
+        if not name or name in videos:
+            raise SandtrackError(f"--camera {spec!r}: empty or repeated camera name")
+        videos[name] = path
+    if len(videos) < 2:
+        raise SandtrackError("give the calibration videos of two cameras: --side SIDE --front FRONT")
+    return videos
+
+
+def _from_videos(args) -> dict:
+    import pandas as pd
+
+    from ..board import load_board
+    from ..calibration.pipeline import calibrate_videos
+    from ..calibration.points import write_points
+    from ..calibration.world import load_reference, parse_origin
+
+    if not args.board:
+        raise SandtrackError("--board BOARD.toml is needed to calibrate from videos")
+    board = load_board(args.board)
+    videos = _videos(args)
+    names = list(videos)
+    ref_frame, origin = args.reference_frame, (0.0, 0.0, 0.0)
+    if args.reference:
+        ref_frame, origin = load_reference(args.reference)
+    if args.reference_frame is not None:
+        ref_frame = args.reference_frame
+    if args.reference_origin_mm:
+        origin = parse_origin(args.reference_origin_mm)
+    known = None
+    if args.known_points:
+        p = Path(args.known_points)
+        if not p.is_file():
+            raise SandtrackError(f"known points file not found: {p}")
+        known = pd.read_csv(p)
+    offsets = {"front": float(args.offset_s)} if "front" in videos else {}
+    models = {}
+    for n in args.fisheye:
+        if n not in videos:
+            raise SandtrackError(f"--fisheye {n}: no such camera ({', '.join(names)})")
+        models[n] = "fisheye"
+    if not args.json:
+        log(f"calibrating {', '.join(names)} with a {board.columns}x{board.rows} {board.type} board")
+    res = calibrate_videos(videos, board, offsets_s=offsets, reference_frame=ref_frame, origin_mm=origin,
+                           known_points=known, with_points=bool(args.points), models=models,
+                           detect_budget=args.budget, progress=_progress_fn(not args.json))
+    report = dict(res.report)
+    if args.points:
+        write_points(res.points, args.points)
+        report["points_csv"] = str(args.points)
+    return {"calibration": res.calibration, "report": report, "board": board}
+
+
+def _from_points(args) -> dict:
+    from ..calibration.from_points import calibrate_from_points, read_points_table
+
+    t0 = time.perf_counter()
+    df, cams = read_points_table(args.from_points)
+    if len(cams) < 2:
+        raise SandtrackError(f"{args.from_points}: pixel columns of at least two cameras are needed")
+    cal = calibrate_from_points(df, cams)
+    report = dict(cal.report)
+    report["per_camera"] = report.pop("per_camera")
+    report["views_used"] = 0
+    report["seconds"] = time.perf_counter() - t0
+    cal.report = report
+    return {"calibration": cal, "report": report}
+
+
+def _import(args) -> dict:
+    from ..calibration.caliscope import import_caliscope
+
+    names = [n.strip() for n in args.names.split(",")] if args.names else None
+    cal = import_caliscope(args.import_caliscope, names)
+    report = dict(cal.report)
+    report["per_camera"] = {n: {"fx": float(c.matrix[0, 0]), "rmse_px": c.rmse_px} for n, c in cal.cameras.items()}
+    report["views_used"] = 0
+    return {"calibration": cal, "report": report}

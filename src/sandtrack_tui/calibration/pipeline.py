@@ -1,0 +1,162 @@
+"""`calibrate_videos`: videos (or image folders) of a moving board -> Calibration, report and the
+calibration points. Used by the CLI, the demo and the TUI.
+
+Detection first runs on a subsample of the frames (at most `detect_budget` per camera); when that
+gives too few views seen by two cameras, the frames in between are added. The calibration points
+need every frame, so they trigger detection of the rest.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ..board import BoardSpec
+from ..camera import Calibration
+from ..errors import SandtrackError
+from .detect import BoardView, detect_in_sources, detection_stride, frame_pairing, open_source
+from .points import calibration_points
+from .report import accuracy_report
+from .rig import calibrate_rig, fit_frame_poses
+from .world import describe, world_from_board_pose, world_from_known_points
+
+ProgressFn = Callable[[str, int, int], None]
+MIN_SHARED_VIEWS = 12
+
+
+@dataclass
+class CalibrationResult:
+    calibration: Calibration
+    report: dict
+    views: dict[str, dict[int, BoardView]]
+    poses: dict[int, np.ndarray]  # board -> rig per frame
+    points: pd.DataFrame | None = None
+    warnings: list[str] = field(default_factory=list)
+
+    def summary(self) -> dict:
+        r = self.report
+        return {k: r.get(k) for k in ("reprojection_rmse_px", "board_rmse_mm", "per_camera", "views_used", "points",
+                                      "seconds", "frames_detected", "world", "warnings")}
+
+
+def _shared_count(views, names) -> int:
+    frames = set().union(*[set(views[n]) for n in names])
+    return sum(1 for f in frames if sum(f in views[n] for n in names) >= 2)
+
+
+def calibrate_videos(videos: dict[str, str | Path], board: BoardSpec, *, offsets_s: dict[str, float] | None = None,
+                     reference_frame: int | None = None, origin_mm=(0.0, 0.0, 0.0),
+                     known_points: pd.DataFrame | None = None, with_points: bool = False,
+                     models: dict[str, str] | None = None, detect_budget: int = 60, max_bundle_frames: int = 200,
+                     progress: ProgressFn | None = None, workers: int = 2) -> CalibrationResult:
+    """Calibrate the cameras of `videos` ({name: path}, first = reference/rig camera).
+
+    reference_frame: a frame (of the first camera) where the board lies flat on the sand; defines
+    the world frame (see world.py) with the board origin at `origin_mm`. known_points: a table of
+    `X_mm, Y_mm, Z_mm` plus pixel columns per camera (x_NAME, y_NAME or xs, ys / xf, yf) for a
+    Kabsch world frame instead. Without either, world = rig frame (first camera)."""
+    t0 = time.perf_counter()
+    if len(videos) < 2:
+        raise SandtrackError("calibration needs videos from at least two cameras")
+    sources = {n: open_source(p) for n, p in videos.items()}
+    names = list(sources)
+    pairing = frame_pairing(sources, offsets_s)
+    n_ref = len(sources[names[0]])
+    if reference_frame is not None and not 0 <= reference_frame < n_ref:
+        raise SandtrackError(f"reference frame {reference_frame} is outside the video (0..{n_ref - 1})")
+    stride = detection_stride(n_ref, detect_budget)
+    first = set(range(0, n_ref, stride))
+    if reference_frame is not None:
+        first.add(reference_frame)
+    views = detect_in_sources(sources, board, sorted(first), pairing, progress, workers=workers)
+    detected = set(first)
+    step = stride
+    while _shared_count(views, names) < MIN_SHARED_VIEWS and step > 1:
+        step = max(1, step // 2)
+        more = sorted(set(range(0, n_ref, step)) - detected)
+        extra = detect_in_sources(sources, board, more, pairing, progress, workers=workers)
+        for n in names:
+            views[n].update(extra[n])
+        detected |= set(more)
+    t_detect = time.perf_counter() - t0
+    for n in names:
+        if not views[n]:
+            raise SandtrackError(
+                f"no board found in camera {n} ({videos[n]}, {len(detected)} frames searched): check that the board "
+                "file (columns, rows, dictionary, inverted) matches the printed board, and record it sharp, well lit "
+                "and filling a good part of the image")
+    sizes = {n: (s.width, s.height) for n, s in sources.items()}
+    rig = calibrate_rig(views, board, sizes, models=models, max_frames=max_bundle_frames, progress=progress)
+    t_calib = time.perf_counter() - t0 - t_detect
+    if with_points:
+        rest = sorted(set(range(n_ref)) - detected)
+        if rest:
+            extra = detect_in_sources(sources, board, rest, pairing, progress, workers=workers)
+            for n in names:
+                views[n].update(extra[n])
+            detected |= set(rest)
+    calibration = rig.calibration
+    all_frames = sorted(set().union(*[set(views[n]) for n in names]))
+    initial = {f: rig.frame_pose(f) for f in rig.frames}
+    poses = fit_frame_poses(calibration, views, board, all_frames, initial)
+    # world frame
+    world: dict = {"method": "rig frame (no reference given)"}
+    warnings = list(rig.warnings)
+    if known_points is not None:
+        from ..triangulation import triangulate
+        from .points import pixel_columns
+
+        cols = pixel_columns(names)
+        px = {n: known_points[list(cols[n])].to_numpy(float) for n in names if set(cols[n]) <= set(known_points)}
+        xyz, _ = triangulate(calibration, px, refine=True, world=False)
+        T, res = world_from_known_points(xyz, known_points[["X_mm", "Y_mm", "Z_mm"]].to_numpy(float))
+        calibration.world_from_rig = T
+        world = {"method": "known points (Kabsch)", "points": int(len(known_points)), "rmse_mm": res}
+    elif reference_frame is not None:
+        if reference_frame not in poses:
+            raise SandtrackError(
+                f"the board was not found in reference frame {reference_frame}: pick a frame where the board lies "
+                "flat on the sand and is fully visible")
+        calibration.world_from_rig = world_from_board_pose(poses[reference_frame], origin_mm)
+        world = {"method": "board lying flat in a reference frame", "frame": int(reference_frame),
+                 "origin_mm": [float(v) for v in origin_mm]}
+    else:
+        warnings.append("no reference frame: the world frame is the first camera's frame")
+    world.update(describe(calibration.world_from_rig))
+    acc = accuracy_report(calibration, views, board, poses)
+    points = calibration_points(calibration, views, board, poses, names[:2]) if with_points else None
+    per_camera = {}
+    for n in names:
+        r = rig.intrinsics[n].report()
+        r["reprojection_rmse_px"] = acc["per_camera_reprojection_rmse_px"].get(n)
+        r["frames_with_board"] = len(views[n])
+        r["mirrored_views"] = sum(v.mirrored for v in views[n].values())
+        per_camera[n] = r
+    report = {
+        "reprojection_rmse_px": acc["reprojection_rmse_px"],
+        "board_rmse_mm": acc["board_rmse_mm"],
+        "board_mean_abs_mm": acc["board_mean_abs_mm"],
+        "corner_to_board_mean_mm": acc["corner_to_board_mean_mm"],
+        "corners_detected": acc["corners_detected"],
+        "per_camera": per_camera,
+        "views_used": len(rig.frames),
+        "frames_detected": len(detected),
+        "frames_with_board": len(all_frames),
+        "near_duplicates_skipped": rig.skipped_duplicates,
+        "bundle": rig.bundle,
+        "board": board.to_json_dict(),
+        "world": world,
+        "points": int(len(points)) if points is not None else 0,
+        "seconds": time.perf_counter() - t0,
+        "seconds_detect": t_detect,
+        "seconds_calibrate": t_calib,
+        "warnings": warnings,
+    }
+    calibration.report = report
+    return CalibrationResult(calibration=calibration, report=report, views=views, poses=poses, points=points,
+                             warnings=warnings)
