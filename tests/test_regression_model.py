@@ -1,0 +1,179 @@
+"""Regression (pixel -> XYZ MLP): split, training outcome against exact ground truth, model file."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+from sandtrack_tui.cli import main
+from sandtrack_tui.errors import SandtrackError
+from sandtrack_tui.regression import (
+    TrainConfig,
+    load_model,
+    load_points,
+    outside_training,
+    predict,
+    split_by_frame,
+    train,
+)
+from sandtrack_tui.regression.synthetic import calibration_points, study_rig
+from sandtrack_tui.triangulation import triangulate
+
+
+@pytest.fixture(scope="module")
+def rig():
+    return study_rig()
+
+
+@pytest.fixture(scope="module")
+def points(rig):
+    return calibration_points(rig, n_points=6000, seed=1)
+
+
+@pytest.fixture(scope="module")
+def trained(rig, points):
+    """The study's shape, a short schedule: 6000 points, 8 + 3 epochs."""
+    seen = []
+    cfg = TrainConfig.fast(epochs=8, seed=3)
+    model = train(points, cfg, calibration=rig, progress=lambda e, loss, val: seen.append((e, loss, val)))
+    return model, seen
+
+
+def test_synthetic_points_are_exact_up_to_the_detection_noise(rig, points):
+    assert len(points) == 6000
+    truth = points[["X_mm", "Y_mm", "Z_mm"]].to_numpy()
+    side = rig.project_world("side", truth)
+    assert (side - points[["xs", "ys"]].to_numpy()).std() == pytest.approx(0.3, abs=0.02)
+    assert (points[["xs", "xf"]].to_numpy() < 1920).all() and (points[["ys", "yf"]].to_numpy() < 1080).all()
+    # the board fills a volume, not a few planes
+    assert np.ptp(truth, axis=0).min() > 250
+
+
+def test_split_by_frame_keeps_each_board_pose_in_one_set(points):
+    tr, va, te = split_by_frame(points["frame"].to_numpy(), 0.15, 0.15, seed=5)
+    assert (tr.astype(int) + va + te == 1).all()
+    sets = [set(points.loc[m, "frame"]) for m in (tr, va, te)]
+    assert not (sets[0] & sets[1]) and not (sets[0] & sets[2]) and not (sets[1] & sets[2])
+    assert 0.08 < te.mean() < 0.22 and 0.08 < va.mean() < 0.22
+    again = split_by_frame(points["frame"].to_numpy(), 0.15, 0.15, seed=5)
+    assert all((a == b).all() for a, b in zip((tr, va, te), again, strict=True))
+
+
+def test_training_learns_the_mapping(trained, points):
+    model, seen = trained
+    m = model.metrics
+    assert m["points"] == len(points) and m["test_points"] > 500
+    # far below predicting the mean (~180 mm), and within a few mm of the exact XYZ
+    assert m["baseline_mean_error_mm"] > 100
+    assert m["mlp_mean_error_mm"] < 12
+    assert min(m["r2_x"], m["r2_y"], m["r2_z"]) > 0.99
+    # triangulation with the true rig is near the noise floor; the residual variant does not spoil it
+    assert m["triangulation_mean_error_mm"] < 0.6
+    assert m["residual_mean_error_mm"] < m["triangulation_mean_error_mm"] + 0.3
+    assert m["test_outside_bounds"] == 0
+    # progress came once per epoch over both phases, with a decreasing validation error
+    epochs = [e for e, _, _ in seen]
+    assert epochs == list(range(1, len(seen) + 1)) and len(seen) == m["epochs_run"] + m["residual_epochs_run"]
+    assert seen[m["epochs_run"] - 1][2] < seen[0][2]
+
+
+def test_predict_matches_truth_on_unseen_poses(trained, rig):
+    model, _ = trained
+    fresh = calibration_points(rig, n_points=800, seed=99, volume_mm=((-120, 120), (30, 120), (-150, 150)))
+    truth = fresh[["X_mm", "Y_mm", "Z_mm"]].to_numpy()
+    pred = predict(model, fresh["xs"], fresh["ys"], fresh["xf"], fresh["yf"])
+    assert np.linalg.norm(pred - truth, axis=1).mean() < 12
+    res = predict(model, fresh[["xs", "ys", "xf", "yf"]].to_numpy(), method="residual")
+    tri, _ = triangulate(rig, {"side": fresh[["xs", "ys"]].to_numpy(), "front": fresh[["xf", "yf"]].to_numpy()})
+    assert np.linalg.norm(res - truth, axis=1).mean() < np.linalg.norm(tri - truth, axis=1).mean() + 0.3
+    assert np.isnan(predict(model, [np.nan], [1.0], [2.0], [3.0])).all()
+
+
+def test_outside_training_flags_extrapolation(trained, rig, points):
+    model, _ = trained
+    central = calibration_points(rig, n_points=300, seed=7, volume_mm=((-120, 120), (30, 120), (-150, 150)))
+    inside = central[["xs", "ys", "xf", "yf"]].to_numpy()
+    xyz_in = predict(model, inside)
+    assert not outside_training(model, inside, xyz_in).any()
+    # below the sand, beyond the box wall, beyond the tool's travel: visible, but not trained on
+    far = np.array([[0.0, -250.0, 0.0], [380.0, 80.0, 0.0], [0.0, 80.0, -480.0]])
+    px = np.hstack([rig.project_world("side", far), rig.project_world("front", far)])
+    assert (px > 0).all() and (px[:, [0, 2]] < 1920).all() and (px[:, [1, 3]] < 1080).all()
+    assert outside_training(model, px, predict(model, px)).all()
+
+
+def test_model_file_round_trip_is_weights_only(trained, tmp_path, points):
+    model, _ = trained
+    path = tmp_path / "model.pt"
+    model.save(path)
+    raw = torch.load(path, weights_only=True)
+    assert raw["format"] == "sandtrack-regression" and raw["config"]["hidden"] == [512, 1024, 256]
+    again = load_model(path)
+    px = points[["xs", "ys", "xf", "yf"]].to_numpy()[:50]
+    assert np.allclose(predict(again, px), predict(model, px))
+    assert np.allclose(predict(again, px, method="residual"), predict(model, px, method="residual"))
+    assert again.metrics["mlp_mean_error_mm"] == pytest.approx(model.metrics["mlp_mean_error_mm"])
+    (tmp_path / "junk.pt").write_bytes(b"not a model")
+    with pytest.raises(SandtrackError):
+        load_model(tmp_path / "junk.pt")
+
+
+def test_training_is_deterministic_and_can_be_stopped(points):
+    cfg = TrainConfig.fast(hidden=(32, 32), epochs=2, residual=False, seed=11)
+    a = train(points, cfg)
+    b = train(points, cfg)
+    assert a.metrics["mlp_mean_error_mm"] == b.metrics["mlp_mean_error_mm"]
+    for pa, pb in zip(a.net.parameters(), b.net.parameters(), strict=True):
+        assert torch.equal(pa, pb)
+    calls = []
+    stopped = train(points, TrainConfig.fast(hidden=(32, 32), epochs=50, residual=False),
+                    should_stop=lambda: len(calls) > 0, progress=lambda *a: calls.append(a))
+    assert stopped.metrics["stopped"] == "user" and stopped.metrics["epochs_run"] <= 2
+
+
+def test_bad_points_files(tmp_path):
+    (tmp_path / "a.csv").write_text("frame,xs,ys\n1,2,3\n")
+    with pytest.raises(SandtrackError, match="missing column"):
+        load_points(tmp_path / "a.csv")
+    with pytest.raises(SandtrackError, match="not found"):
+        load_points(tmp_path / "none.csv")
+    (tmp_path / "b.csv").write_text("")
+    with pytest.raises(SandtrackError):
+        load_points(tmp_path / "b.csv")
+    one = pd.DataFrame({c: [1.0, 2.0] for c in ["frame", "corner_id", "xs", "ys", "xf", "yf", "X_mm", "Y_mm",
+                                                "Z_mm"]})
+    with pytest.raises(SandtrackError, match="at least 3 frames"):
+        train(one, TrainConfig.fast())
+
+
+def test_cli_train_json_and_project(tmp_path, rig, capsys):
+    from sandtrack_tui.store import Project
+
+    pts = calibration_points(rig, n_points=2500, seed=4)
+    pts.to_csv(tmp_path / "points.csv", index=False)
+    rig.save(tmp_path / "cal.toml")
+    proj = Project.create(tmp_path / "p.sandtrack")
+    proj.close()
+    code = main(["train", str(tmp_path / "points.csv"), "-o", str(tmp_path / "m.pt"), "--fast", "--epochs", "3",
+                 "--calibration", str(tmp_path / "cal.toml"), "--project", str(tmp_path / "p.sandtrack"), "--json"])
+    assert code == 0
+    out = json.loads(capsys.readouterr().out)
+    for key in ("points", "mlp_mean_error_mm", "mlp_sd_mm", "r2_x", "r2_y", "r2_z", "triangulation_mean_error_mm",
+                "residual_mean_error_mm", "train_seconds"):
+        assert key in out
+    assert out["points"] == 2500 and out["triangulation_mean_error_mm"] < 0.6
+    with Project.open(tmp_path / "p.sandtrack") as proj:
+        stored = proj.get("model")
+    assert stored["path"] == str((tmp_path / "m.pt").resolve())
+    assert stored["mlp_mean_error_mm"] == pytest.approx(out["mlp_mean_error_mm"])
+    assert load_model(tmp_path / "m.pt").has_residual
+
+
+def test_cli_train_bad_input_is_one_line(tmp_path, capsys):
+    assert main(["train", str(tmp_path / "none.csv"), "-o", str(tmp_path / "m.pt")]) == 1
+    err = capsys.readouterr().err
+    assert "not found" in err and len(err.strip().splitlines()) == 1

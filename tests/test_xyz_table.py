@@ -1,0 +1,156 @@
+"""XYZ table: sub-frame sync interpolation, statuses, triangulation and MLP rows against exact truth."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from conftest import write_clip
+from sandtrack_tui.cli import main
+from sandtrack_tui.errors import SandtrackError
+from sandtrack_tui.regression import TrainConfig, train
+from sandtrack_tui.regression.synthetic import calibration_points, study_rig
+from sandtrack_tui.store import Project
+from sandtrack_tui.xyz import XYZ_COLUMNS, compute_xyz, xyz_at_frame
+
+FPS = 50.0
+N_FRAMES = 40
+OFFSET_S = 0.0137  # front started 0.685 frames later: every side frame falls between two front frames
+START = {1: (-80.0, 40.0, -100.0), 2: (60.0, 20.0, 40.0), 3: (0.0, 70.0, 60.0), 4: (0.0, -250.0, 0.0)}
+VELOCITY = {1: (0.0, 0.0, 200.0), 2: (100.0, 0.0, -150.0), 3: (-50.0, 30.0, 100.0), 4: (0.0, 0.0, 0.0)}
+
+
+def position(marker: int, t: np.ndarray) -> np.ndarray:
+    return np.asarray(START[marker]) + np.outer(t, VELOCITY[marker])
+
+
+@pytest.fixture(scope="module")
+def rig():
+    return study_rig()
+
+
+@pytest.fixture(scope="module")
+def model_file(rig, tmp_path_factory):
+    pts = calibration_points(rig, n_points=4000, seed=2)
+    model = train(pts, TrainConfig(hidden=(128, 128), dropout=0.0, epochs=25, batch_size=256, lr=3e-3,
+                                   residual=False, patience=25))
+    path = tmp_path_factory.mktemp("model") / "model.pt"
+    model.save(path)
+    return path
+
+
+@pytest.fixture
+def project(tmp_path, rig):
+    side = write_clip(tmp_path / "side.mp4", n_frames=N_FRAMES, bframes=0)
+    front = write_clip(tmp_path / "front.mp4", n_frames=N_FRAMES, bframes=0)
+    proj = Project.create(tmp_path / "exp.sandtrack", {"side": side, "front": front})
+    proj.set_calibration(rig)
+    proj.set("sync_offset_s", OFFSET_S)
+    rows = []
+    for m in START:
+        proj.add_marker(f"m{m}", m)
+        t = np.arange(N_FRAMES) / FPS
+        side_px = rig.project_world("side", position(m, t))
+        front_px = rig.project_world("front", position(m, t + OFFSET_S))  # front frame j shows side time j/fps + offset
+        for i in range(N_FRAMES):
+            if not (m == 3 and i == 5):  # side has no point there
+                rows.append((i, "side", m, *side_px[i], "tracked"))
+            if m == 1 and i == 10:
+                rows.append((i, "front", m, None, None, "lost"))
+            elif m == 2 and i == 20:
+                rows.append((i, "front", m, *front_px[i], "occluded"))
+            else:
+                rows.append((i, "front", m, *front_px[i], "tracked"))
+    proj.set_points(rows, "synthetic tracks")
+    yield proj
+    proj.close()
+
+
+def test_triangulation_rows_match_the_true_positions(project):
+    table = compute_xyz(project, method="triangulation")
+    assert list(table.columns) == XYZ_COLUMNS
+    assert len(table) == len(START) * N_FRAMES and set(table["method"]) == {"triangulation"}
+    assert np.allclose(table["time_s"], table["frame"] / FPS)
+    good = table[table["X_mm"].notna()]
+    truth = np.concatenate([position(m, g["time_s"].to_numpy()) for m, g in good.groupby("marker")])
+    good = good.sort_values(["marker", "frame"])
+    err = np.linalg.norm(good[["X_mm", "Y_mm", "Z_mm"]].to_numpy() - truth, axis=1)
+    # markers move 4-5 mm per frame; taking the nearest front frame instead would err by ~1.5 mm
+    assert err.max() < 0.05
+    assert good["residual_px"].max() < 0.05
+    # every side frame from 1 on has an interpolated front point unless a status says otherwise
+    assert len(good) == len(START) * (N_FRAMES - 1) - 2 - 1
+
+
+def test_statuses_and_interpolation_rules(project):
+    t = compute_xyz(project, method="triangulation").set_index(["marker", "frame"])
+    # frame 0 lies before the front video started
+    assert (t.xs(0, level="frame")["status_front"] == "missing").all()
+    # a lost front point spoils the two side frames that interpolate across it, and only those
+    for i in (10, 11):
+        assert t.loc[(1, i), "status_front"] == "lost" and np.isnan(t.loc[(1, i), "X_mm"])
+    assert np.isfinite(t.loc[(1, 9), "X_mm"]) and np.isfinite(t.loc[(1, 12), "X_mm"])
+    # an occluded (estimated) front point is used but reported
+    assert t.loc[(2, 20), "status_front"] == "occluded" and np.isfinite(t.loc[(2, 20), "X_mm"])
+    assert t.loc[(2, 19), "status_front"] == "tracked"
+    # a side frame without a side point still gets its row
+    assert t.loc[(3, 5), "status_side"] == "missing" and np.isnan(t.loc[(3, 5), "X_mm"])
+    assert t.loc[(3, 5), "status_front"] == "tracked" and np.isfinite(t.loc[(3, 5), "xf"])
+
+
+def test_mlp_rows_beside_triangulation_and_outside_flag(project, model_file):
+    project.set("model", {"path": str(model_file)})
+    both = compute_xyz(project, method="both")
+    assert set(both["method"]) == {"triangulation", "mlp", "mlp_outside"}
+    assert len(both) == 2 * len(START) * N_FRAMES
+    mlp = both[both["method"].isin(["mlp", "mlp_outside"])]
+    # marker 4 sits 250 mm under the sand: outside anything the board covered
+    m4 = mlp[(mlp["marker"] == 4) & mlp["X_mm"].notna()]
+    assert len(m4) == N_FRAMES - 1 and (m4["method"] == "mlp_outside").all()
+    inside = mlp[(mlp["marker"] != 4) & mlp["X_mm"].notna()]
+    assert (inside["method"] == "mlp").all()
+    truth = np.concatenate([position(m, g["time_s"].to_numpy()) for m, g in inside.groupby("marker")])
+    inside = inside.sort_values(["marker", "frame"])
+    err = np.linalg.norm(inside[["X_mm", "Y_mm", "Z_mm"]].to_numpy() - truth, axis=1)
+    assert err.mean() < 20  # a small, briefly trained net; the marker layout spans ~200 mm
+    assert inside["residual_px"].notna().all()
+    nan_policy = compute_xyz(project, method="mlp", outside="nan")
+    assert set(nan_policy["method"]) == {"mlp"} and nan_policy.loc[nan_policy["marker"] == 4, "X_mm"].isna().all()
+
+
+def test_single_frame_matches_the_full_table(project, model_file):
+    project.set("model", {"path": str(model_file)})
+    full = compute_xyz(project, method="both")
+    for frame in (0, 11, 27, N_FRAMES - 1):
+        one = xyz_at_frame(project, frame)
+        expect = full[full["frame"] == frame].reset_index(drop=True)
+        pd.testing.assert_frame_equal(one, expect)
+    assert xyz_at_frame(project, N_FRAMES + 50).empty
+
+
+def test_explicit_methods_need_their_inputs(project):
+    with pytest.raises(SandtrackError, match="no regression model"):
+        compute_xyz(project, method="mlp")
+    assert set(compute_xyz(project, method="both")["method"]) == {"triangulation"}
+    with pytest.raises(SandtrackError, match="unknown method"):
+        compute_xyz(project, method="magic")
+
+
+def test_cli_xyz_frame_and_csv(project, model_file, tmp_path, capsys):
+    project.set("model", {"path": str(model_file)})
+    path = str(project.path)
+    assert main(["xyz", path, "--frame", "12", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["frame"] == 12 and len(out["table"]) == 2 * len(START)
+    assert set(out["table"][0]) == set(XYZ_COLUMNS)
+    assert main(["xyz", path, "-o", str(tmp_path / "xyz.csv"), "--method", "triangulation", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    csv = pd.read_csv(tmp_path / "xyz.csv")
+    assert list(csv.columns) == XYZ_COLUMNS and len(csv) == out["rows"] == len(START) * N_FRAMES
+    assert main(["xyz", path, "--frame", "12"]) == 0
+    assert "triangulation" in capsys.readouterr().out
+    assert main(["xyz", path, "--frame", "3", "--method", "residual"]) == 1
+    assert "residual" in capsys.readouterr().err
