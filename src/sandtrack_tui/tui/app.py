@@ -132,6 +132,12 @@ class TaskFinished(Message):
         self.name, self.text, self.error, self.refresh_points = name, text, error, refresh_points
 
 
+class TableReady(Message):
+    def __init__(self, frame: int, rows, error: str | None = None) -> None:
+        super().__init__()
+        self.frame, self.rows, self.error = frame, rows, error
+
+
 class FrameReady(Message):
     def __init__(self, result: FrameResult) -> None:
         super().__init__()
@@ -188,7 +194,11 @@ class SandtrackApp(App):
         self.marker_list: list[tuple[int, str]] = []
         self._side_to: dict[str, np.ndarray | None] = {}
         self._calibration = None
+        self._labels: dict[int, str] = {}
         self._xyz_note_shown = False
+        self._xyz_project: Project | None = None
+        self._table_busy = False
+        self._table_want = 0
         self.feeder: FrameFeeder | None = None
         self._compute_frame_maps()
 
@@ -264,17 +274,22 @@ class SandtrackApp(App):
 
     def reload_points(self) -> None:
         self.points = self.project.points()
-        self._by_cam_frame = {}
-        if len(self.points):
-            for key, grp in self.points.groupby(["camera", "frame"], sort=False):
-                self._by_cam_frame[(str(key[0]), int(key[1]))] = list(grp.itertuples(index=False))
+        by_cam_frame: dict[tuple[str, int], list] = {}
+        for rec in self.points.itertuples(index=False):
+            by_cam_frame.setdefault((rec.camera, rec.frame), []).append(rec)
+        self._by_cam_frame = by_cam_frame
         labels = dict(self.project.markers()[["id", "label"]].itertuples(index=False, name=None))
         ids = sorted(set(labels) | set(self.points["marker"].unique().tolist() if len(self.points) else []))
         self.marker_list = [(int(m), str(labels.get(m, m))) for m in ids]
+        self._labels = dict(self.marker_list)
+        groups = {(int(k[0]), str(k[1])): g for k, g in self.points.groupby(["marker", "camera"])} \
+            if len(self.points) else {}
         codes = {}
+        empty = self.points.iloc[:0]
         for mid, _ in self.marker_list:
             for cam in self.cameras:
-                codes[(mid, cam)] = status_codes(self.points, mid, cam, self.n_frames, self._side_to[cam])
+                codes[(mid, cam)] = status_codes(groups.get((mid, cam), empty), None, None, self.n_frames,
+                                                 self._side_to[cam])
         self.codes = codes
         self._w['timeline'].set_data(self.marker_list, codes, self.n_frames, self.cameras)
 
@@ -340,7 +355,7 @@ class SandtrackApp(App):
             shown = v.pixels_key[0] if v.pixels_key else self.cam_index(cam)
             ov = Overlays()
             for rec in self._by_cam_frame.get((cam, shown), ()):
-                label = dict(self.marker_list).get(rec.marker, str(rec.marker))
+                label = self._labels.get(rec.marker, str(rec.marker))
                 x = float(rec.x_px) if rec.x_px is not None else math.nan
                 y = float(rec.y_px) if rec.y_px is not None else math.nan
                 ov.marks.append(MarkerMark(int(rec.marker), label, x, y, rec.status, rec.marker == self.selected))
@@ -357,22 +372,21 @@ class SandtrackApp(App):
         if self.selected is None:
             return None
         idx = self.cam_index(camera)
-        pts = self.points
-        if pts.empty:
-            return None
-        sel = pts[(pts["marker"] == self.selected) & (pts["camera"] == camera) & (pts["frame"] <= idx)
-                  & (pts["frame"] > idx - 12) & pts["status"].isin(GOOD)].sort_values("frame")
-        if sel.empty or int(sel["frame"].iloc[-1]) != idx:
+        recent = []
+        for f in range(max(idx - 11, 0), idx + 1):
+            for rec in self._by_cam_frame.get((camera, f), ()):
+                if rec.marker == self.selected and rec.status in GOOD and rec.x_px is not None:
+                    recent.append(rec)
+        if not recent or recent[-1].frame != idx:
             return None
         try:
             kalman = core("tracking.kalman", "ConstantVelocityKF")
             params = core("tracking.tracker", "TrackParams").TrackParams()
         except NotAvailableYet:
             return None
-        kf = kalman.ConstantVelocityKF(float(sel["x_px"].iloc[0]), float(sel["y_px"].iloc[0]),
-                                       params.accel_px, params.meas_px)
-        prev = int(sel["frame"].iloc[0])
-        for r in sel.iloc[1:].itertuples(index=False):
+        kf = kalman.ConstantVelocityKF(float(recent[0].x_px), float(recent[0].y_px), params.accel_px, params.meas_px)
+        prev = int(recent[0].frame)
+        for r in recent[1:]:
             for _ in range(int(r.frame) - prev):
                 kf.predict()
             kf.update((float(r.x_px), float(r.y_px)))
@@ -419,15 +433,47 @@ class SandtrackApp(App):
             f"{rng}{zoom}{play}", layout=False)
 
     def update_table(self) -> None:
+        """Recompute the table for the current frame in a worker (XYZ may take tens of ms): at most
+        one computation runs; when it ends, the latest frame asked for is computed next."""
         if self.layout_mode != 0:
             return
-        self._w['table'].set_rows(self.table_rows(), self.selected)
+        self._table_want = self.frame
+        if self._table_busy:
+            return
+        self._table_busy = True
+        frame = self.frame
 
-    def table_rows(self) -> list[MarkerRow]:
+        def job() -> None:
+            try:
+                rows = self.table_rows(frame, self._table_project())
+                self.post_message(TableReady(frame, rows))
+            except Exception as exc:  # noqa: BLE001 - shown, never fatal
+                self.post_message(TableReady(frame, None, f"{type(exc).__name__}: {exc}"))
+
+        self.run_worker(job, thread=True, group="table", exit_on_error=False)
+
+    def _table_project(self) -> Project:
+        if self._xyz_project is None:
+            self._xyz_project = Project.open(self.project.path)
+        return self._xyz_project
+
+    @on(TableReady)
+    def _table_ready(self, msg: TableReady) -> None:
+        self._table_busy = False
+        if msg.error and not self._xyz_note_shown:
+            self._xyz_note_shown = True
+            self.notify(f"table: {msg.error}", severity="warning")
+        if msg.rows is not None and msg.frame == self.frame:
+            self._w['table'].set_rows(msg.rows, self.selected)
+        if self._table_want != msg.frame:
+            self.update_table()
+
+    def table_rows(self, frame: int | None = None, project: Project | None = None) -> list[MarkerRow]:
+        frame = self.frame if frame is None else frame
         rows = []
         for mid, label in self.marker_list:
             r = MarkerRow(mid, label)
-            s, f = self.point("side", mid), self.point("front", mid)
+            s, f = self.point("side", mid, frame), self.point("front", mid, frame)
             if s is not None:
                 r.status_side, r.score = s.status, s.score
                 r.side_px = (s.x_px, s.y_px) if s.x_px is not None else None
@@ -437,20 +483,17 @@ class SandtrackApp(App):
                 if r.score is None or (f.score is not None and f.score < r.score):
                     r.score = f.score
             rows.append(r)
-        self._fill_xyz(rows)
+        self._fill_xyz(rows, frame, project or self.project)
         return rows
 
-    def _fill_xyz(self, rows: list[MarkerRow]) -> None:
+    def _fill_xyz(self, rows: list[MarkerRow], frame: int, project: Project) -> None:
         by_id = {r.marker: r for r in rows}
-        try:
-            xyz = core("xyz", "xyz_at_frame").xyz_at_frame(self.project, self.frame)
-        except NotAvailableYet:
-            xyz = None
-        except SandtrackError as exc:
-            if not self._xyz_note_shown:
-                self.notify(f"XYZ: {exc}", severity="warning")
-                self._xyz_note_shown = True
-            xyz = None
+        xyz = None
+        if rows and (self._calibration is not None or project.get("model")):
+            try:
+                xyz = core("xyz", "xyz_at_frame").xyz_at_frame(project, frame)
+            except SandtrackError:  # incl. not available yet: the fallback below still shows triangulation
+                xyz = None
         if xyz is not None and len(xyz):
             for rec in xyz.itertuples(index=False):
                 r = by_id.get(int(rec.marker))
@@ -521,8 +564,7 @@ class SandtrackApp(App):
         self.request_frames()
         self.update_status()
         self._w['timeline'].set_position(self.frame, self.selected, (self.range_in, self.range_out))
-        if self.frame % 10 == 0:
-            self.update_table()
+        self.update_table()  # coalesced: computes the latest frame whenever the previous one is done
 
     def action_problem(self, direction: int) -> None:
         codes = self.codes if self.selected is None else {

@@ -25,12 +25,12 @@ PROBLEM_CODES = (OCCLUDED, LOST, GAP)
 LABEL_WIDTH = 4
 
 
-def status_codes(points: pd.DataFrame, marker: int, camera: str, n_frames: int,
+def status_codes(points: pd.DataFrame, marker: int | None, camera: str | None, n_frames: int,
                  side_to_camera: np.ndarray | None = None) -> np.ndarray:
     """Status code per side frame for one marker in one camera. `side_to_camera[i]` is that camera's
     frame index at side frame i (None for the side camera). Frames missing between the marker's first
-    and last point are GAP."""
-    sel = points[(points["marker"] == marker) & (points["camera"] == camera)]
+    and last point are GAP. marker=None: `points` already holds only that marker and camera."""
+    sel = points if marker is None else points[(points["marker"] == marker) & (points["camera"] == camera)]
     n_cam = n_frames if side_to_camera is None else int(side_to_camera.max()) + 1
     own = np.zeros(max(n_cam, int(sel["frame"].max()) + 1 if len(sel) else 0, 1), np.int8)
     if len(sel):
