@@ -18,7 +18,8 @@ def register(sub) -> None:
                                    "runs are ranked by agreement.")
     p.add_argument("experiment", help="project file or trajectory CSV/Parquet")
     p.add_argument("dem", nargs="+", help="DEM run(s): exchange CSV or dump file (a quoted glob for per-step dumps)")
-    p.add_argument("--method", choices=["triangulation", "mlp"], help="3D method of the experiment to use")
+    p.add_argument("--method", choices=["triangulation", "mlp", "residual"],
+                   help="3D method of the experiment to use (default: triangulation when present)")
     p.add_argument("--dem-format", choices=["csv", "dump"], help="default: detected from the content")
     p.add_argument("--dem-units", choices=["m", "cm", "mm"], default=None,
                    help="DEM length unit (default: from column names such as x_mm, else m)")

@@ -15,7 +15,7 @@ def register(sub) -> None:
                    help="output file (.csv, .parquet), or the file prefix for --format dltdv")
     p.add_argument("--format", choices=["csv", "parquet", "dltdv"], default=None,
                    help="default: from the output's suffix")
-    p.add_argument("--method", choices=["both", "triangulation", "mlp"], default="both",
+    p.add_argument("--method", choices=["both", "all", "triangulation", "mlp", "residual"], default="both",
                    help="3D method(s) to export (dltdv takes one: triangulation unless mlp is given)")
     add_json_flag(p)
     p.set_defaults(func=run)
