@@ -1,0 +1,190 @@
+"""Digital twin: the committed sample_data/ against its own ground truth (decoded videos, audio, board)."""
+
+import json
+from pathlib import Path
+
+import av
+import cv2
+import numpy as np
+import pandas as pd
+import pytest
+
+from sandtrack_tui.board import load_board
+from sandtrack_tui.camera import Calibration
+from sandtrack_tui.video import FrameSource
+
+SAMPLE = Path(__file__).resolve().parents[1] / "sample_data"
+pytestmark = pytest.mark.skipif(not (SAMPLE / "ground_truth" / "cameras.toml").is_file(),
+                                reason="sample_data/ not rendered")
+
+
+def _cal():
+    return Calibration.load(SAMPLE / "ground_truth" / "cameras.toml")
+
+
+@pytest.mark.parametrize("camera", ["side", "front"])
+def test_marker_pixels_are_projections_of_xyz(camera):
+    cal = _cal()
+    df = pd.read_csv(SAMPLE / "ground_truth" / f"markers_{camera}.csv")
+    px = cal.project_world(camera, df[["X_mm", "Y_mm", "Z_mm"]].to_numpy())
+    err = np.abs(px - df[["x_px", "y_px"]].to_numpy()).max()
+    assert err <= 0.01
+    # the markers' true trajectories are shared by both files (same scene clock)
+    traj = pd.read_csv(SAMPLE / "ground_truth" / "trajectories.csv")
+    side = pd.read_csv(SAMPLE / "ground_truth" / "markers_side.csv")
+    assert np.abs(traj[["X_mm", "Y_mm", "Z_mm"]].to_numpy() - side[["X_mm", "Y_mm", "Z_mm"]].to_numpy()).max() < 1e-3
+
+
+@pytest.mark.parametrize("camera", ["side", "front"])
+def test_calibration_corner_pixels_are_projections(camera):
+    cal = _cal()
+    df = pd.read_csv(SAMPLE / "ground_truth" / f"calibration_corners_{camera}.csv")
+    px = cal.project_world(camera, df[["X_mm", "Y_mm", "Z_mm"]].to_numpy())
+    assert np.abs(px - df[["x_px", "y_px"]].to_numpy()).max() <= 0.01
+
+
+def _blue_mask(img):
+    hsv = cv2.cvtColor(img, cv2.COLOR_BGR2HSV)
+    return (hsv[..., 0] >= 100) & (hsv[..., 0] <= 130) & (hsv[..., 1] >= 110) & (hsv[..., 2] >= 40)
+
+
+@pytest.mark.parametrize("camera", ["side", "front"])
+def test_visible_markers_show_a_blue_blob_at_the_true_pixel(camera):
+    df = pd.read_csv(SAMPLE / "ground_truth" / f"markers_{camera}.csv")
+    src = FrameSource(SAMPLE / "experiment" / f"{camera}.mp4")
+    assert len(src) == df["frame"].max() + 1
+    errors, hidden_blue, n_hidden = [], [], 0
+    frames = sorted(set(range(0, len(src), 9)) | set(df.loc[df["visible"] == 0, "frame"].unique()[::4]))
+    for f in frames:
+        img = src.frame(int(f))
+        mask = _blue_mask(img)
+        for r in df[df["frame"] == f].itertuples():
+            x, y = r.x_px, r.y_px
+            x0, y0 = int(round(x)) - 9, int(round(y)) - 9
+            if x0 < 0 or y0 < 0 or x0 + 19 > img.shape[1] or y0 + 19 > img.shape[0]:
+                continue
+            win = mask[y0 : y0 + 19, x0 : x0 + 19]
+            yy, xx = np.mgrid[y0 : y0 + 19, x0 : x0 + 19]
+            near = (xx - x) ** 2 + (yy - y) ** 2 <= 3.0**2
+            if r.visible_fraction >= 0.95:
+                assert win.sum() >= 8, (f, r.marker, int(win.sum()))
+                errors.append(np.hypot(xx[win].mean() - x, yy[win].mean() - y))
+            elif r.visible == 0:
+                n_hidden += 1
+                hidden_blue.append(int((win & near).sum()))
+    errors = np.array(errors)
+    assert len(errors) > 100
+    assert np.median(errors) < 0.5 and errors.max() < 2.0, (np.median(errors), errors.max())
+    assert n_hidden > 0
+    # hidden markers leave (almost) no blue around their true pixel
+    assert np.mean(np.array(hidden_blue) <= 2) >= 0.95, hidden_blue
+
+
+def test_some_markers_are_hidden_for_a_while_and_reappear():
+    traj = pd.read_csv(SAMPLE / "ground_truth" / "trajectories.csv")
+    for col in ("visible_side", "visible_front"):
+        reappear = 0
+        for _, g in traj.groupby("marker"):
+            v = g.sort_values("frame")[col].to_numpy()
+            starts = np.nonzero(np.diff(v) == -1)[0]
+            ends = np.nonzero(np.diff(v) == 1)[0]
+            reappear += int(len(starts) > 0 and len(ends) > 0 and ends.max() > starts.min())
+        assert reappear >= 2, col
+
+
+@pytest.mark.parametrize("camera", ["side", "front"])
+def test_charuco_detected_in_most_calibration_frames(camera):
+    board = load_board(SAMPLE / "board.toml")
+    det = cv2.aruco.CharucoDetector(board.cv_board())
+    src = FrameSource(SAMPLE / "calibration" / f"{camera}.mp4")
+    truth = pd.read_csv(SAMPLE / "ground_truth" / f"calibration_corners_{camera}.csv")
+    found, errs, n = 0, [], 0
+    for i, img in src.iter_frames(0, len(src), 4):
+        n += 1
+        cc, ids, _, _ = det.detectBoard(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
+        if ids is None or len(ids) < 4:
+            continue
+        found += 1
+        t = truth[truth["frame"] == i].set_index("corner_id")
+        for cid, p in zip(ids.ravel(), cc.reshape(-1, 2), strict=True):
+            if cid in t.index:
+                errs.append(np.hypot(*(p - t.loc[cid, ["x_px", "y_px"]].to_numpy(float))))
+    assert found / n >= 0.8, (found, n)
+    errs = np.array(errs)
+    assert np.median(errs) < 0.3, np.median(errs)
+
+
+def test_reference_pose_matches_the_world_frame():
+    import tomllib
+
+    ref = tomllib.loads((SAMPLE / "calibration" / "reference.toml").read_text())
+    board = load_board(SAMPLE / "board.toml")
+    cal = _cal()
+    obj = board.corner_points_mm()
+    world = obj @ np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]]).T + np.array(ref["origin_mm"])
+    for camera in ("side", "front"):
+        src = FrameSource(SAMPLE / "calibration" / f"{camera}.mp4")
+        img = src.frame(ref["frame"])
+        cc, ids, _, _ = cv2.aruco.CharucoDetector(board.cv_board()).detectBoard(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
+        assert ids is not None and len(ids) == board.n_corners
+        expected = cal.project_world(camera, world[ids.ravel()])
+        assert np.abs(cc.reshape(-1, 2) - expected).max() < 1.0
+
+
+def _audio(path):
+    with av.open(str(path)) as c:
+        s = c.streams.audio[0]
+        chunks, first = [], None
+        for fr in c.decode(s):
+            if first is None:
+                first = float(fr.pts * s.time_base)
+            chunks.append(fr.to_ndarray()[0])
+        return first, np.concatenate(chunks).astype(np.float64), s.rate
+
+
+def _clap_time(path):
+    t0, x, rate = _audio(path)
+    env = np.convolve(np.abs(x), np.ones(48) / 48, mode="same")
+    k = int(np.argmax(env))
+    return t0, x, rate, t0 + k / rate
+
+
+def test_clap_in_both_audio_tracks_gives_the_true_offset():
+    sync = json.loads((SAMPLE / "ground_truth" / "sync.json").read_text())
+    t0s, xs, rate, cs = _clap_time(SAMPLE / "experiment" / "side.mp4")
+    t0f, xf, _, cf = _clap_time(SAMPLE / "experiment" / "front.mp4")
+    assert abs(cs - sync["clap_time_side_s"]) < 0.01 and abs(cf - sync["clap_time_front_s"]) < 0.01
+    # refine: cross-correlate 0.2 s windows around the claps (pts-based times)
+    w = int(0.2 * rate)
+    ks, kf = int((cs - t0s) * rate), int((cf - t0f) * rate)
+    a = xs[ks - w : ks + w]
+    b = xf[kf - w : kf + w]
+    n = 2 * len(a)
+    cc = np.fft.irfft(np.fft.rfft(a, n) * np.conj(np.fft.rfft(b, n)), n)
+    lag = int(np.argmax(cc))
+    y0, y1, y2 = cc[lag - 1], cc[lag], cc[(lag + 1) % n]
+    frac = 0.5 * (y0 - y2) / (y0 - 2 * y1 + y2)
+    lag = lag + frac if lag < n // 2 else lag + frac - n
+    offset = (t0s + ks / rate) - (t0f + kf / rate) + lag / rate
+    assert abs(offset - sync["offset_s"]) < 0.0005, offset
+
+
+def test_dem_file_differs_from_truth_exactly_as_documented():
+    diff = json.loads((SAMPLE / "dem" / "differences.json").read_text())
+    dem = pd.read_csv(SAMPLE / "dem" / "particles.csv")
+    traj = pd.read_csv(SAMPLE / "ground_truth" / "trajectories.csv")
+    fps = json.loads((SAMPLE / "ground_truth" / "sync.json").read_text())["fps"]
+    checked = 0
+    for r in dem[dem["time_s"] > diff["time_shift_s"]].iloc[::37].itertuples():
+        side_t = diff["tool_start_side_time_s"] + r.time_s - diff["time_shift_s"]
+        frame = side_t * fps
+        if abs(frame - round(frame)) > 1e-6:
+            continue
+        t = traj[(traj["frame"] == round(frame)) & (traj["marker"] == r.particle_id)]
+        if t.empty:
+            continue
+        drift = np.array(diff["drift_mm_per_s"].get(str(r.particle_id), [0.0, 0.0, 0.0])) * r.time_s
+        expected = t[["X_mm", "Y_mm", "Z_mm"]].to_numpy()[0] + drift
+        assert np.abs(np.array([r.x, r.y, r.z]) - expected).max() < 1e-3
+        checked += 1
+    assert checked > 20
