@@ -121,17 +121,24 @@ class Engine:
         a, b = self.stereo.cams
         if a not in frames or b not in frames:
             return
-        markers = {m for (m, c) in self.tracks if c == a} & {m for (m, c) in self.tracks if c == b}
-        for m in sorted(markers):
+        markers, pas, pbs = [], [], []
+        for m in sorted({m for (m, c) in self.tracks if c == a} & {m for (m, c) in self.tracks if c == b}):
             ka, kb = (m, a), (m, b)
+            if only_reattached and not ((ka in props and props[ka].reattach) or (kb in props and props[kb].reattach)):
+                continue
             pa, pb = self._point_at(ka, frames, props, forced), self._point_at(kb, frames, props, forced)
             if pa is None or pb is None:
                 continue
-            if only_reattached and not ((ka in props and props[ka].reattach) or (kb in props and props[kb].reattach)):
-                continue
-            d = float(self.stereo.distance(a, pa, b, pb)[0])
+            markers.append(m)
+            pas.append(pa)
+            pbs.append(pb)
+        if not markers:
+            return
+        dist = self.stereo.distance(a, np.array(pas), b, np.array(pbs))  # one call for all markers
+        for m, d in zip(markers, dist, strict=True):
             if d <= self.stereo.threshold_px:
                 continue
+            ka, kb = (m, a), (m, b)
             cands = [k for k in (ka, kb) if k in props and k not in forced]
             if only_reattached:
                 cands = [k for k in cands if props[k].reattach] or cands
@@ -141,7 +148,7 @@ class Engine:
             del props[suspect]
             if len(self.stereo_flags) < self.max_events:
                 self.stereo_flags.append({"marker": m, "camera": suspect[1], "frame": int(frames[suspect[1]][0]),
-                                          "epipolar_px": round(d, 2)})
+                                          "epipolar_px": round(float(d), 2)})
 
     def _reacquire(self, cam, img, tracks, props, forced, frames) -> None:
         explained = [(p.match.x, p.match.y) for k, p in props.items() if k[1] == cam]

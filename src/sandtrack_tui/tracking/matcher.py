@@ -51,7 +51,16 @@ class TemplateMatcher:
         return cv2.getRectSubPix(score, (self.size, self.size), (cx - x0, cy - y0))
 
     def update_template(self, frame_bgr: np.ndarray, cx: float, cy: float, alpha: float = 0.1) -> None:
-        patch = self._cut(frame_bgr, cx, cy)
+        last = getattr(self, "_last", None)
+        patch = None
+        if last is not None:  # reuse the score image of the last match when it holds the patch
+            score, x0, y0 = last
+            lx, ly = cx - x0, cy - y0
+            lim = self.half + 1
+            if lim <= lx < score.shape[1] - lim - 1 and lim <= ly < score.shape[0] - lim - 1:
+                patch = cv2.getRectSubPix(score, (self.size, self.size), (lx, ly))
+        if patch is None:
+            patch = self._cut(frame_bgr, cx, cy)
         self.template = ((1 - alpha) * self.template + alpha * patch).astype(np.float32)
 
     def match(self, frame_bgr: np.ndarray, px: float, py: float, hx: float, hy: float,
@@ -61,7 +70,7 @@ class TemplateMatcher:
         H, W = frame_bgr.shape[:2]
         if not (np.isfinite(px) and np.isfinite(py)):
             return None
-        r_min = 2 * self.model.radius + 2  # room for sidelobes, so the PSR means something
+        r_min = self.model.radius + 4  # room for sidelobes, so the PSR means something
         ex, ey = int(np.ceil(max(hx, r_min))), int(np.ceil(max(hy, r_min)))
         cx0, cy0 = int(round(px)), int(round(py))
         x0, y0 = max(cx0 - ex - self.half, 0), max(cy0 - ey - self.half, 0)
@@ -76,21 +85,27 @@ class TemplateMatcher:
             res2 = cv2.matchTemplate(score, self.template, cv2.TM_CCOEFF_NORMED)
             cv2.patchNaNs(res2, -1.0)
             res = np.maximum(res, res2)
-        # Centres of the result grid relative to the prediction.
-        gx = np.arange(res.shape[1], dtype=np.float64) + (x0 + self.half - px)
-        gy = np.arange(res.shape[0], dtype=np.float64) + (y0 + self.half - py)
-        okx, oky = np.abs(gx) <= hx + 0.5, np.abs(gy) <= hy + 0.5
-        if not okx.any() or not oky.any():
+        # The search box (hx, hy around the prediction) in result-grid indices.
+        ox, oy = x0 + self.half - px, y0 + self.half - py  # grid index 0 -> offset from prediction
+        c_lo, c_hi = max(int(np.ceil(-hx - 0.5 - ox)), 0), min(int(np.floor(hx + 0.5 - ox)), res.shape[1] - 1)
+        r_lo, r_hi = max(int(np.ceil(-hy - 0.5 - oy)), 0), min(int(np.floor(hy + 0.5 - oy)), res.shape[0] - 1)
+        if c_hi < c_lo or r_hi < r_lo:
             return None
-        inside = oky[:, None] & okx[None, :]
-        if S_inv is not None:
+        box = res[r_lo:r_hi + 1, c_lo:c_hi + 1]
+        r, c = divmod(int(np.argmax(box)), box.shape[1])
+        r, c = r + r_lo, c + c_lo
+        if S_inv is not None and _d2(S_inv, c + ox, r + oy) > gate_d2 + 1.0:
+            # The best peak in the box lies outside the gate ellipse: search inside the ellipse only
+            # (+1: the grid is integer, the refined centre is not).
+            gx = np.arange(c_lo, c_hi + 1, dtype=np.float64) + ox
+            gy = np.arange(r_lo, r_hi + 1, dtype=np.float64) + oy
             d2 = (S_inv[0, 0] * gx * gx)[None, :] + (2 * S_inv[0, 1]) * np.outer(gy, gx) \
                 + (S_inv[1, 1] * gy * gy)[:, None]
-            inside &= d2 <= gate_d2 + 1.0  # +1: the grid is integer, the refined centre is not
+            inside = d2 <= gate_d2 + 1.0
             if not inside.any():
                 return None
-        masked = np.where(inside, res, -2.0)
-        r, c = divmod(int(np.argmax(masked)), res.shape[1])
+            r, c = divmod(int(np.argmax(np.where(inside, box, -2.0))), box.shape[1])
+            r, c = r + r_lo, c + c_lo
         peak = float(res[r, c])
         sx = _parabola(res[r, c - 1], peak, res[r, c + 1]) if 0 < c < res.shape[1] - 1 else 0.0
         sy = _parabola(res[r - 1, c], peak, res[r + 1, c]) if 0 < r < res.shape[0] - 1 else 0.0
@@ -103,6 +118,7 @@ class TemplateMatcher:
             mx, my = cxr, cyr
         else:
             mx, my = ncc_x, ncc_y
+        self._last = (score, x0, y0)
         return Match(x=mx + x0, y=my + y0, score=peak, psr=psr, colour_frac=frac, used_centroid=bool(used))
 
     def centroid(self, score: np.ndarray, x: float, y: float, iterations: int = 2) -> tuple[float, float, float]:
@@ -123,6 +139,8 @@ class TemplateMatcher:
             if tot < 1e-6:
                 return x, y, 0.0
             x, y = ix - R + mom["m10"] / tot, iy - R + mom["m01"] / tot
+            if int(round(x)) == ix and int(round(y)) == iy:
+                break  # the window would not move
         return x, y, frac
 
     def _centroid_window(self):
@@ -170,6 +188,10 @@ def _crop(img: np.ndarray, x0: int, y0: int, w: int, h: int) -> np.ndarray:
         return np.zeros((h, w) + img.shape[2:], dtype=img.dtype)
     sub = img[ya:yb, xa:xb]
     return cv2.copyMakeBorder(sub, ya - y0, y0 + h - yb, xa - x0, x0 + w - xb, cv2.BORDER_REPLICATE)
+
+
+def _d2(S_inv: np.ndarray, dx: float, dy: float) -> float:
+    return float(S_inv[0, 0] * dx * dx + 2 * S_inv[0, 1] * dx * dy + S_inv[1, 1] * dy * dy)
 
 
 def _parabola(a: float, b: float, c: float) -> float:
