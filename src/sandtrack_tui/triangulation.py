@@ -89,7 +89,10 @@ def _refine(calibration: Calibration, names, obs, pts: np.ndarray, iterations: i
         r = np.nan_to_num(r0)
         JtJ = np.einsum("nik,nil->nkl", J, J) + 1e-9 * np.eye(3)
         Jtr = np.einsum("nik,ni->nk", J, r)
-        step = np.linalg.solve(JtJ, -Jtr[..., None])[..., 0]
+        try:
+            step = np.linalg.solve(JtJ, -Jtr[..., None])[..., 0]
+        except np.linalg.LinAlgError:  # a point with no usable view in one camera: least-norm step
+            step = -np.einsum("nkl,nl->nk", np.linalg.pinv(JtJ), Jtr)
         x = x + step
         if np.nanmax(np.abs(step)) < 1e-6:
             break

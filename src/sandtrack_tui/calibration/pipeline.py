@@ -76,7 +76,8 @@ def calibrate_videos(videos: dict[str, str | Path], board: BoardSpec, *, offsets
     views = detect_in_sources(sources, board, sorted(first), pairing, progress, workers=workers)
     detected = set(first)
     step = stride
-    while _shared_count(views, names) < MIN_SHARED_VIEWS and step > 1:
+    # add the frames in between only when every camera has seen the board at all
+    while all(views[n] for n in names) and _shared_count(views, names) < MIN_SHARED_VIEWS and step > 1:
         step = max(1, step // 2)
         more = sorted(set(range(0, n_ref, step)) - detected)
         extra = detect_in_sources(sources, board, more, pairing, progress, workers=workers)

@@ -1,0 +1,181 @@
+"""End-to-end calibration on rendered board images through known cameras (exact truth), the CLI,
+and the messages for bad input."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import cv2
+import numpy as np
+import pandas as pd
+import pytest
+
+from sandtrack_tui.board import BoardSpec
+from sandtrack_tui.calibration.pipeline import calibrate_videos
+from sandtrack_tui.calibration.report import relative_pose_errors
+from sandtrack_tui.calibration.synthetic import write_session
+from sandtrack_tui.camera import Calibration
+from sandtrack_tui.cli import main
+from sandtrack_tui.errors import SandtrackError
+from sandtrack_tui.triangulation import triangulate
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("calib_session")
+    s = write_session(folder, n_views=22, seed=5)
+    s["folder"] = folder
+    return s
+
+
+@pytest.fixture(scope="module")
+def result(session):
+    return calibrate_videos(session["videos"], session["board"], reference_frame=0, with_points=True)
+
+
+def test_recovers_true_cameras(session, result):
+    err = relative_pose_errors(result.calibration, session["truth"])
+    assert err["focal_rel_err"] < 2e-3
+    assert err["principal_point_err_px"] < 2.0
+    assert err["rotation_err_deg"] < 0.1
+    assert err["translation_err_mm"] < 1.0
+    assert result.report["reprojection_rmse_px"] < 0.3
+    assert result.report["board_rmse_mm"] < 0.3
+
+
+def test_world_frame_and_points_match_truth(session, result):
+    truth = session["truth"]
+    # the world frame from the flat board of frame 0: a point 300 mm away lands within 1.5 mm
+    probe = np.array([[0.0, 0.0, 0.0], [200.0, 50.0, 300.0]])
+    assert np.abs(result.calibration.to_world(probe) - truth.to_world(probe)).max() < 1.5
+    pts = result.points
+    assert list(pts.columns) == ["frame", "corner_id", "xs", "ys", "xf", "yf", "X_mm", "Y_mm", "Z_mm"]
+    corners = session["board"].corner_points_mm()
+    true_xyz = np.array([truth.to_world(corners[c] @ session["poses"][f][:3, :3].T + session["poses"][f][:3, 3])[0]
+                         for f, c in zip(pts.frame, pts.corner_id, strict=True)])
+    err = np.linalg.norm(true_xyz - pts[["X_mm", "Y_mm", "Z_mm"]].to_numpy(), axis=1)
+    assert err.mean() < 0.6
+    # the frame-0 board lies flat: its corners have world Y = 0 and start at the origin
+    flat = pts[pts.frame == 0]
+    assert np.abs(flat.Y_mm).max() < 1.0
+    # and triangulating the table's own pixels gives its XYZ back
+    xyz, res = triangulate(result.calibration, {"side": pts[["xs", "ys"]].to_numpy(),
+                                                "front": pts[["xf", "yf"]].to_numpy()})
+    assert np.linalg.norm(xyz - pts[["X_mm", "Y_mm", "Z_mm"]].to_numpy(), axis=1).mean() < 0.6
+    assert np.nanmedian(res) < 0.3
+
+
+def test_cli_json_writes_files_and_project(session, tmp_path, capsys):
+    from sandtrack_tui.store import Project
+
+    proj = tmp_path / "exp.sandtrack"
+    Project.create(proj).close()
+    ref = tmp_path / "reference.toml"
+    ref.write_text("frame = 0\norigin_mm = [10.0, 0.0, 5.0]\n")
+    board = tmp_path / "board.toml"
+    session["board"].save(board)
+    out, pts = tmp_path / "calibration.toml", tmp_path / "points.csv"
+    code = main(["calibrate", "--board", str(board), "--side", session["videos"]["side"], "--front",
+                 session["videos"]["front"], "-o", str(out), "--points", str(pts), "--reference", str(ref),
+                 "--project", str(proj), "--export-caliscope", str(tmp_path / "camera_array.toml"), "--json"])
+    assert code == 0
+    r = json.loads(capsys.readouterr().out)
+    for key in ("reprojection_rmse_px", "board_rmse_mm", "per_camera", "views_used", "points", "seconds"):
+        assert key in r
+    assert r["reprojection_rmse_px"] < 0.3 and r["points"] > 400
+    assert set(r["per_camera"]) == {"side", "front"} and r["per_camera"]["side"]["rmse_px"] < 0.3
+    cal = Calibration.load(out)
+    table = pd.read_csv(pts)
+    assert len(table) == r["points"]
+    flat = table[table.frame == 0]
+    # origin_mm shifts the board origin: corner 0 sits one square from it along X and Z
+    c0 = flat[flat.corner_id == 0][["X_mm", "Y_mm", "Z_mm"]].to_numpy()[0]
+    assert np.allclose(c0, [10 + 30, 0, 5 + 30], atol=1.5)
+    with Project.open(proj) as p:
+        stored = p.calibration()
+        assert stored is not None and np.allclose(stored.world_from_rig, cal.world_from_rig)
+        assert p.board() == session["board"]
+    # Caliscope round trip through the CLI import
+    code = main(["calibrate", "--import-caliscope", str(tmp_path / "camera_array.toml"), "--names", "side,front",
+                 "-o", str(tmp_path / "imported.toml"), "--json"])
+    assert code == 0
+    capsys.readouterr()
+    imp = Calibration.load(tmp_path / "imported.toml")
+    X = np.array([[50.0, 10.0, 100.0]])
+    assert np.allclose(imp.project_world("front", X), cal.project_world("front", X), atol=1e-6)
+
+
+def test_cli_from_points(result, tmp_path, capsys):
+    # pixel/XYZ table of several board poses spread in depth -> cameras
+    pts = tmp_path / "points.csv"
+    result.points.to_csv(pts, index=False)
+    out = tmp_path / "fp.toml"
+    assert main(["calibrate", "--from-points", str(pts), "-o", str(out), "--json"]) == 0
+    r = json.loads(capsys.readouterr().out)
+    assert r["reprojection_rmse_px"] < 0.5
+    cal = Calibration.load(out)
+    fx_true = result.calibration.cameras["side"].matrix[0, 0]
+    assert abs(cal.cameras["side"].matrix[0, 0] / fx_true - 1) < 0.01
+
+
+def _cli_error(args, capsys) -> str:
+    assert main(args) == 1
+    return capsys.readouterr().err
+
+
+def test_bad_input_messages(session, tmp_path, capsys):
+    board = tmp_path / "board.toml"
+    session["board"].save(board)
+    side, front = session["videos"]["side"], session["videos"]["front"]
+    # no board file
+    assert "board file not found" in _cli_error(
+        ["calibrate", "--board", str(tmp_path / "nope.toml"), "--side", side, "--front", front, "-o", "x.toml"], capsys)
+    # wrong board (other dictionary): nothing found, says what to check
+    wrong = tmp_path / "wrong.toml"
+    BoardSpec(columns=8, rows=5, square_mm=30.0, dictionary="DICT_6X6_250").save(wrong)
+    err = _cli_error(["calibrate", "--board", str(wrong), "--side", side, "--front", front, "-o", "x.toml",
+                      "--budget", "6"], capsys)
+    assert "no board found" in err and "dictionary" in err
+    # the board seen by one camera only: front sees a blank scene
+    blank = tmp_path / "blank"
+    blank.mkdir()
+    for f in range(22):
+        cv2.imwrite(str(blank / f"{f:05d}.png"), np.full((540, 960), 110, np.uint8))
+    err = _cli_error(["calibrate", "--board", str(board), "--side", side, "--front", str(blank), "-o", "x.toml"],
+                     capsys)
+    assert "no board found in camera front" in err
+    # too few views: only three frames
+    few = {}
+    for n in ("side", "front"):
+        d = tmp_path / f"few_{n}"
+        d.mkdir()
+        for f in range(3):
+            shutil.copy(f"{session['videos'][n]}/{f:05d}.png", d / f"{f:05d}.png")
+        few[n] = str(d)
+    err = _cli_error(["calibrate", "--board", str(board), "--side", few["side"], "--front", few["front"], "-o",
+                      "x.toml"], capsys)
+    assert "only" in err and "record at least" in err
+    # a missing video
+    assert "not found" in _cli_error(["calibrate", "--board", str(board), "--side", "missing.mp4", "--front", front,
+                                      "-o", "x.toml"], capsys)
+    # one camera only
+    assert "two cameras" in _cli_error(["calibrate", "--board", str(board), "--side", side, "-o", "x.toml"], capsys)
+
+
+def test_face_on_views_are_rejected(tmp_path):
+    from sandtrack_tui.calibration.intrinsics import calibrate_intrinsics
+    from sandtrack_tui.calibration.rig import BoardView
+    from sandtrack_tui.calibration.synthetic import stereo_rig
+
+    board = BoardSpec(columns=8, rows=5, square_mm=30.0)
+    cam = stereo_rig().cameras["side"]
+    pts = board.corner_points_mm()
+    views = {}
+    for f in range(12):  # board moved sideways, always parallel to the image
+        T = np.eye(4)
+        T[:3, 3] = [-120 + 20 * (f % 4), -60 + 30 * (f // 4), 600 + 5 * f]
+        uv = cam.project(pts @ T[:3, :3].T + T[:3, 3])
+        views[f] = BoardView(frame=f, source_frame=f, ids=np.arange(len(pts)), corners=uv)
+    with pytest.raises(SandtrackError, match="face-on"):
+        calibrate_intrinsics("side", views, board, (cam.width, cam.height))
