@@ -113,10 +113,10 @@ def test_text_plot_draws_lines():
 
 
 def test_cli_compare_csv_dump_plots_json(tmp_path, capsys):
-    exp, dem = make_case(shift_s=0.137, drift={3: 6.0}, seed=0)
+    exp, dem = make_case(shift_s=0.137, drift={3: 6.0}, seed=0, n=6)
     exp.to_csv(tmp_path / "exp.csv", index=False)
     D.write_exchange_csv(dem, tmp_path / "run_a.csv", units="m")
-    _, dem_b = make_case(shift_s=0.137, seed=0, dem_scale=1.4)
+    _, dem_b = make_case(shift_s=0.137, seed=0, dem_scale=1.4, n=6)
     # run b as a LIGGGHTS dump (metres, with ITEM: TIME), axes swapped: DEM y = rig Z, DEM z = -rig Y
     with open(tmp_path / "run_b.dump", "w") as fh:
         for t, g in dem_b.groupby("time_s"):

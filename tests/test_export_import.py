@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import sys
-import types
 from pathlib import Path
 
 import numpy as np
@@ -81,10 +80,10 @@ def test_dltdv_tables_layout_and_flip():
 
 
 def test_export_cli_with_fake_xyz(project, tmp_path, monkeypatch, capsys):
-    fake = types.ModuleType("sandtrack_tui.xyz")
-    fake.compute_xyz = lambda proj, method="both": fake_xyz(
-        methods=("triangulation", "mlp") if method == "both" else (method,))
-    monkeypatch.setitem(sys.modules, "sandtrack_tui.xyz", fake)
+    import sandtrack_tui.xyz as xyz
+
+    monkeypatch.setattr(xyz, "compute_xyz", lambda proj, method="both": fake_xyz(
+        methods=("triangulation", "mlp") if method == "both" else (method,)))
     project.close()
     assert main(["export", str(project.path), "-o", str(tmp_path / "out.csv"), "--json"]) == 0
     res = json.loads(capsys.readouterr().out)
