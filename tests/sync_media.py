@@ -42,7 +42,9 @@ def scene_audio(rate: int, file_start_world_s: float, audio_start_s: float, dura
 def write_av(path, fps: int = 50, n_frames: int = 100, size=(64, 48), frame_fn=None, audio=None,
              rate: int = 48000, audio_start_s: float = 0.0) -> None:
     """Write an mp4 (H.264 video, optional AAC mono audio starting `audio_start_s` into the file)."""
-    c = av.open(str(path), "w")
+    # movie_timescale: the mp4 muxer otherwise stores the audio's start gap (edit list) in whole
+    # milliseconds, which moves the audio by up to 1 ms (e.g. 32 samples for a 50 ms start)
+    c = av.open(str(path), "w", options={"movie_timescale": str(rate)})
     vs = c.add_stream("libx264", rate=fps)
     vs.width, vs.height = size
     vs.pix_fmt = "yuv420p"
@@ -75,7 +77,7 @@ def write_av(path, fps: int = 50, n_frames: int = 100, size=(64, 48), frame_fn=N
 
 
 def make_pair(folder, offset_s: float = 0.7473, clap_world_s: float = 2.3, duration_s: float = 4.0,
-              audio_start=(0.25, 0.1), fps: int = 50, seed: int = 0, rate: int = 48000, with_audio: bool = True,
+              audio_start=(0.25, 0.05), fps: int = 50, seed: int = 0, rate: int = 48000, with_audio: bool = True,
               frame_fns=(None, None), **audio_kw):
     """side.mp4 and front.mp4 in `folder`; returns their paths."""
     rng = np.random.default_rng(seed)

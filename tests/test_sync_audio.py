@@ -23,8 +23,8 @@ FPS = 50
 
 @pytest.fixture(scope="module")
 def av_pair(tmp_path_factory):
-    # audio starts 0.25 s into the side file and 0.10 s into the front file (plus AAC priming)
-    return make_pair(tmp_path_factory.mktemp("sync"), offset_s=TRUE_OFFSET, audio_start=(0.25, 0.1))
+    # audio starts 0.25 s into the side file and 0.05 s into the front file (plus AAC priming)
+    return make_pair(tmp_path_factory.mktemp("sync"), offset_s=TRUE_OFFSET, audio_start=(0.25, 0.05))
 
 
 def test_read_audio_uses_presentation_time(av_pair):
@@ -32,9 +32,10 @@ def test_read_audio_uses_presentation_time(av_pair):
     a = sync.read_audio(side)
     b = sync.read_audio(front)
     assert a.sample_rate == 48000
-    # the decoded audio starts ~0.25 s / 0.10 s into the files (minus the encoder's priming shift)
-    assert 0.2 < a.start_s < 0.26
-    assert 0.05 < b.start_s < 0.11
+    # the decoded audio starts 0.25 s / 0.05 s into the files, minus the AAC encoder's priming
+    # (1024 samples, decoded and kept: it is part of the presentation timeline)
+    assert a.start_s == pytest.approx(0.25 - 1024 / 48000, abs=1e-6)
+    assert b.start_s == pytest.approx(0.05 - 1024 / 48000, abs=1e-6)
 
 
 def test_audio_offset_from_files_within_1ms(av_pair):
