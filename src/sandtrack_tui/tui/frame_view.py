@@ -26,6 +26,7 @@ from rich.color import Color as RichColor
 from rich.segment import Segment
 from rich.style import Style
 from textual import events
+from textual.geometry import Region
 from textual.message import Message
 from textual.strip import Strip
 from textual.widget import Widget
@@ -252,6 +253,7 @@ class StripBuilder:
     def __init__(self) -> None:
         self._styles: dict[int, Style] = {}
         self._runs: dict[int, str] = {}
+        self.keys: np.ndarray | None = None  # colour-pair key per cell of the last build (labels < 0)
 
     def _style(self, key: int) -> Style:
         style = self._styles.get(key)
@@ -278,16 +280,15 @@ class StripBuilder:
         keys = (packed[0:2 * rows:2] << 24) | packed[1:2 * rows:2]
         label_rows: dict[int, dict[int, tuple[str, Style]]] = {}
         for (r, c), v in (labels or {}).items():
-            label_rows.setdefault(r, {})[c] = v
+            if 0 <= r < rows and 0 <= c < cols:
+                label_rows.setdefault(r, {})[c] = v
+                keys[r, c] = -1 - c  # unique in the row, so labels always break runs
+        self.keys = keys
         strips = []
         style_of, text_of = self._style, self._text
         for r in range(rows):
             row_keys = keys[r]
             row_labels = label_rows.get(r)
-            if row_labels:
-                row_keys = row_keys.copy()
-                for c in row_labels:
-                    row_keys[c] = -1 - c  # unique, so labels always break runs
             cuts = np.flatnonzero(row_keys[1:] != row_keys[:-1]) + 1
             starts = [0, *cuts.tolist()]
             ends = [*cuts.tolist(), cols]
@@ -343,6 +344,8 @@ class FrameView(Widget):
         self.message_text = ""
         self._builder = StripBuilder()
         self._strips: list[Strip] = []
+        self._labels: dict = {}
+        self._partial_ok = False  # True once the terminal shows our last strips in full
         self.last_compose_ms = 0.0
 
     # -- data in -----------------------------------------------------------------------------
@@ -364,6 +367,7 @@ class FrameView(Widget):
         t0 = time.perf_counter()
         rows = self.content_size.height
         cols = self.content_size.width
+        regions = None
         if self.pixels is None or self.tf is None:
             self._strips = []
         else:
@@ -373,11 +377,33 @@ class FrameView(Widget):
                 style = Style(color="black", bgcolor="yellow", bold=True)
                 for k, ch in enumerate(self.message_text[: self.tf.cols]):
                     labels[(0, k)] = (ch, style)
+            prev_keys, prev_labels = self._builder.keys, self._labels
             self._strips = self._builder.build(rgb, labels)
+            self._labels = labels
+            if prev_keys is not None and prev_keys.shape == self._builder.keys.shape and self._partial_ok:
+                regions = self._changed_regions(prev_keys, self._builder.keys, prev_labels, labels)
         if not self._strips and self.message_text and rows:
             self._strips = [Strip([Segment(self.message_text[:cols].ljust(cols), Style(color="yellow"))], cols)]
         self.last_compose_ms = (time.perf_counter() - t0) * 1000
-        self.refresh()
+        self._partial_ok = bool(self._strips)
+        if regions is None:
+            self.refresh()
+        elif regions:
+            self.refresh(*regions)
+
+    @staticmethod
+    def _changed_regions(old: np.ndarray, new: np.ndarray, old_labels: dict, new_labels: dict) -> list[Region]:
+        """Only the cells that changed are sent to the terminal: between two frames most of the scene
+        (walls, undisturbed sand) stays the same after averaging, so a step sends a fraction of the view."""
+        diff = old != new
+        for cell in set(old_labels) | set(new_labels):
+            if old_labels.get(cell) != new_labels.get(cell) and cell[0] < diff.shape[0] and cell[1] < diff.shape[1]:
+                diff[cell] = True
+        regions = []
+        for r in np.flatnonzero(diff.any(axis=1)).tolist():
+            idx = np.flatnonzero(diff[r])
+            regions.append(Region(int(idx[0]), r, int(idx[-1] - idx[0] + 1), 1))
+        return regions
 
     # -- drawing -----------------------------------------------------------------------------
     def render_line(self, y: int) -> Strip:
@@ -390,6 +416,7 @@ class FrameView(Widget):
         return Strip.blank(width)
 
     def on_resize(self, event: events.Resize) -> None:
+        self._partial_ok = False
         self.post_message(self.Resized())
 
     # -- mouse -------------------------------------------------------------------------------
