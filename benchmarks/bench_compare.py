@@ -63,6 +63,10 @@ def _distances() -> dict:
 
 
 def _sample_data() -> dict:
+    """sample_data/dem/differences.json: dem(t) = truth(t - time_shift_s) + drift * t, DEM t = 0 at the
+    tool start (side time tool_start_side_time_s). So the experiment time of DEM time t is
+    tool_start + t - time_shift_s: compare's time_shift_s (experiment - DEM) should be
+    tool_start - time_shift_s."""
     gt = ROOT / "sample_data" / "ground_truth" / "trajectories.csv"
     dem_csv = ROOT / "sample_data" / "dem" / "particles.csv"
     diff = ROOT / "sample_data" / "dem" / "differences.json"
@@ -70,21 +74,20 @@ def _sample_data() -> dict:
         return {"sample_data": "absent"}
     doc = json.loads(diff.read_text())
     exp = C.read_experiment(gt)
-    units = doc.get("units") or doc.get("length_unit")
-    dem = D.read_exchange_csv(dem_csv, units=units if units in D.UNIT_TO_MM else None)
+    unit = str(doc.get("units", "")).split(",")[0].strip()
+    dem = D.read_exchange_csv(dem_csv, units=unit if unit in D.UNIT_TO_MM else None)
     t0 = time.perf_counter()
     c = C.compare(exp, dem, fps=FPS)
     out = {"sample_seconds": round(time.perf_counter() - t0, 2), "sample_time_shift_s": round(c.time_shift_s, 5),
-           "sample_flagged": c.summary["flagged_markers"], "sample_rmse_3d_mm_median": round(
-               c.summary["rmse_3d_mm_median"], 3)}
-    true_shift = _find(doc, ("time_shift_s", "shift_s", "time_offset_s"))
-    if true_shift is not None:
-        out["sample_true_time_shift_s"] = true_shift
-        out["sample_shift_error_frames"] = round(abs(abs(c.time_shift_s) - abs(true_shift)) * FPS, 4)
-        out["sample_shift_sign_note"] = "compare: experiment time - DEM time of the same instant"
-    drifting = _find(doc, ("drifting_particles", "drift_particles", "drifting"))
-    if drifting is not None:
-        ids = sorted(int(d["particle_id"]) if isinstance(d, dict) else int(d) for d in drifting)
+           "sample_flagged": c.summary["flagged_markers"],
+           "sample_rmse_3d_mm_median": round(c.summary["rmse_3d_mm_median"], 3),
+           "sample_unit_guess": D.guess_units(dem[["X_mm", "Y_mm", "Z_mm"]].to_numpy())}
+    if "time_shift_s" in doc and "tool_start_side_time_s" in doc:
+        expected = float(doc["tool_start_side_time_s"]) - float(doc["time_shift_s"])
+        out["sample_expected_time_shift_s"] = expected
+        out["sample_shift_error_frames"] = round(abs(c.time_shift_s - expected) * FPS, 4)
+    if "drifting_particles" in doc:
+        ids = sorted(int(d) for d in doc["drifting_particles"])
         out["sample_true_drifting"] = ids
         out["sample_flags_match"] = sorted(c.summary["flagged_markers"]) == ids
     return out

@@ -133,3 +133,17 @@ def test_fuzz_dump(tmp_path_factory, text):
         assert str(exc) and "\n" not in str(exc)
         return
     assert np.isfinite(d[["time_s", "X_mm", "Y_mm", "Z_mm"]].to_numpy()).all()
+
+
+def test_unit_guess_from_extent(tmp_path):
+    f = tmp_path / "mm.csv"
+    f.write_text("particle_id,time_s,x,y,z\n1,0,120.5,-40,10\n1,0.01,180.0,-38,12\n")
+    d = dem.read_exchange_csv(f)
+    assert d.attrs["units_guessed"] == "mm"
+    assert d["X_mm"].iloc[1] == pytest.approx(180.0)
+    g = tmp_path / "m.csv"
+    g.write_text("particle_id,time_s,x,y,z\n1,0,0.1205,-0.04,0.01\n1,0.01,0.18,-0.038,0.012\n")
+    e = dem.read_exchange_csv(g)
+    assert e.attrs["units_guessed"] == "m"
+    assert e["X_mm"].iloc[1] == pytest.approx(180.0)
+    assert "units_guessed" not in dem.read_exchange_csv(g, units="m").attrs

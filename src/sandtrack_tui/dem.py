@@ -5,8 +5,10 @@ frame (mm, s), sorted by particle and time.
 
 Exchange CSV
     ``particle_id, time_s, x, y, z``: one row per particle and output time. Units of x, y, z:
-    ``units`` (m by default, as DEM codes write SI; or mm, cm); columns named ``x_mm``/``x_m`` carry
-    their unit in the name. ``axes`` maps DEM axes to the rig's: ``"x,y,z"`` (identity),
+    ``units`` (m, cm, mm); columns named ``x_mm``/``x_m`` carry their unit in the name. Without
+    either, the unit is guessed from the extent of the positions (a sand bin spans well under 20 m
+    and well over 20 mm): extent above 20 -> mm, else m; the guess is kept in ``df.attrs`` (and
+    the CLI says so): give the unit to be sure. ``axes`` maps DEM axes to the rig's: ``"x,y,z"`` (identity),
     ``"x,-z,y"`` (rig X = DEM x, rig Y = -DEM z, rig Z = DEM y), ...; ``offset_mm`` is then added
     (the DEM origin in rig coordinates), and ``time_offset_s`` to the times.
 
@@ -14,7 +16,8 @@ LIGGGHTS / LAMMPS ``dump custom``
     Blocks ``ITEM: TIMESTEP``, optionally ``ITEM: TIME``, ``ITEM: NUMBER OF ATOMS``,
     ``ITEM: BOX BOUNDS``, ``ITEM: ATOMS id type x y z ...`` (rows unsorted unless ``dump_modify
     sort id``). Positions from x/y/z, xu/yu/zu, or scaled xs/ys/zs (mapped through the box bounds).
-    Time = ``ITEM: TIME`` when present, else step x ``dt`` (``dt`` must then be given). One file
+    Time = ``ITEM: TIME`` when present, else step x ``dt`` (``dt`` must then be given). Units as
+    for the CSV (LIGGGHTS writes SI: metres; without ``units`` the same guess applies). One file
     with many blocks, or one file per step (give several paths or a glob); ``.gz`` is read too.
 
 Exporting from DEM codes (short snippets, run inside the tool)
@@ -85,9 +88,25 @@ def parse_axes(spec: str) -> tuple[np.ndarray, np.ndarray]:
     return np.array(idx), np.array(sign)
 
 
-def to_rig(particle_id, time_s, xyz, units: str = "m", axes: str = "x,y,z",
+GUESS_EXTENT = 20.0
+
+
+def guess_units(xyz: np.ndarray) -> str:
+    """"mm" when the positions span more than GUESS_EXTENT (in their own unit), else "m"."""
+    v = np.asarray(xyz, float).reshape(-1, 3)
+    v = v[np.isfinite(v).all(axis=1)]
+    if len(v) == 0:
+        return "m"
+    return "mm" if float((v.max(axis=0) - v.min(axis=0)).max()) > GUESS_EXTENT else "m"
+
+
+def to_rig(particle_id, time_s, xyz, units: str | None = "m", axes: str = "x,y,z",
            offset_mm: Sequence[float] = (0.0, 0.0, 0.0), time_offset_s: float = 0.0, source: str = "") -> pd.DataFrame:
-    """Scale, permute/flip axes and shift DEM positions into the tidy DEM table (mm, rig frame)."""
+    """Scale, permute/flip axes and shift DEM positions into the tidy DEM table (mm, rig frame).
+    units None: guessed (see module docstring), recorded in ``df.attrs["units_guessed"]``."""
+    guessed = None
+    if units is None:
+        units = guessed = guess_units(xyz)
     if units not in UNIT_TO_MM:
         raise SandtrackError(f"unknown length unit {units!r} (one of {', '.join(UNIT_TO_MM)})")
     idx, sign = parse_axes(axes)
@@ -96,7 +115,11 @@ def to_rig(particle_id, time_s, xyz, units: str = "m", axes: str = "x,y,z",
     t = np.asarray(time_s, dtype=np.float64) + float(time_offset_s)
     df = pd.DataFrame({"particle_id": np.asarray(particle_id).astype(np.int64), "time_s": t,
                        "X_mm": xyz[:, 0], "Y_mm": xyz[:, 1], "Z_mm": xyz[:, 2]})
-    return _validate(df, source)
+    df = _validate(df, source)
+    df.attrs["units"] = units
+    if guessed:
+        df.attrs["units_guessed"] = guessed
+    return df
 
 
 def _validate(df: pd.DataFrame, source: str) -> pd.DataFrame:
@@ -117,7 +140,7 @@ def _validate(df: pd.DataFrame, source: str) -> pd.DataFrame:
 
 def read_exchange_csv(path: str | Path, units: str | None = None, axes: str = "x,y,z",
                       offset_mm: Sequence[float] = (0.0, 0.0, 0.0), time_offset_s: float = 0.0) -> pd.DataFrame:
-    """The exchange CSV (see module docstring). `units` None: from column names (x_mm), else metres."""
+    """The exchange CSV (see module docstring). `units` None: from column names (x_mm), else guessed."""
     p = Path(path)
     if not p.is_file():
         raise SandtrackError(f"file not found: {p}")
@@ -156,7 +179,7 @@ def read_exchange_csv(path: str | Path, units: str | None = None, axes: str = "x
     if np.any(np.abs(ids[ok] - np.round(ids[ok])) > 1e-9) or (ok.any() and np.abs(ids[ok]).max() > 2 ** 62):
         raise SandtrackError(f"{p}: particle ids must be whole numbers")
     xyz = np.column_stack([num[c] for c in pos])[ok]
-    return to_rig(np.round(ids[ok]), num[tcol][ok], xyz, units or found_unit or "m", axes, offset_mm,
+    return to_rig(np.round(ids[ok]), num[tcol][ok], xyz, units or found_unit, axes, offset_mm,
                   time_offset_s, str(p))
 
 
@@ -192,7 +215,7 @@ def _natural_key(s: str):
     return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", s)]
 
 
-def read_lammps_dump(paths, dt: float | None = None, units: str = "m", axes: str = "x,y,z",
+def read_lammps_dump(paths, dt: float | None = None, units: str | None = None, axes: str = "x,y,z",
                      offset_mm: Sequence[float] = (0.0, 0.0, 0.0), time_offset_s: float = 0.0,
                      particle_ids: Sequence[int] | None = None) -> pd.DataFrame:
     """LIGGGHTS/LAMMPS ``dump custom`` file(s) -> the tidy DEM table (see module docstring)."""

@@ -22,7 +22,7 @@ def register(sub) -> None:
                    help="3D method of the experiment to use (default: triangulation when present)")
     p.add_argument("--dem-format", choices=["csv", "dump"], help="default: detected from the content")
     p.add_argument("--dem-units", choices=["m", "cm", "mm"], default=None,
-                   help="DEM length unit (default: from column names such as x_mm, else m)")
+                   help="DEM length unit (default: from column names such as x_mm, else guessed from the extent)")
     p.add_argument("--axes", default="x,y,z", help="DEM axes -> rig X,Y,Z, e.g. x,-z,y (default x,y,z)")
     p.add_argument("--offset-mm", default="0,0,0", help="DEM origin in rig coordinates, mm: X,Y,Z")
     p.add_argument("--dem-time-offset", type=float, default=0.0, help="added to DEM times (s)")
@@ -70,12 +70,14 @@ def run(args) -> int:
         kw = {"units": args.dem_units, "axes": args.axes, "offset_mm": offset, "time_offset_s": args.dem_time_offset}
         if args.dem_format != "csv":
             kw["dt"] = args.dt
-            if kw["units"] is None and (args.dem_format == "dump" or "ITEM" in _head(path)):
-                kw["units"] = "m"
         dem = read_dem(path, args.dem_format, **kw)
+        if dem.attrs.get("units_guessed"):
+            log(f"warning: {path}: no length unit given, positions taken as {dem.attrs['units_guessed']} "
+                "(from their extent); pass --dem-units to be explicit")
         cmp = compare(exp, dem, name=Path(path).stem if "*" not in path else path, match=args.match, fps=fps,
                       max_lag_s=args.max_lag, onset_mm=args.onset_mm, exp_tool=exp_tool, dem_tool=dem_tool,
                       time_shift_s=args.time_shift, flag_mm=args.flag_mm)
+        cmp.summary["dem_units"] = dem.attrs.get("units")
         runs.append(cmp)
     ranking = rank(runs)
     plots = []
@@ -86,14 +88,6 @@ def run(args) -> int:
               "ranking": ranking.to_dict("records"), "plots": plots}
     emit(result, args.json, text=_text(runs, ranking, fps, error_text_plot))
     return 0
-
-
-def _head(path: str) -> str:
-    try:
-        with open(path, errors="replace") as fh:
-            return fh.read(200)
-    except OSError:
-        return ""
 
 
 def _text(runs, ranking, fps, error_text_plot) -> str:
