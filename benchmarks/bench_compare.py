@@ -93,16 +93,6 @@ def _sample_data() -> dict:
     return out
 
 
-def _find(doc, keys):
-    if isinstance(doc, dict):
-        for k in keys:
-            if k in doc:
-                return doc[k]
-        for v in doc.values():
-            r = _find(v, keys)
-            if r is not None:
-                return r
-    return None
 
 
 def run() -> dict:

@@ -151,3 +151,20 @@ def test_cli_compare_bad_input(tmp_path, capsys):
     assert main(["compare", str(tmp_path / "e.csv"), str(tmp_path / "d.csv")]) == 1
     assert "lacks columns" in capsys.readouterr().err
     assert main(["compare", str(tmp_path / "missing.csv"), str(tmp_path / "d.csv")]) == 1
+
+
+def test_tool_file_columns_and_explicit_dem_onset(tmp_path):
+    exp, dem = make_case(shift_s=0.25, seed=4, n=5)
+    t = np.arange(0, 6, 0.02)
+    f = tmp_path / "tool.csv"
+    pd.DataFrame({"frame": np.arange(len(t)), "time_s": t, "tool_X_mm": 250.0,
+                  "tool_Z_mm": 150 + 200 * np.clip(t - 1.0, 0, None)}).to_csv(f, index=False)
+    tool = C.read_tool(f)
+    assert list(tool.columns) == ["time_s", "X_mm", "Y_mm", "Z_mm"] and (tool["Y_mm"] == 0).all()
+    # DEM clock: the tool starts at DEM time 1.0 - 0.25
+    c = C.compare(exp, dem, fps=FPS, exp_tool=tool, dem_onset_s=0.75)
+    assert c.onset["source"] == "tool" and abs(c.onset["initial_shift_s"] - 0.25) < 0.02
+    assert abs(c.time_shift_s - 0.25) < 0.004
+    (tmp_path / "bad.csv").write_text("time_s,speed\n0,1\n")
+    with pytest.raises(Exception, match="position columns"):
+        C.read_tool(tmp_path / "bad.csv")

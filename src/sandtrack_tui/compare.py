@@ -179,7 +179,8 @@ def experiment_table(df: pd.DataFrame, method: str | None = None, source: str = 
 
 
 def read_tool(path: str | Path) -> pd.DataFrame:
-    """A tool track: time_s and position columns (X_mm, Y_mm, Z_mm or x, y, z)."""
+    """A tool track: ``time_s`` and position columns (``X_mm`` or ``tool_X_mm`` or ``x``, per axis;
+    a missing axis is taken as constant). Returns DataFrame[time_s, X_mm, Y_mm, Z_mm]."""
     p = Path(path)
     if not p.is_file():
         raise SandtrackError(f"file not found: {p}")
@@ -187,13 +188,15 @@ def read_tool(path: str | Path) -> pd.DataFrame:
         df = pd.read_csv(p, skipinitialspace=True)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError, ValueError):
         raise SandtrackError(f"{p}: not a readable tool CSV") from None
-    cols = {c.lower(): c for c in df.columns}
+    cols = {str(c).strip().lower(): c for c in df.columns}
     tcol = cols.get("time_s") or cols.get("time")
-    pos = [cols.get(f"{a}_mm") or cols.get(a) for a in "xyz"]
-    if tcol is None or any(c is None for c in pos):
-        raise SandtrackError(f"{p}: a tool track needs time_s and X_mm, Y_mm, Z_mm columns")
-    out = pd.DataFrame({"time_s": df[tcol], "X_mm": df[pos[0]], "Y_mm": df[pos[1]], "Z_mm": df[pos[2]]})
-    out = out.apply(pd.to_numeric, errors="coerce").dropna().sort_values("time_s")
+    pos = {a: cols.get(f"{a.lower()}_mm") or cols.get(f"tool_{a.lower()}_mm") or cols.get(a.lower()) for a in "XYZ"}
+    if tcol is None or all(c is None for c in pos.values()):
+        raise SandtrackError(f"{p}: a tool track needs time_s and position columns (X_mm/tool_X_mm, ...)")
+    out = pd.DataFrame({"time_s": pd.to_numeric(df[tcol], errors="coerce")})
+    for a, c in pos.items():
+        out[f"{a}_mm"] = pd.to_numeric(df[c], errors="coerce") if c is not None else 0.0
+    out = out.dropna().sort_values("time_s")
     if len(out) < 2:
         raise SandtrackError(f"{p}: the tool track has fewer than two rows")
     return out
@@ -316,20 +319,24 @@ class Comparison:
 def compare(exp: pd.DataFrame, dem: pd.DataFrame, name: str = "dem", match: str = "auto", fps: float = 50.0,
             max_lag_s: float = 0.5, onset_mm: float = 3.0, exp_tool: pd.DataFrame | None = None,
             dem_tool: pd.DataFrame | None = None, time_shift_s: float | None = None, flag_mm: float = 2.0,
-            max_match_mm: float = 50.0) -> Comparison:
-    """Align and compare (see module docstring). `time_shift_s` given: no alignment search."""
+            max_match_mm: float = 50.0, exp_onset_s: float | None = None,
+            dem_onset_s: float | None = None) -> Comparison:
+    """Align and compare (see module docstring). `time_shift_s` given: no alignment search.
+    The tool's onset on each side: `*_onset_s` if given, else from `*_tool` tracks."""
     exp = experiment_table(exp)
     pairs_map = match_particles(exp, dem, match, max_match_mm)
     pairs = _Pairs(exp, dem, pairs_map)
     onset: dict = {"source": None}
     if time_shift_s is None:
         start = None
-        if exp_tool is not None and dem_tool is not None:
+        oe, od = exp_onset_s, dem_onset_s
+        if oe is None and exp_tool is not None:
             oe = motion_onset(exp_tool["time_s"].to_numpy(), exp_tool[list(AXES)].to_numpy(), onset_mm)
+        if od is None and dem_tool is not None:
             od = motion_onset(dem_tool["time_s"].to_numpy(), dem_tool[list(AXES)].to_numpy(), onset_mm)
-            if oe is not None and od is not None:
-                start = oe - od
-                onset = {"source": "tool", "experiment_s": oe, "dem_s": od}
+        if oe is not None and od is not None:
+            start = oe - od
+            onset = {"source": "tool", "experiment_s": oe, "dem_s": od}
         if start is None:
             diffs = []
             for _m, _pid, te, xe, td, xd in pairs.items:

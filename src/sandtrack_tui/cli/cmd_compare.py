@@ -33,6 +33,8 @@ def register(sub) -> None:
     p.add_argument("--time-shift", type=float, help="use this time shift (s) instead of aligning")
     p.add_argument("--exp-tool", help="tool track of the experiment (time_s, X_mm, Y_mm, Z_mm) for the onset")
     p.add_argument("--dem-tool", help="tool track of the DEM run(s) for the onset")
+    p.add_argument("--exp-onset", type=float, metavar="S", help="experiment time (s) the tool starts moving")
+    p.add_argument("--dem-onset", type=float, metavar="S", help="DEM time (s) the tool starts moving (often 0)")
     p.add_argument("--onset-mm", type=float, default=3.0, help="motion onset threshold (mm, default 3)")
     p.add_argument("--flag-mm", type=float, default=2.0, help="never flag particles with RMSE below this (mm)")
     p.add_argument("--fps", type=float, help="experiment frame rate (default: from the data)")
@@ -76,7 +78,8 @@ def run(args) -> int:
                 "(from their extent); pass --dem-units to be explicit")
         cmp = compare(exp, dem, name=Path(path).stem if "*" not in path else path, match=args.match, fps=fps,
                       max_lag_s=args.max_lag, onset_mm=args.onset_mm, exp_tool=exp_tool, dem_tool=dem_tool,
-                      time_shift_s=args.time_shift, flag_mm=args.flag_mm)
+                      time_shift_s=args.time_shift, flag_mm=args.flag_mm, exp_onset_s=args.exp_onset,
+                      dem_onset_s=args.dem_onset)
         cmp.summary["dem_units"] = dem.attrs.get("units")
         runs.append(cmp)
     ranking = rank(runs)
