@@ -75,7 +75,10 @@ def test_strips_merge_runs_and_carry_labels():
     assert "".join(seg.text for seg in strips[1]) == HALF * 2 + "7" + HALF * 7
 
 
-def test_256_colours_snap_to_the_xterm_cube():
-    rgb = np.array([[[1, 100, 250], [130, 180, 254]]], np.uint8)
-    q = quantize(rgb, "256")
-    assert set(np.unique(q)).issubset({0, 95, 135, 175, 215, 255})
+def test_256_colours_use_palette_greys_and_keep_markers_blue():
+    rgb = np.array([[[1, 100, 250], [130, 180, 254], [150, 140, 128], list(BOOST_RGB)]], np.uint8)
+    q = quantize(rgb, "256").astype(int)
+    greys = {0, 95, 135, 175, 215, 255} | {8 + 10 * k for k in range(24)}
+    for px in q[0, :3]:
+        assert px[0] == px[1] == px[2] and px[0] in greys
+    assert tuple(q[0, 3]) == (0, 95, 255)

@@ -52,8 +52,13 @@ EPIPOLAR_RGB = (255, 80, 200)
 SEARCH_RGB = (255, 160, 40)
 
 _CUBE = np.array([0, 95, 135, 175, 215, 255], np.int16)
-# value -> nearest cube level, for every uint8 value
-_CUBE_LUT = _CUBE[np.abs(np.arange(256)[:, None] - _CUBE[None, :]).argmin(axis=1)].astype(np.uint8)
+# The xterm 256-colour palette without the 16 theme-dependent colours: 6x6x6 cube + 24 greys.
+# 256 colours: the scene is drawn in the palette's 30 greys (cube greys + the 24-step ramp), which
+# keeps the sand's texture readable; the cube's few warm colours posterise sand into pink and green
+# blotches. Marker boost and overlays stay in colour.
+_GREYS = np.unique(np.concatenate([_CUBE, 8 + 10 * np.arange(24)])).astype(np.int16)
+_GREY_LUT = _GREYS[np.abs(np.arange(256)[:, None] - _GREYS[None, :]).argmin(axis=1)].astype(np.uint8)
+_BOOST_256 = (0, 95, 255)
 
 
 # --------------------------------------------------------------------------------------------
@@ -156,11 +161,15 @@ def _shrink(img: np.ndarray, k: int) -> np.ndarray:
 
 
 def quantize(rgb: np.ndarray, colors: str) -> np.ndarray:
-    """Snap colours to what the terminal shows: the xterm cube for 256 colours, 5 bits per channel
-    otherwise (invisible at this scale, and it lets neighbouring cells share a style)."""
+    """Snap colours to what the terminal shows: 5 bits per channel in truecolor (invisible at this
+    scale, and it lets neighbouring cells share a style); in 256 colours, the palette's greys (the
+    boosted markers stay blue)."""
     if colors == "truecolor":
         return rgb & 0xF8
-    return _CUBE_LUT[rgb]
+    luma = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2GRAY)
+    out = np.repeat(_GREY_LUT[luma][..., None], 3, axis=2)
+    out[np.all(rgb == BOOST_RGB, axis=2)] = _BOOST_256
+    return out
 
 
 # --------------------------------------------------------------------------------------------
