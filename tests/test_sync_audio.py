@@ -181,3 +181,17 @@ def test_cli_sync_bad_input(tmp_path, capsys):
     bad = tmp_path / "bad.mp4"
     bad.write_bytes(b"not a video")
     assert main(["sync", str(bad)]) == 1
+
+
+@pytest.mark.parametrize("fmt,dtype,scale", [("s16", np.int16, 32767), ("fltp", np.float32, 1.0),
+                                             ("s16p", np.int16, 32767)])
+def test_to_mono_stereo_layouts(fmt, dtype, scale):
+    import av
+
+    left = np.linspace(-0.5, 0.5, 64)
+    right = np.full(64, 0.25)
+    planar = fmt.endswith("p")
+    arr = np.stack([left, right]) if planar else np.stack([left, right], axis=1).reshape(1, -1)
+    frame = av.AudioFrame.from_ndarray((arr * scale).astype(dtype), format=fmt, layout="stereo")
+    mono = sync._to_mono(frame)
+    np.testing.assert_allclose(mono, (left + right) / 2, atol=1e-3)
