@@ -82,7 +82,7 @@ def _atomic_write(path: Path, writer: Callable[[Path], None]) -> None:
 
 def write_csv(df: pd.DataFrame, path: str | Path) -> Path:
     df = check_tidy(df)
-    _atomic_write(Path(path), lambda p: df.to_csv(p, index=False, float_format="%.6g"))
+    _atomic_write(Path(path), lambda p: df.to_csv(p, index=False, float_format="%.6f"))
     return Path(path)
 
 
