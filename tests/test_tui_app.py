@@ -233,3 +233,66 @@ async def test_table_and_export_give_true_xyz(tmp_path, frames):
         assert np.median(err) < 3.0
         await pilot.press("escape")
         assert app.screen is app._main_screen
+
+
+@aio
+async def test_auto_seed_confirm_list_then_swap_over_range(tmp_path, frames):
+    from sandtrack_tui.tui.screens.autoseed import AutoSeedScreen
+
+    project = make_project(tmp_path, frames=frames, calibrated=True)
+    app = SandtrackApp(project)
+    async with app.run_test(size=SIZE) as pilot:
+        await settle(pilot, app)
+        await pilot.press("A")
+        await settle(pilot, app, lambda: isinstance(app.screen, AutoSeedScreen), timeout=30)
+        assert len(app.screen.markers) == 3
+        await pilot.press("space", "enter")  # skip the first proposal, accept the others
+        await settle(pilot, app, lambda: app.screen is app._main_screen)
+        seeds = project.points(frame=0)
+        assert seeds["marker"].nunique() == 2 and len(seeds) == 4
+        truth = {m: true_xy(m, 0) for m in (1, 2, 3)}
+        side = seeds[seeds["camera"] == "side"]
+        for r in side.itertuples():
+            assert min(np.hypot(r.x_px - x, r.y_px - y) for x, y in truth.values()) < 1.0
+        a, b = sorted(side["marker"])
+        await pilot.press("r")
+        await settle(pilot, app, lambda: app.bg_task is None, timeout=60)
+        before = project.points(camera="side")
+        # swap a and b over frames 5..8
+        await pilot.press(str(a), *["right"] * 5, "left_square_bracket", "right", "right", "right",
+                          "right_square_bracket", "X")
+        await pilot.pause()
+        await pilot.press(*str(b), "enter")
+        await pilot.pause()
+        after = project.points(camera="side")
+        pa = after[after.marker == a].set_index("frame")
+        pb_before = before[before.marker == b].set_index("frame")
+        pa_before = before[before.marker == a].set_index("frame")
+        for f in (5, 8):
+            assert pa.loc[f, "x_px"] == pb_before.loc[f, "x_px"]
+        assert pa.loc[4, "x_px"] == pa_before.loc[4, "x_px"] and pa.loc[9, "x_px"] == pa_before.loc[9, "x_px"]
+        await pilot.press("u")
+        assert project.points(camera="side").equals(before)
+
+
+@aio
+async def test_help_and_screens_open_and_close(project):
+    from sandtrack_tui.tui.screens.help import HelpScreen
+
+    app = SandtrackApp(project)
+    async with app.run_test(size=SIZE) as pilot:
+        await settle(pilot, app)
+        await pilot.press("question_mark")
+        await pilot.pause()
+        assert isinstance(app.screen, HelpScreen)
+        await pilot.press("escape")
+        for key in ("f2", "f3", "f5"):
+            await pilot.press(key)
+            await pilot.pause()
+            assert app.screen is not app._main_screen
+            await pilot.press("escape")
+            await pilot.pause()
+            assert app.screen is app._main_screen
+        await pilot.press("right")  # still responsive
+        await settle(pilot, app)
+        assert app.frame == 1

@@ -94,25 +94,32 @@ def interpolate_gap(project: Project, marker: int, camera: str, frames: tuple[in
     return len(rows)
 
 
-def swap_markers(project: Project, m1: int, m2: int, frames: tuple[int, int],
-                 cameras: list[str] | None = None) -> int:
+def swap_markers(project: Project, m1: int, m2: int, frames, cameras: list[str] | None = None) -> int:
     """Exchange the identities of two markers over frames a..b (inclusive) in the given cameras
-    (all by default), as one edit. Returns the number of points moved."""
+    (all by default), as one edit. `frames` is (a, b), or {camera: (a, b)} when each camera has its
+    own frame range (cameras with their own clocks). Returns the number of points moved."""
     if m1 == m2:
         raise SandtrackError("choose two different markers to swap")
-    a, b = sorted(frames)
+    ranges = frames if isinstance(frames, dict) else None
+    span = "" if ranges else "frames {}-{}".format(*sorted(frames))
     ensure_marker(project, m1)
     ensure_marker(project, m2)
     rows = []
     for m in (m1, m2):
-        df = project.points(marker=m, frames=(a, b))
-        rows.append(df if cameras is None else df[df["camera"].isin(cameras)])
+        if ranges is None:
+            df = project.points(marker=m, frames=tuple(sorted(frames)))
+            rows.append(df if cameras is None else df[df["camera"].isin(cameras)])
+        else:
+            for cam, rng in ranges.items():
+                if cameras is None or cam in cameras:
+                    rows.append(project.points(marker=m, camera=cam, frames=tuple(sorted(rng))))
     both = pd.concat(rows, ignore_index=True)
+    where = span or ", ".join(f"{c} {min(r)}-{max(r)}" for c, r in ranges.items())
     if both.empty:
-        raise SandtrackError(f"markers {m1} and {m2} have no points in frames {a}-{b}")
+        raise SandtrackError(f"markers {m1} and {m2} have no points in {where}")
     swapped = both.copy()
     swapped["marker"] = np.where(both["marker"] == m1, m2, m1)
-    with project.edit(f"swap markers {m1} and {m2}, frames {a}-{b}") as ed:
+    with project.edit(f"swap markers {m1} and {m2}, {where}") as ed:
         ed.delete(both[["frame", "camera", "marker"]].itertuples(index=False, name=None))
         ed.write(swapped)
     return len(both)

@@ -7,7 +7,6 @@ messages; widgets are only touched on the UI thread.
 
 from __future__ import annotations
 
-import contextlib
 import math
 import time
 from dataclasses import dataclass
@@ -231,6 +230,13 @@ class SandtrackApp(App):
         if self.marker_list:
             self.selected = self.marker_list[0][0]
         self.call_after_refresh(self.refresh_all)
+        todo = []
+        if self.project.get("sync_offset_s") is None:
+            todo.append("the cameras are not synced yet (F2)")
+        if self._calibration is None:
+            todo.append("no calibration yet, so no XYZ or stereo check (F3)")
+        if todo:
+            self.notify("; ".join(todo) + ". ? shows every key.", timeout=10)
         warnings = self.pair.mismatch_warnings()
         if warnings:
             self.notify("; ".join(warnings), severity="warning", timeout=8)
@@ -1002,15 +1008,10 @@ class SandtrackApp(App):
         def done(other):
             if other is None:
                 return
-            # both cameras: the range is in side frames; swap each camera over its own frames
+            # the range is in side frames: each camera swaps over its own frames, all in one edit
             def fn():
-                n = 0
-                for cam in self.cameras:
-                    with contextlib.suppress(SandtrackError):
-                        n += corrections.swap_markers(self.project, m, other, self._cam_range(cam, rng), [cam])
-                if n == 0:
-                    raise SandtrackError(f"markers {m} and {other} have no points in frames {rng[0]}-{rng[1]}")
-                return n
+                ranges = {cam: self._cam_range(cam, rng) for cam in self.cameras}
+                return corrections.swap_markers(self.project, m, other, ranges)
 
             self._edit(fn, lambda n: f"swapped markers {m} and {other} over frames {rng[0]}-{rng[1]} ({n} points)")
 
