@@ -16,6 +16,7 @@ sub-frame remainder before the epipolar check.
 from __future__ import annotations
 
 import queue
+import sys
 import threading
 import time
 
@@ -255,6 +256,10 @@ def track_project(project, markers=None, start: int | None = None, stop: int | N
     own = sources is None
     sources = sources or project.open_sources()
     prefetch: list[_Prefetch] = []
+    # The decoder threads need the GIL briefly for every frame; with the default 5 ms switch
+    # interval they queue behind the tracking thread and decoding slows down a lot.
+    switch = sys.getswitchinterval()
+    sys.setswitchinterval(min(switch, 0.0005))
     try:
         cams = [c for c in project.cameras() if c in sources] or list(sources)
         ref = cams[0]
@@ -354,13 +359,16 @@ def track_project(project, markers=None, start: int | None = None, stop: int | N
         never = [f"marker {m} {c}" for (m, c), t in engine.tracks.items()
                  if t.counts[TRACKED] == 0 and (t.counts[OCCLUDED] + t.counts[LOST]) > 0]
         summary.update(
-            frames=len(steps), first_frame=a, last_frame=b, per_marker=per, stereo_flags=engine.stereo_flags,
+            frames=len(steps), first_frame=a, last_frame=b,
+            frames_by_camera={c: sum(c in st for st in steps) for c in cams},
+            per_marker=per, stereo_flags=engine.stereo_flags,
             ambiguous=engine.ambiguous, never_found=never, elapsed_s=round(elapsed, 3),
             track_ms_per_marker_frame=round(1000 * t_track / max(n_obs, 1), 4),
             track_cpu_ms_per_marker_frame=round(1000 * cpu_track / max(n_obs, 1), 4),
             status="stopped" if summary["stopped"] else "done")
         return summary
     finally:
+        sys.setswitchinterval(switch)
         for p in prefetch:
             p.close()
         if own:
