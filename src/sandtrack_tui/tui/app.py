@@ -425,6 +425,8 @@ class SandtrackApp(App):
     def update_status(self) -> None:
         t = float(self.sources["side"].times_s[self.frame])
         p = self.pair.index(self.frame)
+        front = f"front {p.front} ({p.remainder_frames:+.2f})" if abs(p.remainder_frames) <= 0.5 else \
+            "front [red]not recording[/]"
         sel = "none" if self.selected is None else dict(self.marker_list).get(self.selected, str(self.selected))
         rng = ""
         if self.range_in is not None or self.range_out is not None:
@@ -435,7 +437,7 @@ class SandtrackApp(App):
         play = "  ▶" if self._playing else ""
         self._w['status'].update(
             f"[b]{self.project.path.stem}[/]  frame [b]{self.frame}[/]/{self.n_frames - 1}  t={t:.3f} s  "
-            f"front {p.front} ({p.remainder_frames:+.2f})  marker [b]{sel}[/]  view [b]{self.active}[/]"
+            f"{front}  marker [b]{sel}[/]  view [b]{self.active}[/]"
             f"{rng}{zoom}{play}", layout=False)
 
     def update_table(self) -> None:
@@ -758,7 +760,25 @@ class SandtrackApp(App):
             return
         from .screens.autoseed import AutoSeedScreen
 
-        self.run_task("auto-seed", lambda progress, stop: tracking.auto_seed(self._worker_project(), self.frame),
+        try:
+            first, last = self.pair.side_range()
+        except SandtrackError as exc:
+            self.notify(str(exc), severity="error")
+            return
+        if not first <= self.frame <= last:
+            self.go_to(first if self.frame < first else last)
+            self.notify(f"the front camera has no frame there: auto-seeding at frame {self.frame}, the "
+                        f"{'first' if self.frame == first else 'last'} frame both cameras recorded")
+        frame = self.frame
+
+        def job(progress, should_stop):
+            proj = self._worker_project()
+            try:
+                return tracking.auto_seed(proj, frame)
+            finally:
+                proj.close()
+
+        self.run_task("auto-seed", job,
                       on_result=lambda seeds: self.push_screen(AutoSeedScreen(seeds), self._accept_seeds))
 
     def _accept_seeds(self, seeds) -> None:

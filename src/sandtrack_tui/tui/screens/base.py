@@ -16,6 +16,7 @@ class TaskScreen(Screen):
     TaskScreen .row > * { margin-right: 1; }
     TaskScreen .row Label { padding-top: 0; }
     TaskScreen Input { width: 1fr; }
+    TaskScreen Select { width: 34; }
     TaskScreen .result { height: auto; margin-top: 1; }
     TaskScreen #progress-row { height: 1; display: none; }
     TaskScreen #progress-row.-running { display: block; }

@@ -16,6 +16,12 @@ SUMMARY_KEYS = ("particles", "time_shift_s", "rmse_3d_mm_all", "rmse_3d_mm_media
 
 
 class CompareScreen(TaskScreen):
+    AUTO_FOCUS = "#run"
+    BINDINGS = [*TaskScreen.BINDINGS, ("ctrl+r", "go", "run")]
+
+    def action_go(self) -> None:
+        self.start()
+
     def __init__(self, app) -> None:
         self.cmp = core("compare", "compare", "experiment_table", "error_text_plot")
         self.dem = core("dem", "read_dem")

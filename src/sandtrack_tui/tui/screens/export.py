@@ -13,6 +13,12 @@ from .base import TaskScreen
 
 
 class ExportScreen(TaskScreen):
+    AUTO_FOCUS = "#export"
+    BINDINGS = [*TaskScreen.BINDINGS, ("ctrl+r", "go", "run")]
+
+    def action_go(self) -> None:
+        self.export()
+
     def __init__(self, app) -> None:
         self.traj = core("trajectories", "trajectory_table", "export", "FORMATS")
         super().__init__(app)

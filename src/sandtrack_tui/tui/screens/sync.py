@@ -11,6 +11,12 @@ from .base import TaskScreen
 
 
 class SyncScreen(TaskScreen):
+    AUTO_FOCUS = "#run"
+    BINDINGS = [*TaskScreen.BINDINGS, ("ctrl+r", "go", "run")]
+
+    def action_go(self) -> None:
+        self.run_sync()
+
     def __init__(self, app) -> None:
         super().__init__(app)
         self.result = None
@@ -57,6 +63,7 @@ class SyncScreen(TaskScreen):
         text = res.summary() if hasattr(res, "summary") else str(res)
         self.query_one("#result", Static).update(f"[green]{text}[/]\nPress Apply to use it.")
         self.query_one("#offset", Input).value = f"{res.offset_s * 1000:.3f}"
+        self.query_one("#apply", Button).focus()
 
     def apply(self) -> None:
         try:

@@ -22,6 +22,12 @@ def metrics_markdown(metrics: dict) -> str:
 
 
 class TrainingScreen(TaskScreen):
+    AUTO_FOCUS = "#train"
+    BINDINGS = [*TaskScreen.BINDINGS, ("ctrl+r", "go", "run")]
+
+    def action_go(self) -> None:
+        self.start()
+
     def __init__(self, app) -> None:
         self.reg = core("regression", "train", "TrainConfig", "load_points")
         super().__init__(app)
