@@ -66,6 +66,17 @@ CREATE INDEX IF NOT EXISTS edit_rows_by_key ON edit_rows (edit_id, key);
 MIGRATIONS: list[str] = [_SCHEMA_V1, _V1_TO_V2]
 
 
+# Connections this process holds per project file (see Project.open).
+_open_count: dict[str, int] = {}
+
+
+def _key(path: Path) -> str:
+    try:
+        return str(path.resolve())
+    except OSError:
+        return str(path)
+
+
 @dataclass
 class VideoRef:
     camera: str
@@ -97,6 +108,8 @@ class Project:
     def __init__(self, path: str | Path, conn: sqlite3.Connection):
         self.path = Path(path)
         self.conn = conn
+        self._open_key = _key(self.path)
+        _open_count[self._open_key] = _open_count.get(self._open_key, 0) + 1
         self._edit_id: int | None = None
         self._edit_seq = 0
 
@@ -137,13 +150,18 @@ class Project:
         p = Path(path)
         if not p.is_file():
             raise SandtrackError(f"project file not found: {p}")
-        try:
-            with p.open("rb") as fh:
-                head = fh.read(16)
-        except OSError as exc:
-            raise SandtrackError(f"cannot read {p}: {exc.strerror}") from None
-        if head != b"SQLite format 3\x00":
-            raise SandtrackError(f"{p}: not a sandtrack project (not an SQLite file)")
+        # Closing ANY descriptor of a file drops all of this process's POSIX locks on it, SQLite's
+        # included; another process could then checkpoint and delete the WAL under a live
+        # connection (its later commits would be lost). So the header is only read when this
+        # process has no connection to the file yet.
+        if _open_count.get(_key(p), 0) == 0:
+            try:
+                with p.open("rb") as fh:
+                    head = fh.read(16)
+            except OSError as exc:
+                raise SandtrackError(f"cannot read {p}: {exc.strerror}") from None
+            if head != b"SQLite format 3\x00":
+                raise SandtrackError(f"{p}: not a sandtrack project (not an SQLite file)")
         try:
             conn = cls._connect(p)
             version = cls._read_version(conn)
@@ -182,6 +200,9 @@ class Project:
                 self.conn.execute(stmt)
 
     def close(self) -> None:
+        if self._open_key is not None:
+            _open_count[self._open_key] = max(_open_count.get(self._open_key, 1) - 1, 0)
+            self._open_key = None
         with suppress(sqlite3.Error):
             self.conn.close()
 
