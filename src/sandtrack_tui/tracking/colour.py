@@ -1,10 +1,12 @@
 """Colour model of one marker, learned from its seed box: marker disc against the sand around it.
 
-A Fisher discriminant in BGR separates the disc's pixels from the sand ring's and is scaled so
-sand scores 0 and the disc 1. A pixel that is a mix of marker and sand (an anti-aliased edge, a
-marker dusted with sand) scores its marker fraction, so the clipped score doubles as a coverage
-weight for the centroid. Sand's own texture (mostly brightness) is the variance the discriminant
-learns to ignore. Fixed HSV thresholds fail on dusty markers; a model learned per marker does not.
+A Fisher discriminant on chromaticity (B, G, R divided by their sum) separates the disc's pixels
+from the sand ring's and is scaled so sand scores 0 and the disc 1. Chromaticity ignores
+brightness, so a marker's own shaded side still scores 1 and the contact shadow it casts on the
+sand still scores 0: in BGR both leaked into the score and pulled the centroid ~0.6 px towards the
+shadow. A pixel that is a mix of marker and sand (an anti-aliased edge, a marker dusted with sand)
+scores roughly its marker fraction, so the clipped score doubles as a coverage weight for the
+centroid. Fixed HSV thresholds fail on dusty markers; a model learned per marker does not.
 Also here: a generic "blueness" measure for finding markers with no model yet (seeding, snapping).
 """
 
@@ -17,11 +19,18 @@ import numpy as np
 
 from ..errors import SandtrackError
 
+EPS = 3.0  # added to B + G + R: keeps the chromaticity of near-black pixels finite
+
+
+def chromaticity(bgr: np.ndarray) -> np.ndarray:
+    f = np.asarray(bgr, dtype=np.float64)
+    return f / (f.sum(axis=-1, keepdims=True) + EPS)
+
 
 @dataclass
 class ColourModel:
-    w: np.ndarray  # (3,) weights on BGR
-    b: float  # offset: score = bgr @ w + b
+    w: np.ndarray  # (3,) weights on BGR chromaticity
+    b: float  # offset: score = (bgr @ w) / (sum(bgr) + EPS) + b
     threshold: float  # score at or above which a pixel counts as marker
     disc_area: float  # marker pixels in the seed (px²)
     radius: float  # equivalent disc radius (px)
@@ -31,13 +40,16 @@ class ColourModel:
         """Per-pixel score, float32: ~0 on sand, ~1 on the marker."""
         if not bgr.size:
             return np.zeros(bgr.shape[:2], dtype=np.float32)
-        return cv2.transform(bgr.astype(np.float32), self._matrix).reshape(bgr.shape[:2])
+        f = cv2.transform(bgr.astype(np.float32), self._matrix)
+        out = f[..., 0] / f[..., 1]
+        out += self.b
+        return out
 
     @property
     def _matrix(self) -> np.ndarray:
         m = getattr(self, "_m", None)
         if m is None:
-            m = np.array([[self.w[0], self.w[1], self.w[2], self.b]], dtype=np.float32)
+            m = np.array([[self.w[0], self.w[1], self.w[2], 0.0], [1.0, 1.0, 1.0, EPS]], dtype=np.float32)
             self._m = m
         return m
 
@@ -74,11 +86,12 @@ def learn(frame_bgr: np.ndarray, cx: float, cy: float, w: float, h: float) -> Co
     ring = (np.maximum(dx, dy) >= half_in + 1.5)
     if inner.sum() < 4 or ring.sum() < 12:
         raise SandtrackError("seed box lies too close to the image border to learn the marker's colour")
+    patch = chromaticity(patch)
     sand = patch[ring]
     # Neighbouring markers may reach into the ring: drop its clearly blue pixels.
     bl = sand @ np.array([1.0, -0.5, -0.5])
     med = np.median(bl)
-    mad = 1.4826 * np.median(np.abs(bl - med)) + 1.0
+    mad = 1.4826 * np.median(np.abs(bl - med)) + 0.005
     sand = sand[bl <= med + 4 * mad]
     # First direction: inner pixels furthest from sand in the blue-vs-sand sense; split the box's
     # pixels into marker and sand by 2-means along it.
@@ -102,7 +115,7 @@ def learn(frame_bgr: np.ndarray, cx: float, cy: float, w: float, h: float) -> Co
         raise SandtrackError("no marker found in the seed box (empty box?)")
     # Fisher discriminant between disc and sand.
     mu_d, mu_sand = disc.mean(axis=0), sand.mean(axis=0)
-    Sw = np.cov(sand.T) + (np.cov(disc.T) if len(disc) > 3 else 0) + np.eye(3) * 4.0
+    Sw = np.cov(sand.T) + (np.cov(disc.T) if len(disc) > 3 else 0) + np.eye(3) * 1e-4
     wv = np.linalg.solve(Sw, mu_d - mu_sand)
     scale = float(wv @ (mu_d - mu_sand))
     if scale <= 1e-9:

@@ -35,6 +35,9 @@ class Engine:
     ambiguous: list = field(default_factory=list)
     max_events: int = 500
     ambiguity_d2: float = 6.0
+    crowd_factor: float = 1.4  # tracks closer than this x (r1 + r2) are "touching"
+    crowded_min_score: float = 0.8
+    crowded_max_colour: float = 1.4
     _open_ambiguity: dict = field(default_factory=dict)
 
     def add(self, track: MarkerTrack, start_frame: int) -> None:
@@ -66,10 +69,14 @@ class Engine:
                     forced[key] = man
                     continue
                 live[cam].append(t)
-                if not t.coasting:
-                    m = t.propose(img)
-                    if m is not None:
-                        props[key] = _Proposal(m)
+            for t in live[cam]:
+                if t.coasting:
+                    continue
+                m = t.propose(img)
+                if m is not None and self._crowded_reject(t, m, live[cam]):
+                    m = None
+                if m is not None:
+                    props[(t.marker, cam)] = _Proposal(m)
             self._resolve_conflicts(live[cam], props, forced)
         if self.stereo is not None:
             self._stereo_check(frames, props, forced, only_reattached=False)
@@ -88,6 +95,25 @@ class Engine:
         return obs
 
     # -- steps ---------------------------------------------------------------------------------
+    def _crowded_reject(self, t: MarkerTrack, m: Match, tracks) -> bool:
+        """Markers touching each other: their discs merge, the centroid and the NCC peak both lie.
+        Keep a match only if it is clearly this marker's: high score, not a merged blob, and nearer
+        to this track's prediction than to the neighbour's. Otherwise the track coasts (honestly)."""
+        p = t.kf.position
+        crowded = False
+        for o in tracks:
+            if o is t:
+                continue
+            q = o.kf.position
+            if np.hypot(*(p - q)) < self.crowd_factor * (t.model.radius + o.model.radius):
+                crowded = True
+                if t.kf.mahalanobis2((m.x, m.y))[0] >= t.kf.mahalanobis2(q)[0] * 0.25 + m.d2 * 0 \
+                        and np.hypot(m.x - q[0], m.y - q[1]) < np.hypot(m.x - p[0], m.y - p[1]):
+                    return True
+        if not crowded:
+            return False
+        return m.score < self.crowded_min_score or m.colour_frac > self.crowded_max_colour
+
     def _resolve_conflicts(self, tracks, props, forced) -> None:
         """Two tracks on (nearly) the same spot: the better match keeps it, the other coasts."""
         keyed = [(t, props[(t.marker, t.camera)]) for t in tracks if (t.marker, t.camera) in props]

@@ -25,8 +25,8 @@ DEFAULT_BOX_PX = 16
 
 @dataclass
 class TrackParams:
-    min_score: float = 0.6  # NCC peak to accept a match
-    min_psr: float = 3.0  # peak-to-sidelobe ratio to accept a match
+    min_score: float = 0.7  # NCC peak to accept a match
+    min_psr: float = 4.0  # peak-to-sidelobe ratio to accept a match
     min_colour: float = 0.55  # marker coverage (fraction of the seed disc) to accept a match
     confident_score: float = 0.85  # the updated template learns only from matches this good ...
     confident_colour: float = 0.85  # ... and this complete
