@@ -154,3 +154,17 @@ def test_cli_xyz_frame_and_csv(project, model_file, tmp_path, capsys):
     assert "triangulation" in capsys.readouterr().out
     assert main(["xyz", path, "--frame", "3", "--method", "residual"]) == 1
     assert "residual" in capsys.readouterr().err
+
+
+def test_timeline_from_frame_times_matches_fps_and_never_extrapolates():
+    from sandtrack_tui.xyz import Timeline
+
+    by_fps = Timeline(50.0, 50.0, OFFSET_S, side_frames=30, front_frames=30)
+    by_times = Timeline(50.0, 50.0, OFFSET_S, side_times=np.arange(30) / 50.0, front_times=np.arange(30) / 50.0)
+    i = np.arange(30)
+    a, b = by_fps.front_position(i), by_times.front_position(i)
+    assert np.allclose(a[1:], i[1:] - 0.685) and np.allclose(b[1:], a[1:])
+    assert np.isnan(a[0]) and np.isnan(b[0])  # before the front's first frame
+    late = Timeline(50.0, 50.0, -0.1, side_frames=30, front_frames=30)  # front started 5 frames earlier
+    assert np.allclose(late.front_position(np.array([0, 24])), [5, 29]) and np.isnan(late.front_position(25))
+    assert np.array_equal(by_fps.side_index_of_front(np.array([0, 9])), [1, 10])

@@ -43,6 +43,7 @@ OUTSIDE_POLICIES = ("flag", "nan", "keep")
 _SEVERITY = {"manual": 0, "tracked": 1, "imported": 2, "interpolated": 3, "occluded": 4, "lost": 5,
              "missing": 6}
 _EPS = 1e-6
+_KEY = 1 << 32  # (marker, frame) -> one int64 key
 
 
 class Timeline:
@@ -74,17 +75,24 @@ class Timeline:
             return self.side_times[np.clip(i, 0, len(self.side_times) - 1)]
         return i / self.side_fps
 
-    def front_position(self, side_index: np.ndarray) -> np.ndarray:
-        """Continuous front frame index at each side frame's time (NaN outside the front video)."""
+    def front_index(self, side_index: np.ndarray) -> np.ndarray:
+        """Continuous front frame index at each side frame's time (may lie outside the front video)."""
         tf = self.side_time(side_index) - self.offset_s
         if self.front_times is not None:
             ft = self.front_times
             u = np.interp(tf, ft, np.arange(len(ft), dtype=float))
-            half = 0.5 / self.front_fps
-            return np.where((tf >= ft[0] - half) & (tf <= ft[-1] + half), u, np.nan)
-        u = tf * self.front_fps
-        hi = math.inf if self.front_frames is None else self.front_frames - 1 + 0.5
-        return np.where((u >= -0.5) & (u <= hi), np.clip(u, 0, None if hi == math.inf else hi - 0.5), np.nan)
+            # beyond either end: continue at the nominal frame rate
+            return np.where(tf < ft[0], (tf - ft[0]) * self.front_fps,
+                            np.where(tf > ft[-1], len(ft) - 1 + (tf - ft[-1]) * self.front_fps, u))
+        return tf * self.front_fps
+
+    def front_position(self, side_index: np.ndarray) -> np.ndarray:
+        """front_index, NaN outside the front video (no extrapolation: a side frame before the first or
+        after the last front frame has no front point)."""
+        u = self.front_index(side_index)
+        last = math.inf if self.front_frames is None else self.front_frames - 1
+        inside = (u >= -_EPS) & (u <= last + _EPS)
+        return np.where(inside, np.clip(u, 0, None), np.nan)
 
     def side_index_of_front(self, front_index: np.ndarray) -> np.ndarray:
         """Nearest side frame for each front frame."""
@@ -191,21 +199,19 @@ def _resolve_methods(project, method: str, model, calibration):
     return out, model
 
 
-def _observations(project, timeline: Timeline, frames) -> pd.DataFrame:
+def _observations(project, timeline: Timeline, frames) -> dict:
     """One row per (side frame, marker): side pixels and front pixels interpolated to its time."""
     wanted = None
     if frames is not None:
         wanted = np.unique(np.asarray(list(frames), dtype=np.int64))
         if len(wanted) == 0:
-            return _empty_obs()
-        lo, hi = int(wanted[0]), int(wanted[-1])
-        side = project.points(camera="side", frames=(lo, hi))
-        u = timeline.front_position(np.array([lo, hi]))
-        if np.isfinite(u).any():
-            front = project.points(camera="front", frames=(int(np.floor(np.nanmin(u))) - 1,
-                                                           int(np.ceil(np.nanmax(u))) + 1))
+            wanted = np.zeros(0, np.int64)
+            lo, hi = 0, -1
         else:
-            front = project.points(camera="front", frames=(0, -1))
+            lo, hi = int(wanted[0]), int(wanted[-1])
+        side = project.points(camera="side", frames=(lo, hi))
+        u = timeline.front_index(np.array([lo, hi]))
+        front = project.points(camera="front", frames=(int(np.floor(u[0])) - 1, int(np.ceil(u[1])) + 1))
     else:
         side = project.points(camera="side")
         front = project.points(camera="front")
@@ -214,80 +220,75 @@ def _observations(project, timeline: Timeline, frames) -> pd.DataFrame:
     if len(front):
         keys.append(np.stack([timeline.side_index_of_front(front["frame"].to_numpy()),
                               front["marker"].to_numpy(np.int64)], axis=1))
-    keys = np.unique(np.concatenate(keys), axis=0) if sum(len(k) for k in keys) else np.zeros((0, 2), np.int64)
+    keys = np.unique(np.concatenate(keys), axis=0)
     if wanted is not None:
         keys = keys[np.isin(keys[:, 0], wanted)]
     keys = keys[keys[:, 0] >= 0]
     if timeline.side_frames is not None:
         keys = keys[keys[:, 0] < timeline.side_frames]
-    if len(keys) == 0:
-        return _empty_obs()
-    obs = pd.DataFrame({"frame": keys[:, 0], "marker": keys[:, 1]})
-    obs["time_s"] = timeline.side_time(obs["frame"].to_numpy())
-
-    s = side[["frame", "marker", "x_px", "y_px", "status"]].rename(
-        columns={"x_px": "xs", "y_px": "ys", "status": "status_side"})
-    obs = obs.merge(s, on=["frame", "marker"], how="left")
-    obs["status_side"] = obs["status_side"].fillna("missing")
-    bad = (obs["status_side"] == "lost").to_numpy()
-    obs.loc[bad, ["xs", "ys"]] = np.nan
-
-    _interpolate_front(obs, front, timeline.front_position(obs["frame"].to_numpy()))
+    frame, marker = keys[:, 0], keys[:, 1]
+    obs = {"frame": frame, "marker": marker, "time_s": timeline.side_time(frame)}
+    obs["xs"], obs["ys"], obs["status_side"], ok = _lookup(side, marker, frame)
+    lost = obs["status_side"] == "lost"
+    obs["xs"][lost] = np.nan
+    obs["ys"][lost] = np.nan
+    _interpolate_front(obs, front, timeline.front_position(frame))
     return obs
 
 
-def _empty_obs() -> pd.DataFrame:
-    return pd.DataFrame({"frame": pd.Series(dtype=np.int64), "marker": pd.Series(dtype=np.int64),
-                         "time_s": pd.Series(dtype=float), "xs": pd.Series(dtype=float),
-                         "ys": pd.Series(dtype=float), "status_side": pd.Series(dtype=object),
-                         "xf": pd.Series(dtype=float), "yf": pd.Series(dtype=float),
-                         "status_front": pd.Series(dtype=object)})
+def _lookup(points: pd.DataFrame, marker: np.ndarray, frame: np.ndarray):
+    """x, y, status (\"missing\" where absent) and usability of each (marker, frame) in `points`."""
+    n = len(marker)
+    x, y = np.full(n, np.nan), np.full(n, np.nan)
+    status = np.full(n, "missing", dtype=object)
+    if len(points) and n:
+        pk = points["marker"].to_numpy(np.int64) * _KEY + points["frame"].to_numpy(np.int64)
+        order = np.argsort(pk, kind="stable")
+        pk = pk[order]
+        q = marker.astype(np.int64) * _KEY + frame.astype(np.int64)
+        pos = np.clip(np.searchsorted(pk, q), 0, len(pk) - 1)
+        hit = pk[pos] == q
+        src = order[pos[hit]]
+        x[hit] = points["x_px"].to_numpy(float)[src]
+        y[hit] = points["y_px"].to_numpy(float)[src]
+        status[hit] = points["status"].to_numpy(object)[src]
+    usable = (status != "lost") & (status != "missing") & np.isfinite(x) & np.isfinite(y)
+    return x, y, status, usable
 
 
-def _interpolate_front(obs: pd.DataFrame, front: pd.DataFrame, u: np.ndarray) -> None:
-    """Fill obs xf, yf, status_front from the front frames around continuous index u."""
-    n = len(obs)
+def _interpolate_front(obs: dict, front: pd.DataFrame, u: np.ndarray) -> None:
+    """Fill obs xf, yf, status_front from the two front frames around continuous index u."""
+    n = len(u)
     j0 = np.floor(np.nan_to_num(u, nan=-10) + _EPS).astype(np.int64)
     w = np.where(np.isfinite(u), u - j0, np.nan)
     w[np.abs(w) < _EPS] = 0.0
-    f = front.set_index(["marker", "frame"])[["x_px", "y_px", "status"]]
-    markers = obs["marker"].to_numpy(np.int64)
-
-    def at(j):
-        idx = pd.MultiIndex.from_arrays([markers, j])
-        got = f.reindex(idx)
-        x = got["x_px"].to_numpy(float)
-        y = got["y_px"].to_numpy(float)
-        st = got["status"].fillna("missing").to_numpy(object)
-        usable = (st != "lost") & (st != "missing") & np.isfinite(x) & np.isfinite(y)
-        return x, y, st, usable
-
-    x0, y0, s0, ok0 = at(j0)
-    x1, y1, s1, ok1 = at(j0 + 1)
+    x0, y0, s0, ok0 = _lookup(front, obs["marker"], j0)
+    x1, y1, s1, ok1 = _lookup(front, obs["marker"], j0 + 1)
     exact = w == 0.0
+    one = exact & ok0
     both = ok0 & ok1 & ~exact & np.isfinite(w)
-    xf = np.full(n, np.nan)
-    yf = np.full(n, np.nan)
-    xf[exact & ok0], yf[exact & ok0] = x0[exact & ok0], y0[exact & ok0]
+    xf, yf = np.full(n, np.nan), np.full(n, np.nan)
+    xf[one], yf[one] = x0[one], y0[one]
     xf[both] = (1 - w[both]) * x0[both] + w[both] * x1[both]
     yf[both] = (1 - w[both]) * y0[both] + w[both] * y1[both]
-    sev = np.vectorize(lambda s: _SEVERITY.get(s, 6), otypes=[int])
-    worse = np.where(sev(s1) > sev(s0), s1, s0) if n else s0
-    status = np.where(exact, s0, worse)
+    sev0 = np.array([_SEVERITY.get(v, 6) for v in s0], dtype=int)
+    sev1 = np.array([_SEVERITY.get(v, 6) for v in s1], dtype=int)
+    status = np.where(exact | (sev0 >= sev1), s0, s1).astype(object)
     status[~np.isfinite(u)] = "missing"
     obs["xf"], obs["yf"], obs["status_front"] = xf, yf, status
 
 
-def _solve(obs: pd.DataFrame, methods: list[str], model, calibration, outside: str, refine: bool) -> pd.DataFrame:
+def _solve(obs: dict, methods: list[str], model, calibration, outside: str, refine: bool) -> pd.DataFrame:
     from .triangulation import reprojection_residual, triangulate
 
-    pix = obs[["xs", "ys", "xf", "yf"]].to_numpy(float)
+    pix = np.stack([obs[c] for c in ("xs", "ys", "xf", "yf")], axis=1) if len(obs["frame"]) else np.zeros((0, 4))
     ok = np.isfinite(pix).all(axis=1)
-    parts = []
+    n = len(pix)
+    cols: dict[str, list] = {c: [] for c in XYZ_COLUMNS}
     for m in methods:
-        xyz = np.full((len(obs), 3), np.nan)
-        res = np.full(len(obs), np.nan)
-        label = np.full(len(obs), m, dtype=object)
+        xyz = np.full((n, 3), np.nan)
+        res = np.full(n, np.nan)
+        label = np.full(n, m, dtype=object)
         if ok.any():
             if m == "triangulation":
                 pts, r = triangulate(calibration, {"side": pix[ok, :2], "front": pix[ok, 2:]}, refine=refine,
@@ -302,22 +303,24 @@ def _solve(obs: pd.DataFrame, methods: list[str], model, calibration, outside: s
                     res[ok] = reprojection_residual(cal, {"side": pix[ok, :2], "front": pix[ok, 2:]},
                                                     cal.to_rig(xyz[ok]))
                 if m == "mlp" and outside != "keep":
-                    out = np.zeros(len(obs), bool)
+                    out = np.zeros(n, bool)
                     out[ok] = outside_training(model, pix[ok], xyz[ok])
                     if outside == "flag":
                         label[out] = "mlp_outside"
                     else:
                         xyz[out] = np.nan
-        part = obs.copy()
-        part[["X_mm", "Y_mm", "Z_mm"]] = xyz
-        part["method"] = label
-        part["residual_px"] = res
-        part["_order"] = METHODS.index(m)
-        parts.append(part)
-    if not parts:
-        return pd.DataFrame(columns=XYZ_COLUMNS)
-    out = pd.concat(parts, ignore_index=True).sort_values(["frame", "marker", "_order"], kind="stable")
-    out = out[XYZ_COLUMNS].reset_index(drop=True)
-    out["frame"] = out["frame"].astype(np.int64)
-    out["marker"] = out["marker"].astype(np.int64)
-    return out
+        for c in ("frame", "time_s", "marker", "status_side", "status_front", "xs", "ys", "xf", "yf"):
+            cols[c].append(obs[c])
+        for k, c in enumerate(("X_mm", "Y_mm", "Z_mm")):
+            cols[c].append(xyz[:, k])
+        cols["method"].append(label)
+        cols["residual_px"].append(res)
+    table = pd.DataFrame({c: np.concatenate(v) if v else np.zeros(0) for c, v in cols.items()})
+    order = np.lexsort((np.repeat(np.arange(len(methods)), n), table["marker"].to_numpy(),
+                        table["frame"].to_numpy()))
+    table = table.iloc[order].reset_index(drop=True)
+    table["frame"] = table["frame"].astype(np.int64)
+    table["marker"] = table["marker"].astype(np.int64)
+    for c in ("status_side", "status_front", "method"):
+        table[c] = table[c].astype(object)
+    return table
