@@ -8,11 +8,6 @@ from pathlib import Path
 from ..errors import SandtrackError
 from .common import Progress, add_json_flag, emit, log
 
-JSON_KEYS = ["points", "mlp_mean_error_mm", "mlp_sd_mm", "mlp_median_mm", "mlp_p95_mm", "r2_x", "r2_y", "r2_z",
-             "triangulation_mean_error_mm", "triangulation_sd_mm", "residual_mean_error_mm", "residual_sd_mm",
-             "baseline_mean_error_mm", "test_points", "test_outside_bounds", "epochs_run", "best_epoch", "stopped",
-             "device", "threads", "train_seconds"]
-
 
 def register(sub) -> None:
     p = sub.add_parser("train", help="train the pixel -> XYZ regression model (MLP) on calibration points",
@@ -34,19 +29,14 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..regression import TrainConfig, load_points, train
+    from ..regression import TrainConfig, load_points
+    from ..regression.workflow import PROJECT_KEYS, train_to_file
 
     t0 = time.perf_counter()
     points = load_points(args.points)
     out = Path(args.output)
     if not out.parent.exists():
         raise SandtrackError(f"folder does not exist: {out.parent}")
-    project = None
-    if args.project:
-        from ..store import Project
-
-        project = Project.open(args.project)
-    calibration = _calibration(args, project)
     kw = {"seed": args.seed, "residual": not args.no_residual}
     if args.epochs is not None:
         if args.epochs < 1:
@@ -57,20 +47,25 @@ def run(args) -> int:
             raise SandtrackError("--batch-size must be at least 1")
         kw["batch_size"] = args.batch_size
     cfg = TrainConfig.fast(**kw) if args.fast else TrainConfig(**kw)
-    log(f"training on {len(points)} points ({points['frame'].nunique()} frames)"
-        + ("" if calibration else "; no calibration: no triangulation comparison"))
-    bar = Progress(cfg.total_epochs(calibration is not None), "train")
-    model = train(points, cfg, calibration=calibration,
-                  progress=lambda e, loss, val: bar.update(e, f"val {val:.2f} mm"))
-    bar.close()
-    model.save(out)
+    project = None
+    if args.project:
+        from ..store import Project
+
+        project = Project.open(args.project)
+    try:
+        calibration = _calibration(args, project)
+        log(f"training on {len(points)} points ({points['frame'].nunique()} frames)"
+            + ("" if calibration else "; no calibration: no triangulation comparison"))
+        bar = Progress(cfg.total_epochs(calibration is not None), "train")
+        model = train_to_file(points, out, calibration=calibration, project=project, config=cfg,
+                              progress=lambda e, loss, val: bar.update(e, f"val {val:.2f} mm"))
+        bar.close()
+    finally:
+        if project is not None:
+            project.close()
     m = model.metrics
-    if project is not None:
-        project.set("model", {"path": str(out.resolve()), **{k: m[k] for k in JSON_KEYS if k in m}},
-                    "train regression model")
-        project.close()
-    result = {k: m.get(k) for k in JSON_KEYS if k in m or k in ("triangulation_mean_error_mm",
-                                                               "residual_mean_error_mm")}
+    result = {k: m.get(k) for k in PROJECT_KEYS if k in m or k in ("triangulation_mean_error_mm",
+                                                                   "residual_mean_error_mm")}
     result.update({"model": str(out), "seconds": time.perf_counter() - t0})
     emit(result, args.json, _text(m, out))
     return 0
