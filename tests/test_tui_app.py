@@ -296,3 +296,25 @@ async def test_help_and_screens_open_and_close(project):
         await pilot.press("right")  # still responsive
         await settle(pilot, app)
         assert app.frame == 1
+
+
+@aio
+async def test_keys_on_other_screens_and_bad_edits_never_kill_the_app(project):
+    app = SandtrackApp(project)
+    async with app.run_test(size=SIZE) as pilot:
+        await settle(pilot, app)
+        await pilot.press("1")
+        await click_source(pilot, app, "side", *true_xy(1, 0))
+        await pilot.press("o")  # occluded: no position any more
+        await pilot.press("d")  # nudging a point without a position is refused, not a crash
+        assert any("no position" in n.message for n in app._notifications)
+        await pilot.press("f5")
+        await pilot.pause()
+        before = project.history(1)["id"].iloc[0]
+        await pilot.press("tab", "w", "a", "s", "d", "right", "u")  # none of these act on the main view
+        assert app.frame == 0 and project.history(1)["id"].iloc[0] == before
+        await pilot.press("escape")
+        await pilot.pause()
+        await pilot.press("right")
+        await settle(pilot, app)
+        assert app.frame == 1

@@ -37,7 +37,7 @@ def set_manual(project: Project, marker: int, camera: str, frame: int, x: float,
 def nudge(project: Project, marker: int, camera: str, frame: int, dx: float, dy: float) -> int:
     """Move one point by (dx, dy) px; it becomes "manual"."""
     pts = project.points(frame=frame, camera=camera, marker=marker)
-    if pts.empty or not np.isfinite(pts["x_px"].iloc[0]):
+    if pts.empty or pd.isna(pts["x_px"].iloc[0]) or pd.isna(pts["y_px"].iloc[0]):
         raise SandtrackError(f"marker {marker} has no position in {camera} at frame {frame} to nudge")
     r = pts.iloc[0]
     row = {**r.to_dict(), "x_px": float(r["x_px"]) + dx, "y_px": float(r["y_px"]) + dy, "status": "manual"}

@@ -7,8 +7,11 @@ messages; widgets are only touched on the UI thread.
 
 from __future__ import annotations
 
+import functools
+import inspect
 import math
 import time
+import traceback
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -110,6 +113,32 @@ def _bindings() -> list[Binding]:
         out.append(Binding(k, f"nudge({dx},{dy})", "nudge", show=False))
         out.append(Binding(k.upper(), f"nudge({5 * dx},{5 * dy})", "nudge 5 px", show=False))
     return out
+
+
+def guarded(fn):
+    """Turn any exception of a UI handler into an error notification: never a dead app."""
+    if inspect.iscoroutinefunction(fn):
+        @functools.wraps(fn)
+        async def async_wrapper(self, *args, **kwargs):
+            try:
+                return await fn(self, *args, **kwargs)
+            except Exception as exc:  # noqa: BLE001
+                self.report_error(exc)
+
+        return async_wrapper
+
+    @functools.wraps(fn)
+    def wrapper(self, *args, **kwargs):
+        try:
+            return fn(self, *args, **kwargs)
+        except Exception as exc:  # noqa: BLE001
+            self.report_error(exc)
+
+    return wrapper
+
+
+# Actions that act on the main screen's views: off while another screen (sync, export, ...) is shown.
+ANYWHERE = {"quit", "help", "cancel", "command_palette"}
 
 
 @dataclass
@@ -255,8 +284,19 @@ class SandtrackApp(App):
         self.call_after_refresh(self.request_frames)
 
     @on(FrameView.Resized)
+    @guarded
     def _view_resized(self) -> None:
         self.request_frames()
+
+    def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
+        if action in ANYWHERE or not hasattr(self, "_main_screen"):
+            return True
+        return self.screen is self._main_screen
+
+    def report_error(self, exc: BaseException) -> None:
+        self.log.error("".join(traceback.format_exception(exc)))
+        message = str(exc) if isinstance(exc, SandtrackError) else f"{type(exc).__name__}: {exc}"
+        self.notify(message, severity="error", timeout=10)
 
     # -- frame bookkeeping -------------------------------------------------------------------
     def _compute_frame_maps(self) -> None:
@@ -334,6 +374,7 @@ class SandtrackApp(App):
             self.feeder.request(req, self._direction)
 
     @on(FrameReady)
+    @guarded
     def _frame_ready(self, msg: FrameReady) -> None:
         r = msg.result
         cam = r.request.camera
@@ -466,6 +507,7 @@ class SandtrackApp(App):
         return self._xyz_project
 
     @on(TableReady)
+    @guarded
     def _table_ready(self, msg: TableReady) -> None:
         self._table_busy = False
         if msg.error and not self._xyz_note_shown:
@@ -658,6 +700,7 @@ class SandtrackApp(App):
         self.call_after_refresh(self.request_frames)
 
     @on(FrameView.Zoom)
+    @guarded
     def _wheel_zoom(self, msg: FrameView.Zoom) -> None:
         cam = msg.view.camera
         self.zoom[cam] = float(np.clip(self.zoom[cam] * msg.factor, 1.0, 64.0))
@@ -667,6 +710,7 @@ class SandtrackApp(App):
         self.update_status()
 
     @on(Timeline.Seek)
+    @guarded
     def _timeline_seek(self, msg: Timeline.Seek) -> None:
         if msg.marker is not None:
             self.selected = msg.marker
@@ -677,6 +721,7 @@ class SandtrackApp(App):
 
     # -- seeding -----------------------------------------------------------------------------
     @on(FrameView.Clicked)
+    @guarded
     def _clicked(self, msg: FrameView.Clicked) -> None:
         cam = msg.view.camera
         if cam != self.active:
@@ -893,6 +938,7 @@ class SandtrackApp(App):
                                       exit_on_error=False)
 
     @on(TaskProgress)
+    @guarded
     def _task_progress(self, msg: TaskProgress) -> None:
         bar = self._w['task-bar']
         bar.update(total=max(msg.total, 1), progress=msg.done)
@@ -905,6 +951,7 @@ class SandtrackApp(App):
             self.update_overlays()
 
     @on(TaskFinished)
+    @guarded
     def _task_finished(self, msg: TaskFinished) -> None:
         self.bg_task = None
         self._w['task'].remove_class("-running")
@@ -1112,3 +1159,8 @@ class SandtrackApp(App):
             self.push_screen(Confirm(f"{self.bg_task.name} is running; quit anyway? (points so far are saved)"), done)
             return
         self.exit()
+
+
+for _name, _fn in list(vars(SandtrackApp).items()):
+    if _name.startswith("action_") and callable(_fn):
+        setattr(SandtrackApp, _name, guarded(_fn))

@@ -24,9 +24,9 @@ class ExportScreen(TaskScreen):
         super().__init__(app)
 
     def default_path(self, fmt: str) -> str:
-        p = self.main.project.path
+        """In the folder sandtrack was started from (the sample project lives in a data folder)."""
         suffix = {"csv": ".csv", "parquet": ".parquet", "dltdv": ""}[fmt]
-        return str(p.with_name(f"{p.stem}_trajectories{suffix}"))
+        return str(Path.cwd() / f"{self.main.project.path.stem}_trajectories{suffix}")
 
     def compose(self) -> ComposeResult:
         with VerticalScroll():
