@@ -165,7 +165,10 @@ def run(mil_frames: int = 60) -> dict:
         proj.set_calibration(cal)
         proj.set("sync_offset_s", offset)
         # Auto-seeding: does every proposed pair join the same true marker?
-        prop = auto_seed(proj, frame=0)
+        side_n = len(truth["side"].frame.unique())
+        first_common = next(i for i in range(side_n)
+                            if (i / 50.0 - offset) >= -0.01)  # first side frame the front also recorded
+        prop = auto_seed(proj, frame=first_common)
         good = 0
         pairs = prop[prop.epipolar_px.notna()]
         for _m, g in pairs.groupby("marker"):

@@ -67,6 +67,12 @@ def blueness(bgr: np.ndarray) -> np.ndarray:
     return f[..., 0] - 0.5 * (f[..., 1] + f[..., 2])
 
 
+def chroma_blueness(bgr: np.ndarray) -> np.ndarray:
+    """Blueness of the chromaticity, float32 in about -0.5..1: independent of shading and shadows."""
+    f = bgr.astype(np.float32)
+    return (f[..., 0] - 0.5 * (f[..., 1] + f[..., 2])) / (f.sum(axis=-1) + EPS)
+
+
 def learn(frame_bgr: np.ndarray, cx: float, cy: float, w: float, h: float) -> ColourModel:
     """Learn a ColourModel from a seed box centred at (cx, cy) of size w x h (px)."""
     H, W = frame_bgr.shape[:2]

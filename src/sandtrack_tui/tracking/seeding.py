@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 from scipy.optimize import linear_sum_assignment
 
-from .colour import blueness
+from .colour import blueness, chroma_blueness
 
 DETECT_COLUMNS = ["x_px", "y_px", "w", "h", "area", "contrast"]
 
@@ -39,8 +39,7 @@ def detect_markers(frame_bgr: np.ndarray, min_diameter_px: float = 4.0, max_diam
             continue  # not round: streaks, edges of larger blue things
         xa, ya, xb, yb = max(x - 2, 0), max(y - 2, 0), min(x + w + 2, W), min(y + h + 2, H)
         peak = float(f[labels == k].max())
-        wts = np.clip((f[ya:yb, xa:xb] - med) / max(peak - med, 1e-6), 0, 1)
-        wts *= cv2.dilate((labels[ya:yb, xa:xb] == k).astype(np.uint8), np.ones((3, 3), np.uint8))
+        wts = _chroma_weights(frame_bgr[ya:yb, xa:xb], (labels[ya:yb, xa:xb] == k))
         tot = float(wts.sum())
         yy, xx = np.mgrid[ya:yb, xa:xb]
         rows.append(((wts * xx).sum() / tot, (wts * yy).sum() / tot, w + 4, h + 4, tot, peak - med))
@@ -73,11 +72,23 @@ def snap_to_marker(frame_bgr: np.ndarray, x: float, y: float, radius: float = 12
             best, best_d = k, d
     if best is None or best_d > radius:
         return None
-    comp = cv2.dilate((labels == best).astype(np.uint8), np.ones((3, 3), np.uint8))
-    wts = np.clip((f - bg) / (peak - bg), 0, 1) * comp
+    wts = _chroma_weights(frame_bgr[y0:y1, x0:x1], labels == best)
     tot = float(wts.sum())
     yy, xx = np.mgrid[0:f.shape[0], 0:f.shape[1]]
     return float((wts * xx).sum() / tot + x0), float((wts * yy).sum() / tot + y0)
+
+
+def _chroma_weights(bgr: np.ndarray, comp: np.ndarray) -> np.ndarray:
+    """Marker coverage weights on a blob (grown by one pixel), from chromaticity: shading and the
+    marker's contact shadow do not move the centroid."""
+    c = chroma_blueness(bgr)
+    grown = cv2.dilate(comp.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    ring = cv2.dilate(grown.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+    ring &= ~grown
+    bg = float(np.median(c[ring])) if ring.any() else float(np.median(c))
+    inner = c[comp]
+    peak = float(np.percentile(inner, 75)) if inner.size else bg + 1e-3
+    return np.clip((c - bg) / max(peak - bg, 1e-3), 0, 1) * grown
 
 
 def marker_box(frame_bgr: np.ndarray, x: float, y: float, radius: float = 12) -> tuple[float, float] | None:
