@@ -62,6 +62,52 @@ def run(epochs: int | None = None) -> dict:
     predict(model, px)
     out["predict_us_per_point"] = round((time.perf_counter() - t) / len(px) * 1e6, 2)
     out.update(_xyz_speed(rig, model))
+    out.update(_twin(epochs))
+    return out
+
+
+SAMPLE = Path(__file__).resolve().parents[1] / "sample_data" / "ground_truth"
+
+
+def twin_points(folder: Path = SAMPLE, noise_px: float = 0.3, seed: int = 0):
+    """points.csv rows from the digital twin's true calibration corners (side frame i pairs with
+    front frame i - offset_frames), with Gaussian detection noise; None if the twin is absent."""
+    import json
+
+    import pandas as pd
+
+    files = [folder / n for n in ("calibration_corners_side.csv", "calibration_corners_front.csv", "sync.json")]
+    if not all(f.is_file() for f in files):
+        return None
+    side, front = pd.read_csv(files[0]), pd.read_csv(files[1])
+    off = int(json.loads(files[2].read_text())["calibration"]["offset_frames"])
+    j = side.merge(front.assign(frame=front["frame"] + off)[["frame", "corner_id", "x_px", "y_px"]],
+                   on=["frame", "corner_id"], suffixes=("_s", "_f"))
+    rng = np.random.default_rng(seed)
+    px = j[["x_px_s", "y_px_s", "x_px_f", "y_px_f"]].to_numpy() + rng.normal(0, noise_px, (len(j), 4))
+    return pd.DataFrame({"frame": j["frame"], "corner_id": j["corner_id"], "xs": px[:, 0], "ys": px[:, 1],
+                         "xf": px[:, 2], "yf": px[:, 3], "X_mm": j["X_mm"], "Y_mm": j["Y_mm"], "Z_mm": j["Z_mm"]})
+
+
+def _twin(epochs: int | None) -> dict:
+    """The same recipe on the rendered twin's calibration corners (true pixels + 0.3 px noise), and
+    how many visible marker positions of its experiment lie outside the volume the board covered."""
+    import pandas as pd
+
+    from sandtrack_tui.regression import hull_distance
+
+    points = twin_points()
+    if points is None:
+        return {}
+    cal = Calibration.load(SAMPLE / "cameras.toml")
+    model = train(points, TrainConfig() if epochs is None else TrainConfig(epochs=epochs), calibration=cal)
+    m = model.metrics
+    out = {f"twin_{k}": round(m[k], 3) for k in ("points", "train_seconds", "mlp_mean_error_mm", "mlp_sd_mm",
+                                                 "triangulation_mean_error_mm", "residual_mean_error_mm")}
+    traj = pd.read_csv(SAMPLE / "trajectories.csv")
+    seen = traj[(traj["visible_side"] == 1) & (traj["visible_front"] == 1)][["X_mm", "Y_mm", "Z_mm"]].to_numpy()
+    if len(seen):
+        out["twin_markers_outside_board_volume_pct"] = round(100 * float((hull_distance(model, seen) > 5).mean()), 1)
     return out
 
 
