@@ -40,14 +40,21 @@ class BundleState:
     frame_rvec: np.ndarray  # (F, 3) board -> rig
     frame_tvec: np.ndarray  # (F, 3)
     fixed_k3: list[bool] = field(default_factory=list)
+    dist_free: list[np.ndarray] | None = None  # per camera, which distortion terms are fitted
 
     def copy(self) -> BundleState:
         return BundleState(self.cam_rvec.copy(), self.cam_tvec.copy(), self.K.copy(), [d.copy() for d in self.dist],
-                           list(self.models), self.frame_rvec.copy(), self.frame_tvec.copy(), list(self.fixed_k3))
+                           list(self.models), self.frame_rvec.copy(), self.frame_tvec.copy(), list(self.fixed_k3),
+                           None if self.dist_free is None else [m.copy() for m in self.dist_free])
 
-
-def _n_intr(model: str, fixed_k3: bool) -> int:
-    return 4 + (4 if model == "fisheye" else (4 if fixed_k3 else 5))
+    def free_mask(self, c: int) -> np.ndarray:
+        if self.dist_free is not None:
+            return np.asarray(self.dist_free[c], dtype=bool)
+        n = len(self.dist[c])
+        m = np.ones(n, dtype=bool)
+        if self.models[c] != "fisheye" and n > 4 and self.fixed_k3 and self.fixed_k3[c]:
+            m[4:] = False
+        return m
 
 
 class _Layout:
@@ -65,7 +72,8 @@ class _Layout:
         self.intr = {}
         if free_intrinsics:
             for c in range(C):
-                self.intr[c] = (off, _n_intr(state.models[c], state.fixed_k3[c] if state.fixed_k3 else False))
+                mask = state.free_mask(c)
+                self.intr[c] = (off, 4 + int(mask.sum()), mask)
                 off += self.intr[c][1]
         self.frame0 = off if free_frames else None
         if free_frames:
@@ -76,10 +84,10 @@ class _Layout:
         x = np.zeros(self.n)
         for c, o in self.cam_pose.items():
             x[o:o + 3], x[o + 3:o + 6] = s.cam_rvec[c], s.cam_tvec[c]
-        for c, (o, n) in self.intr.items():
+        for c, (o, n, mask) in self.intr.items():
             K = s.K[c]
             x[o:o + 4] = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-            x[o + 4:o + n] = s.dist[c][: n - 4]
+            x[o + 4:o + n] = s.dist[c][mask]
         if self.frame0 is not None:
             f = self.frame0
             x[f:f + 6 * self.F] = np.hstack([s.frame_rvec, s.frame_tvec]).ravel()
@@ -89,10 +97,10 @@ class _Layout:
         s = base.copy()
         for c, o in self.cam_pose.items():
             s.cam_rvec[c], s.cam_tvec[c] = x[o:o + 3], x[o + 3:o + 6]
-        for c, (o, n) in self.intr.items():
+        for c, (o, n, mask) in self.intr.items():
             s.K[c] = np.array([[x[o], 0, x[o + 2]], [0, x[o + 1], x[o + 3]], [0, 0, 1]])
             d = s.dist[c].copy()
-            d[: n - 4] = x[o + 4:o + n]
+            d[mask] = x[o + 4:o + n]
             s.dist[c] = d
         if self.frame0 is not None:
             p = x[self.frame0:self.frame0 + 6 * self.F].reshape(self.F, 6)
@@ -109,7 +117,7 @@ class _Layout:
             if c in self.cam_pose:
                 cols += list(range(self.cam_pose[c], self.cam_pose[c] + 6))
             if c in self.intr:
-                o, n = self.intr[c]
+                o, n, _ = self.intr[c]
                 cols += list(range(o, o + n))
             for col in cols:
                 S[2 * sel, col] = 1
@@ -161,7 +169,7 @@ def _groups(layout: _Layout, obs: Observations) -> list[np.ndarray]:
     per_cam: dict[int, list[int]] = {}
     for c, o in layout.cam_pose.items():
         per_cam.setdefault(c, []).extend(range(o, o + 6))
-    for c, (o, n) in layout.intr.items():
+    for c, (o, n, _) in layout.intr.items():
         per_cam.setdefault(c, []).extend(range(o, o + n))
     width = max((len(v) for v in per_cam.values()), default=0)
     for k in range(width):

@@ -27,6 +27,33 @@ from .world import describe, world_from_board_pose, world_from_known_points
 
 ProgressFn = Callable[[str, int, int], None]
 MIN_SHARED_VIEWS = 12
+MAX_RMSE_PX = 3.0
+
+
+def _offsets(videos, sources, given: dict[str, float] | None, warnings: list[str]) -> tuple[dict, dict]:
+    """Start offsets of the cameras against the first one: as given, else from the audio (or the
+    video fallback) of `sandtrack_tui.sync`, else 0 with a warning."""
+    names = list(videos)
+    offsets = dict(given or {})
+    info: dict = {n: {"offset_s": offsets[n], "method": "given"} for n in offsets}
+    for n in names[1:]:
+        if n in offsets:
+            continue
+        if sources[names[0]].is_folder or sources[n].is_folder:
+            offsets[n] = 0.0
+            info[n] = {"offset_s": 0.0, "method": "image folders: taken as simultaneous"}
+            continue
+        from ..sync import estimate_offset
+
+        try:
+            res = estimate_offset(videos[names[0]], videos[n], method="audio")
+            offsets[n] = float(res.offset_s)
+            info[n] = {"offset_s": offsets[n], "method": res.method, "confidence": float(res.confidence)}
+        except SandtrackError as exc:
+            offsets[n] = 0.0
+            info[n] = {"offset_s": 0.0, "method": "none"}
+            warnings.append(f"could not synchronise {n} with {names[0]} ({exc}); assuming they started together")
+    return offsets, info
 
 
 @dataclass
@@ -65,6 +92,8 @@ def calibrate_videos(videos: dict[str, str | Path], board: BoardSpec, *, offsets
         raise SandtrackError("calibration needs videos from at least two cameras")
     sources = {n: open_source(p) for n, p in videos.items()}
     names = list(sources)
+    warnings: list[str] = []
+    offsets_s, sync_info = _offsets(videos, sources, offsets_s, warnings)
     pairing = frame_pairing(sources, offsets_s)
     n_ref = len(sources[names[0]])
     if reference_frame is not None and not 0 <= reference_frame < n_ref:
@@ -107,7 +136,7 @@ def calibrate_videos(videos: dict[str, str | Path], board: BoardSpec, *, offsets
     poses = fit_frame_poses(calibration, views, board, all_frames, initial)
     # world frame
     world: dict = {"method": "rig frame (no reference given)"}
-    warnings = list(rig.warnings)
+    warnings += rig.warnings
     if known_points is not None:
         from ..triangulation import triangulate
         from .points import pixel_columns
@@ -151,6 +180,7 @@ def calibrate_videos(videos: dict[str, str | Path], board: BoardSpec, *, offsets
         "near_duplicates_skipped": rig.skipped_duplicates,
         "bundle": rig.bundle,
         "board": board.to_json_dict(),
+        "sync": sync_info,
         "world": world,
         "points": int(len(points)) if points is not None else 0,
         "seconds": time.perf_counter() - t0,
@@ -159,5 +189,9 @@ def calibrate_videos(videos: dict[str, str | Path], board: BoardSpec, *, offsets
         "warnings": warnings,
     }
     calibration.report = report
+    if report["reprojection_rmse_px"] > MAX_RMSE_PX:
+        raise SandtrackError(
+            f"the cameras disagree (reprojection RMSE {report['reprojection_rmse_px']:.1f} px): the videos are "
+            "probably not in sync; give the offset (--offset-s, see `sandtrack sync`) or record a clap at the start")
     return CalibrationResult(calibration=calibration, report=report, views=views, poses=poses, points=points,
                              warnings=warnings)

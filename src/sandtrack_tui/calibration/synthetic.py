@@ -44,23 +44,20 @@ def render(cam: Camera, board: BoardSpec, T_rig_board: list[np.ndarray], noise: 
     T_cam_rig = to_T(cam.rvec, cam.tvec)
     rng = np.random.default_rng(seed)
     out = []
+    rays2 = np.ascontiguousarray(rays[..., :2].astype(np.float32))
     for T in T_rig_board:
         Tcb = T_cam_rig @ T
-        n = Tcb[:3, 2]  # board normal in the camera frame
-        o = Tcb[:3, 3]
-        denom = rays @ n
-        s = (o @ n) / np.where(np.abs(denom) < 1e-12, 1e-12, denom)
-        pts = rays * s[..., None] - o  # camera-frame offset from the board origin
-        bx = pts @ Tcb[:3, 0]
-        by = pts @ Tcb[:3, 1]
-        mapx = ((bx + margin) * PX_PER_MM - 0.5).astype(np.float32)
-        mapy = ((by + margin) * PX_PER_MM - 0.5).astype(np.float32)
-        behind = s <= 0
-        mapx[behind] = -1e6
+        # a plane maps to normalised image coordinates by the homography [r1 r2 t]; invert it per pixel
+        H = np.column_stack([Tcb[:3, 0], Tcb[:3, 1], Tcb[:3, 3]])
+        A = np.diag([PX_PER_MM, PX_PER_MM, 1.0])
+        A[:2, 2] = margin * PX_PER_MM - 0.5
+        M = A @ np.linalg.inv(H)
+        tex_xy = cv2.perspectiveTransform(rays2, M)
+        mapx = np.ascontiguousarray(tex_xy[..., 0])
+        mapy = np.ascontiguousarray(tex_xy[..., 1])
         img = cv2.remap(tex, mapx, mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=background)
-        img = img.astype(np.float32)
         if noise:
-            img += rng.normal(0, noise, img.shape)
+            img = cv2.add(img.astype(np.float32), rng.standard_normal(img.shape, dtype=np.float32) * noise)
         out.append(np.clip(img, 0, 255).astype(np.uint8))
     return out
 
@@ -118,18 +115,20 @@ def board_poses(n: int, board: BoardSpec, distance_mm: float = 700.0, spread_mm=
 
 
 def write_session(folder, n_views: int = 24, board: BoardSpec | None = None, seed: int = 0,
-                  size=(960, 540), flat_reference: bool = True) -> dict:
+                  size=(960, 540), flat_reference: bool = True, video_fps: float | None = None) -> dict:
     """Render a two-camera board session into `folder`/side and `folder`/front (PNG image folders).
 
     With `flat_reference`, frame 0 shows the board lying flat (world convention of world.py) at
     origin (0, 0, 0). Returns {"truth": Calibration (world_from_rig set when flat_reference),
-    "poses": board -> rig poses, "board": BoardSpec, "videos": {name: folder}}."""
+    "poses": board -> rig poses, "board": BoardSpec, "videos": {name: folder}}. With `video_fps`, each
+    camera is written as an H.264 `NAME.mp4` instead of an image folder."""
     from pathlib import Path
 
     from .world import world_from_board_pose
 
     board = board or BoardSpec(columns=8, rows=5, square_mm=30.0, dictionary="DICT_4X4_50")
-    truth = stereo_rig(size=size)
+    scale = size[0] / 960.0
+    truth = stereo_rig(size=size, focal=(820.0 * scale, 760.0 * scale))
     poses = board_poses(n_views, board, seed=seed)
     if flat_reference:
         # board lying flat below the rig: its normal (board z) points down = rig +y (cameras look along +z)
@@ -142,9 +141,29 @@ def write_session(folder, n_views: int = 24, board: BoardSpec | None = None, see
     folder = Path(folder)
     videos = {}
     for i, (name, cam) in enumerate(truth.cameras.items()):
+        images = render(cam, board, poses, seed=seed * 10 + i)
+        if video_fps:
+            videos[name] = str(folder / f"{name}.mp4")
+            _write_mp4(videos[name], images, video_fps)
+            continue
         d = folder / name
         d.mkdir(parents=True, exist_ok=True)
-        for f, img in enumerate(render(cam, board, poses, seed=seed * 10 + i)):
+        for f, img in enumerate(images):
             cv2.imwrite(str(d / f"{f:05d}.png"), img)
         videos[name] = str(d)
     return {"truth": truth, "poses": poses, "board": board, "videos": videos}
+
+
+def _write_mp4(path, images: list[np.ndarray], fps: float) -> None:
+    import av
+
+    with av.open(str(path), "w") as container:
+        stream = container.add_stream("libx264", rate=int(round(fps)))
+        stream.height, stream.width = images[0].shape[:2]
+        stream.pix_fmt = "yuv420p"
+        stream.options = {"crf": "14", "preset": "veryfast"}
+        for img in images:
+            for packet in stream.encode(av.VideoFrame.from_ndarray(img, format="gray")):
+                container.mux(packet)
+        for packet in stream.encode():
+            container.mux(packet)

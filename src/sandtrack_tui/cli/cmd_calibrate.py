@@ -31,8 +31,9 @@ def register(sub) -> None:
     p.add_argument("--reference", help="reference.toml with `frame` and `origin_mm` (instead of the two above)")
     p.add_argument("--known-points", help="CSV of known world points (X_mm, Y_mm, Z_mm + pixel columns) for the "
                    "world frame (Kabsch, >= 3 points)")
-    p.add_argument("--offset-s", type=float, default=0.0,
-                   help="how much later the front camera started recording than the side camera (s)")
+    p.add_argument("--offset-s", type=float, default=None,
+                   help="how much later the front camera started recording than the side camera (s); "
+                   "default: measured from the audio (or the video) as `sandtrack sync` does")
     p.add_argument("--fisheye", action="append", default=[], metavar="NAME",
                    help="use the fisheye lens model for this camera (repeatable)")
     p.add_argument("--budget", type=int, default=60, help="frames per camera searched first (default 60)")
@@ -111,7 +112,7 @@ def run(args) -> int:
 def _summary(report: dict) -> dict:
     keys = ["reprojection_rmse_px", "board_rmse_mm", "per_camera", "views_used", "points", "seconds",
             "seconds_detect", "seconds_calibrate", "frames_detected", "corners_detected", "world", "warnings",
-            "output", "points_csv", "caliscope_export", "project", "method", "source"]
+            "sync", "output", "points_csv", "caliscope_export", "project", "method", "source"]
     out = {k: report[k] for k in keys if k in report}
     out.setdefault("points", 0)
     return out
@@ -181,7 +182,7 @@ def _from_videos(args) -> dict:
         if not p.is_file():
             raise SandtrackError(f"known points file not found: {p}")
         known = pd.read_csv(p)
-    offsets = {"front": float(args.offset_s)} if "front" in videos else {}
+    offsets = {"front": float(args.offset_s)} if ("front" in videos and args.offset_s is not None) else None
     models = {}
     for n in args.fisheye:
         if n not in videos:

@@ -1,0 +1,163 @@
+"""Calibration benchmark: accuracy against known truth and speed.
+
+1. Real footage (../shared/data/caliscope_4cam, 4 webcams): reprojection RMSE (px, every detected
+   corner, rigid board pose per frame) and board-geometry RMSE (mm, all corner-to-corner distances
+   within each frame after triangulation, against the true board), for our calibration and for
+   Caliscope's stored calibration measured the same way on the same detections.
+2. A rendered 1920x1080 session, 100 frames per camera (H.264 videos), through known cameras:
+   focal / principal point / relative pose errors, and time (wall and CPU) including detection.
+3. sample_data/ (when present): errors against ground_truth/cameras.toml and the true corners.
+
+Run: `python benchmarks/bench_calibration.py` (prints JSON), or `run()` from benchmarks/run_all.py.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pickle
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "src"))
+
+from sandtrack_tui.board import load_board  # noqa: E402
+from sandtrack_tui.calibration.caliscope import import_caliscope  # noqa: E402
+from sandtrack_tui.calibration.pipeline import calibrate_videos  # noqa: E402
+from sandtrack_tui.calibration.report import accuracy_report, relative_pose_errors  # noqa: E402
+from sandtrack_tui.calibration.rig import fit_frame_poses  # noqa: E402
+
+REAL = ROOT.parent / "shared" / "data" / "caliscope_4cam"
+SAMPLE = ROOT / "sample_data"
+REFERENCE = {"caliscope_0.11.8": {"reprojection_rmse_px": 0.647, "board_rmse_mm": 0.444},
+             "aniposelib_0.8.0": {"reprojection_rmse_px": 0.556, "board_rmse_mm": 0.367}}
+
+
+def _timed(fn):
+    t, c = time.perf_counter(), time.process_time()
+    out = fn()
+    return out, time.perf_counter() - t, time.process_time() - c
+
+
+def real_footage() -> dict:
+    if not (REAL / "cam_0.mp4").exists():
+        return {"skipped": f"{REAL} absent"}
+    board = load_board(REAL / "charuco.toml")
+    videos = {f"cam_{i}": str(REAL / f"cam_{i}.mp4") for i in range(4)}
+    res, wall, cpu = _timed(lambda: calibrate_videos(videos, board))
+    r = res.report
+    out = {
+        "reprojection_rmse_px": r["reprojection_rmse_px"],
+        "board_rmse_mm": r["board_rmse_mm"],
+        "board_mean_abs_mm": r["board_mean_abs_mm"],
+        "corners_detected": r["corners_detected"],
+        "views_used": r["views_used"],
+        "per_camera_rmse_px": {n: c["reprojection_rmse_px"] for n, c in r["per_camera"].items()},
+        "seconds_wall": wall,
+        "seconds_cpu": cpu,
+        "reference_figures": REFERENCE,
+    }
+    # Caliscope's stored calibration, measured the same way on the same detections
+    cal = import_caliscope(REAL / "camera_array.toml")
+    frames = sorted(set().union(*[set(v) for v in res.views.values()]))
+    poses = fit_frame_poses(cal, res.views, board, frames)
+    acc = accuracy_report(cal, res.views, board, poses)
+    out["caliscope_stored_same_metric"] = {"reprojection_rmse_px": acc["reprojection_rmse_px"],
+                                           "board_rmse_mm": acc["board_rmse_mm"]}
+    out["beats_caliscope_and_aniposelib"] = bool(
+        out["reprojection_rmse_px"] < 0.556 and out["board_rmse_mm"] < 0.367)
+    return out
+
+
+def _synthetic_session(n_frames: int = 100, size=(1920, 1080), seed: int = 7) -> dict:
+    from sandtrack_tui.calibration.synthetic import write_session
+
+    cache = Path(tempfile.gettempdir()) / f"sandtrack_bench_calib_{size[0]}x{size[1]}_{n_frames}_{seed}"
+    meta = cache / "session.pkl"
+    if meta.exists():
+        with open(meta, "rb") as fh:
+            return pickle.load(fh)
+    cache.mkdir(parents=True, exist_ok=True)
+    s = write_session(cache, n_frames, size=size, video_fps=50, seed=seed)
+    with open(meta, "wb") as fh:
+        pickle.dump(s, fh)
+    return s
+
+
+def synthetic_speed() -> dict:
+    s = _synthetic_session()
+    res, wall, cpu = _timed(lambda: calibrate_videos(s["videos"], s["board"], reference_frame=0))
+    err = relative_pose_errors(res.calibration, s["truth"])
+    r = res.report
+    return {
+        "frames_per_camera": 100, "size": "1920x1080",
+        "seconds_wall": wall, "seconds_cpu": cpu,
+        "seconds_detect_wall": r["seconds_detect"], "seconds_calibrate_wall": r["seconds_calibrate"],
+        "frames_detected": r["frames_detected"], "views_used": r["views_used"],
+        "reprojection_rmse_px": r["reprojection_rmse_px"], "board_rmse_mm": r["board_rmse_mm"],
+        "focal_rel_err": err["focal_rel_err"], "principal_point_err_px": err["principal_point_err_px"],
+        "rotation_err_deg": err["rotation_err_deg"], "translation_err_mm": err["translation_err_mm"],
+        "load_average": os.getloadavg()[0],
+    }
+
+
+def run() -> dict:
+    return {"real_footage_caliscope_4cam": real_footage(), "synthetic_1080p_100_frames": synthetic_speed(),
+            "sample_data": sample_data_figures()}
+
+
+def sample_data_figures() -> dict:
+    """Against the rendered sample preset's true cameras (skipped when sample_data/ is absent)."""
+    cal_dir = SAMPLE / "calibration"
+    truth_file = SAMPLE / "ground_truth" / "cameras.toml"
+    if not (cal_dir / "side.mp4").exists() or not truth_file.exists():
+        return {"skipped": "sample_data/ absent"}
+    from sandtrack_tui.calibration.world import load_reference
+    from sandtrack_tui.camera import Calibration
+
+    board = load_board(SAMPLE / "board.toml")
+    ref_frame, origin = (None, (0.0, 0.0, 0.0))
+    if (cal_dir / "reference.toml").exists():
+        ref_frame, origin = load_reference(cal_dir / "reference.toml")
+    videos = {"side": str(cal_dir / "side.mp4"), "front": str(cal_dir / "front.mp4")}
+    res, wall, cpu = _timed(lambda: calibrate_videos(videos, board, reference_frame=ref_frame, origin_mm=origin,
+                                                     with_points=True))
+    truth = Calibration.load(truth_file)
+    err = relative_pose_errors(res.calibration, truth)
+    out = {
+        "seconds_wall_with_points": wall, "seconds_cpu_with_points": cpu,
+        "seconds_detect_wall": res.report["seconds_detect"],
+        "reprojection_rmse_px": res.report["reprojection_rmse_px"], "board_rmse_mm": res.report["board_rmse_mm"],
+        "focal_rel_err": err["focal_rel_err"], "principal_point_err_px": err["principal_point_err_px"],
+        "rotation_err_deg": err["rotation_err_deg"], "translation_err_mm": err["translation_err_mm"],
+        "points_rows": int(len(res.points)),
+    }
+    out.update(_points_vs_truth(res, truth))
+    return out
+
+
+def _points_vs_truth(res, truth) -> dict:
+    """Mean distance of the points table's XYZ (and of triangulated pixels) from the true world
+    corners, using the true cameras to place the truth when no corner table is available."""
+    from sandtrack_tui.triangulation import triangulate
+
+    pts = res.points
+    if pts is None or not len(pts):
+        return {}
+    px = {"side": pts[["xs", "ys"]].to_numpy(float), "front": pts[["xf", "yf"]].to_numpy(float)}
+    xyz_est, _ = triangulate(res.calibration, px, refine=True)
+    xyz_true, _ = triangulate(truth, px, refine=True)
+    table = pts[["X_mm", "Y_mm", "Z_mm"]].to_numpy(float)
+    return {
+        "triangulated_vs_true_cameras_mean_mm": float(np.nanmean(np.linalg.norm(xyz_est - xyz_true, axis=1))),
+        "points_table_vs_true_cameras_mean_mm": float(np.nanmean(np.linalg.norm(table - xyz_true, axis=1))),
+    }
+
+
+if __name__ == "__main__":
+    print(json.dumps(run(), indent=2, default=float))
