@@ -4,9 +4,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from rich import box
+from rich.columns import Columns
+from rich.table import Table
 from textual.app import ComposeResult
 from textual.containers import Horizontal, VerticalScroll
-from textual.widgets import Button, Footer, Input, Label, Markdown, Select, Static
+from textual.widgets import Button, Footer, Input, Label, Select, Static
 
 from ..core import core
 from .base import TaskScreen
@@ -39,13 +42,20 @@ class CompareScreen(TaskScreen):
                 yield Label("XYZ by:")
                 yield Select([("triangulation", "triangulation"), ("network (MLP)", "mlp")],
                              value="triangulation", allow_blank=False, id="method", compact=True)
-                yield Select([("match by id, else nearest", "auto"), ("by id", "id"), ("nearest start", "nearest")],
-                             value="auto", allow_blank=False, id="match", compact=True)
+                # marker ids in a project are the operator's or auto-seed's, not the DEM's particle ids
+                yield Select([("match by nearest start", "nearest"), ("match by id", "id"),
+                              ("by id, else nearest", "auto")], value="nearest", allow_blank=False, id="match",
+                             compact=True)
                 yield Button("Compare", id="run", variant="primary", compact=True)
             yield self.progress_row()
-            yield Markdown("", id="summary")
+            yield Static("", id="summary")
             yield Static("", id="plot")
         yield Footer()
+
+    def on_mount(self) -> None:
+        box = self.query_one("#dem", Input)
+        if not box.value.strip() or not Path(box.value.strip()).expanduser().is_file():
+            box.focus()  # nothing to run yet: type the file first
 
     def on_button_pressed(self, event: Button.Pressed) -> None:
         self.start()
@@ -54,8 +64,9 @@ class CompareScreen(TaskScreen):
         self.start()
 
     def start(self) -> None:
-        dem_path = Path(self.query_one("#dem", Input).value.strip()).expanduser()
-        if not dem_path.exists():
+        text = self.query_one("#dem", Input).value.strip()
+        dem_path = Path(text).expanduser()
+        if not text or not dem_path.exists():
             self.notify(f"file not found: {dem_path}", severity="error")
             return
         method = str(self.query_one("#method", Select).value)
@@ -79,17 +90,24 @@ class CompareScreen(TaskScreen):
 
     def show_result(self, result) -> None:
         cmp, plot = result
-        lines = ["| figure | value |", "|---|---|"]
+        summary = Table(box=box.SIMPLE_HEAD, show_header=True, title="Summary", title_justify="left")
+        summary.add_column("figure")
+        summary.add_column("value", justify="right")
         for k in SUMMARY_KEYS:
             if k in cmp.summary:
                 v = cmp.summary[k]
-                lines.append(f"| {k} | {v:.4g} |" if isinstance(v, float) else f"| {k} | {v} |")
+                summary.add_row(k, f"{v:.4g}" if isinstance(v, float) else str(v))
         per = cmp.per_particle
+        parts = [summary]
         if len(per):
-            cols = [c for c in ("marker", "particle_id", "rmse_3d_mm", "final_error_mm", "frechet_mm", "flagged")
-                    if c in per.columns]
-            lines += ["", "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+            cols = [c for c in ("marker", "particle_id", "rmse_3d_mm", "final_error_mm", "frechet_mm",
+                                "dtw_norm_mm", "flagged") if c in per.columns]
+            table = Table(box=box.SIMPLE_HEAD, title="Per marker", title_justify="left")
+            for c in cols:
+                table.add_column(c, justify="right")
             for r in per[cols].itertuples(index=False):
-                lines.append("| " + " | ".join(f"{v:.2f}" if isinstance(v, float) else str(v) for v in r) + " |")
-        self.query_one("#summary", Markdown).update("\n".join(lines))
+                table.add_row(*(f"{v:.2f}" if isinstance(v, float) else str(v) for v in r),
+                              style="red" if getattr(r, "flagged", False) else None)
+            parts.append(table)
+        self.query_one("#summary", Static).update(Columns(parts, padding=(0, 4)))
         self.query_one("#plot", Static).update(plot)

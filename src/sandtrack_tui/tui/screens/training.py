@@ -50,12 +50,18 @@ class TrainingScreen(TaskScreen):
             yield Markdown(metrics_markdown(info.get("metrics", {})), id="metrics")
         yield Footer()
 
+    def on_mount(self) -> None:
+        box = self.query_one("#points", Input)
+        if not box.value.strip() or not Path(box.value.strip()).expanduser().is_file():
+            box.focus()  # nothing to run yet: type the file first
+
     def on_button_pressed(self, event: Button.Pressed) -> None:
         self.start()
 
     def start(self) -> None:
-        path = Path(self.query_one("#points", Input).value.strip()).expanduser()
-        if not path.is_file():
+        text = self.query_one("#points", Input).value.strip()
+        path = Path(text).expanduser()
+        if not text or not path.is_file():
             self.notify(f"file not found: {path}", severity="error")
             return
         reg = self.reg
