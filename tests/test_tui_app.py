@@ -318,3 +318,37 @@ async def test_keys_on_other_screens_and_bad_edits_never_kill_the_app(project):
         await pilot.press("right")
         await settle(pilot, app)
         assert app.frame == 1
+
+
+@aio
+async def test_escape_cancels_a_running_track(project, monkeypatch):
+    import time as _time
+
+    import sandtrack_tui.tracking.run as run
+
+    seen = {}
+
+    def slow_track(proj, markers=None, start=None, stop=None, direction="forward", progress=None,
+                   should_stop=None, sources=None):
+        for k in range(500):
+            if should_stop():
+                seen["stopped_at"] = k
+                return {"direction": direction, "rows_written": k, "stopped": True}
+            progress(k, 500)
+            _time.sleep(0.01)
+        return {"direction": direction, "rows_written": 500, "stopped": False}
+
+    monkeypatch.setattr(run, "track_project", slow_track)
+    app = SandtrackApp(project)
+    async with app.run_test(size=SIZE) as pilot:
+        await settle(pilot, app)
+        await pilot.press("r")
+        await pilot.pause(0.3)
+        assert app.bg_task is not None
+        await pilot.press("right")  # the UI stays responsive while the worker runs
+        await settle(pilot, app)
+        assert app.frame == 1
+        await pilot.press("escape")
+        await settle(pilot, app, lambda: app.bg_task is None)
+        assert 0 < seen["stopped_at"] < 500
+        assert any("cancelled" in n.message for n in app._notifications)

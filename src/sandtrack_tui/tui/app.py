@@ -910,11 +910,11 @@ class SandtrackApp(App):
             last = [0.0]
             me = get_current_worker()
 
-            def progress(done, total, *_, **__):
+            def progress(done, total, text: str = "", *_, **__):
                 now = time.perf_counter()
                 if now - last[0] >= 0.2 or done >= total:
                     last[0] = now
-                    app.post_message(TaskProgress(name, int(done), int(total)))
+                    app.post_message(TaskProgress(name, int(done), int(total), str(text)))
 
             def should_stop() -> bool:
                 return task.cancel_requested or me.is_cancelled
@@ -943,7 +943,7 @@ class SandtrackApp(App):
         bar = self._w['task-bar']
         bar.update(total=max(msg.total, 1), progress=msg.done)
         if hasattr(self.screen, "task_progress"):
-            self.screen.task_progress(msg.done, msg.total)
+            self.screen.task_progress(msg.done, msg.total, msg.text)
         if self.bg_task is not None and self.bg_task.name.startswith("tracking") and time.perf_counter() - getattr(
                 self, "_last_live_reload", 0.0) > 1.0:
             self._last_live_reload = time.perf_counter()

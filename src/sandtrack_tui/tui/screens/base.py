@@ -12,7 +12,7 @@ class TaskScreen(Screen):
     DEFAULT_CSS = """
     TaskScreen { padding: 0 1; }
     TaskScreen .title { text-style: bold; color: $accent; margin-bottom: 1; }
-    TaskScreen .row { height: auto; margin-bottom: 1; }
+    TaskScreen .row { height: auto; margin-bottom: 0; }
     TaskScreen .row > * { margin-right: 1; }
     TaskScreen .row Label { padding-top: 0; }
     TaskScreen Input { width: 1fr; }
@@ -39,9 +39,11 @@ class TaskScreen(Screen):
             self.query_one("#progress-bar", ProgressBar).update(total=None, progress=0)
             self.query_one("#progress-row").add_class("-running")
 
-    def task_progress(self, done: int, total: int) -> None:
+    def task_progress(self, done: int, total: int, text: str = "") -> None:
         if self.query("#progress-bar"):
             self.query_one("#progress-bar", ProgressBar).update(total=max(total, 1), progress=done)
+            if text:
+                self.query_one("#progress-label", Label).update(f"{text} ")
 
     def task_finished(self) -> None:
         if self.query("#progress-row"):

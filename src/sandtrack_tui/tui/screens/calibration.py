@@ -1,64 +1,171 @@
-"""Calibration summary: each camera's intrinsics, pose and errors; load a calibration.toml."""
+"""Calibration: summary of the project's calibration; calibrate from the ChArUco videos, or load a
+calibration.toml."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
+from rich import box
+from rich.table import Table
 from textual.app import ComposeResult
 from textual.containers import Horizontal, VerticalScroll
-from textual.widgets import Button, Footer, Input, Label, Markdown, Static
+from textual.widgets import Button, Footer, Input, Label, Static
 
 from ...camera import Calibration, euler_angles_deg
 from ...errors import SandtrackError
+from ..core import core
 from .base import TaskScreen
 
 
-def summary_markdown(cal: Calibration | None) -> str:
+def summary_table(cal: Calibration | None):
     if cal is None:
-        return ("No calibration yet. Calibrate with `sandtrack calibrate` (ChArUco video) or load a "
-                "`calibration.toml` below.")
-    lines = ["| camera | model | size | fx | fy | cx | cy | centre mm (rig) | angles ° | rmse px |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+        return "No calibration yet: calibrate from the board videos below, or load a calibration.toml."
+    t = Table(box=box.SIMPLE_HEAD, title="Cameras (rig frame = first camera, mm)", title_justify="left")
+    for c in ("camera", "model", "size", "fx", "fy", "cx", "cy", "centre mm", "angles °", "rmse px"):
+        t.add_column(c, justify="right")
     for name, c in cal.cameras.items():
         K = c.matrix
-        ctr = ", ".join(f"{v:.0f}" for v in c.center_mm)
-        ang = ", ".join(f"{v:.1f}" for v in euler_angles_deg(c.R))
-        rmse = "—" if c.rmse_px is None else f"{c.rmse_px:.3f}"
-        lines.append(f"| {name} | {c.model} | {c.width}×{c.height} | {K[0, 0]:.1f} | {K[1, 1]:.1f} | "
-                     f"{K[0, 2]:.1f} | {K[1, 2]:.1f} | {ctr} | {ang} | {rmse} |")
+        t.add_row(name, c.model, f"{c.width}×{c.height}", f"{K[0, 0]:.1f}", f"{K[1, 1]:.1f}", f"{K[0, 2]:.1f}",
+                  f"{K[1, 2]:.1f}", ", ".join(f"{v:.0f}" for v in c.center_mm),
+                  ", ".join(f"{v:.1f}" for v in euler_angles_deg(c.R)),
+                  "—" if c.rmse_px is None else f"{c.rmse_px:.3f}")
     names = list(cal.cameras)
     if len(names) >= 2:
-        a, b = cal.cameras[names[0]], cal.cameras[names[1]]
-        base = float(np.linalg.norm(a.center_mm - b.center_mm))
-        lines.append(f"\nBaseline {names[0]}–{names[1]}: **{base:.1f} mm**")
-    if cal.report:
-        lines.append("\n**Report**\n")
-        for k, v in cal.report.items():
-            if isinstance(v, (int, float, str)):
-                lines.append(f"- {k}: {v:.4g}" if isinstance(v, float) else f"- {k}: {v}")
-    return "\n".join(lines)
+        base = float(np.linalg.norm(cal.cameras[names[0]].center_mm - cal.cameras[names[1]].center_mm))
+        t.caption = f"baseline {names[0]}–{names[1]}: {base:.1f} mm"
+    scalars = {k: v for k, v in (cal.report or {}).items() if isinstance(v, (int, float, str))}
+    if not scalars:
+        return t
+    r = Table(box=box.SIMPLE_HEAD, title="Report", title_justify="left")
+    r.add_column("figure")
+    r.add_column("value", justify="right")
+    for k, v in scalars.items():
+        r.add_row(k, f"{v:.4g}" if isinstance(v, float) else str(v))
+    from rich.console import Group
+
+    return Group(t, r)
+
+
+def guess_inputs(project) -> dict[str, str]:
+    """Calibration videos, board and reference next to the experiment videos, as the sample lays
+    them out (experiment/ and calibration/ side by side, board.toml above)."""
+    out = {"side": "", "front": "", "board": "", "reference": ""}
+    vids = project.videos()
+    if "side" not in vids:
+        return out
+    exp = Path(vids["side"].path).parent
+    for root in (exp.parent / "calibration", exp):
+        for cam in ("side", "front"):
+            for suffix in (".mp4", ".MP4", ".mov"):
+                p = root / f"{cam}{suffix}"
+                if not out[cam] and p.is_file() and str(p) != vids[cam].path:
+                    out[cam] = str(p)
+        if not out["reference"] and (root / "reference.toml").is_file():
+            out["reference"] = str(root / "reference.toml")
+    for p in (exp.parent / "board.toml", exp / "board.toml"):
+        if not out["board"] and p.is_file():
+            out["board"] = str(p)
+    return out
 
 
 class CalibrationScreen(TaskScreen):
+    AUTO_FOCUS = "#calibrate"
+    BINDINGS = [*TaskScreen.BINDINGS, ("ctrl+r", "go", "calibrate")]
+
+    def action_go(self) -> None:
+        self.calibrate()
+
     def compose(self) -> ComposeResult:
+        guess = guess_inputs(self.main.project)
+        points = self.main.project.path.with_name(self.main.project.path.stem + "_points.csv")
         with VerticalScroll():
             yield Static("Calibration", classes="title")
-            yield Markdown(summary_markdown(self.main._calibration), id="summary")
+            yield Static(summary_table(self.main._calibration), id="summary")
+            yield Static("[b]Calibrate from the board videos[/] (ChArUco; the sync is found from their audio)")
+            for key, label, hint in (("side", "Side video:", "calibration video of the side camera"),
+                                     ("front", "Front video:", "calibration video of the front camera"),
+                                     ("board", "Board:", "board.toml or Caliscope charuco.toml"),
+                                     ("reference", "Reference:", "reference.toml (board flat on the sand), optional"),
+                                     ("points", "Points CSV:", "write the calibration points here (for training)")):
+                with Horizontal(classes="row"):
+                    yield Label(f"{label:<13}")
+                    yield Input(value=str(points) if key == "points" else guess[key], placeholder=hint, id=key,
+                                compact=True)
             with Horizontal(classes="row"):
-                yield Label("Load calibration.toml:")
-                yield Input(placeholder="path/to/calibration.toml", id="path")
-                yield Button("Load", id="load", variant="primary", compact=True)
+                yield Button("Calibrate", id="calibrate", variant="primary", compact=True)
+            yield self.progress_row()
+            yield Static("", id="result", classes="result")
+            with Horizontal(classes="row"):
+                yield Label("Or load:      ")
+                yield Input(placeholder="path/to/calibration.toml", id="path", compact=True)
+                yield Button("Load", id="load", compact=True)
         yield Footer()
 
     def on_button_pressed(self, event: Button.Pressed) -> None:
-        self.load()
+        if event.button.id == "load":
+            self.load()
+        else:
+            self.calibrate()
 
     def on_input_submitted(self, event: Input.Submitted) -> None:
-        self.load()
+        if event.input.id == "path":
+            self.load()
+
+    def _value(self, key: str) -> str:
+        return self.query_one(f"#{key}", Input).value.strip()
+
+    def calibrate(self) -> None:
+        pipeline = core("calibration.pipeline", "calibrate_videos")
+        videos = {cam: Path(self._value(cam)).expanduser() for cam in ("side", "front")}
+        for cam, p in videos.items():
+            if not self._value(cam) or not p.exists():
+                self.notify(f"{cam} calibration video not found: {p}", severity="error")
+                return
+        if not self._value("board"):
+            self.notify("give the board file (board.toml)", severity="error")
+            return
+        board_path, ref, points = self._value("board"), self._value("reference"), self._value("points")
+        main = self.main
+
+        def job(progress, should_stop):
+            from ...board import load_board
+            from ...calibration.points import write_points
+            from ...calibration.world import load_reference
+
+            board = load_board(board_path)
+            frame, origin = load_reference(ref) if ref else (None, (0.0, 0.0, 0.0))
+            res = pipeline.calibrate_videos(videos, board, reference_frame=frame, origin_mm=origin,
+                                            with_points=bool(points),
+                                            progress=lambda stage, done, total: progress(done, total, stage))
+            proj = main._worker_project()
+            try:
+                proj.set_calibration(res.calibration)
+                proj.set("board", board.to_json_dict(), "set board")
+                if points and res.points is not None:
+                    write_points(res.points, points)
+                    proj.set("calibration_points", points, "remember calibration points")
+            finally:
+                proj.close()
+            return res
+
+        self.query_one("#result", Static).update("[yellow]calibrating… (a minute or two)[/]")
+        main.run_task("calibration", job, on_result=self.show_result, refresh_points=False)
+
+    def show_result(self, res) -> None:
+        self.main.calibration_changed()
+        rep = res.report
+        lines = [f"[green]calibrated[/]: reprojection RMSE {rep.get('reprojection_rmse_px', float('nan')):.3f} px"]
+        if rep.get("board_rmse_mm") is not None:
+            lines.append(f"board geometry RMSE {rep['board_rmse_mm']:.3f} mm")
+        if res.points is not None:
+            lines.append(f"{len(res.points)} calibration points written (F4 trains on them)")
+        lines += [f"[yellow]warning[/]: {w}" for w in res.warnings]
+        self.query_one("#result", Static).update("\n".join(lines))
+        self.query_one("#summary", Static).update(summary_table(self.main._calibration))
 
     def load(self) -> None:
-        path = Path(self.query_one("#path", Input).value.strip()).expanduser()
+        path = Path(self._value("path")).expanduser()
         try:
             cal = Calibration.load(path)
             self.main.project.set_calibration(cal)
@@ -66,5 +173,5 @@ class CalibrationScreen(TaskScreen):
             self.notify(str(exc), severity="error")
             return
         self.main.calibration_changed()
-        self.query_one("#summary", Markdown).update(summary_markdown(cal))
+        self.query_one("#summary", Static).update(summary_table(cal))
         self.notify(f"calibration loaded from {path}")

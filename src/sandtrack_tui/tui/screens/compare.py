@@ -37,7 +37,7 @@ class CompareScreen(TaskScreen):
             with Horizontal(classes="row"):
                 yield Label("DEM file:")
                 yield Input(value=str(self.main.project.get("dem_path", "")), id="dem",
-                            placeholder="exchange CSV or LIGGGHTS/LAMMPS dump")
+                            placeholder="exchange CSV or LIGGGHTS/LAMMPS dump", compact=True)
             with Horizontal(classes="row"):
                 yield Label("XYZ by:")
                 yield Select([("triangulation", "triangulation"), ("network (MLP)", "mlp")],

@@ -43,7 +43,7 @@ class ExportScreen(TaskScreen):
                               ("network (MLP)", "mlp")], value="both", allow_blank=False, id="method", compact=True)
             with Horizontal(classes="row"):
                 yield Label("Path:")
-                yield Input(value=self.default_path("csv"), id="path")
+                yield Input(value=self.default_path("csv"), id="path", compact=True)
                 yield Button("Export", id="export", variant="primary", compact=True)
             yield self.progress_row()
             yield Static("", id="result", classes="result")

@@ -34,7 +34,7 @@ class SyncScreen(TaskScreen):
             yield Static("", id="result", classes="result")
             with Horizontal(classes="row"):
                 yield Label("Offset (ms):")
-                yield Input(value=f"{off * 1000:.3f}", id="offset", type="number")
+                yield Input(value=f"{off * 1000:.3f}", id="offset", type="number", compact=True)
                 yield Button("Apply", id="apply", variant="success", compact=True)
         yield Footer()
 

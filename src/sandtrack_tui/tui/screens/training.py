@@ -40,7 +40,7 @@ class TrainingScreen(TaskScreen):
             with Horizontal(classes="row"):
                 yield Label("Calibration points CSV:")
                 yield Input(value=str(self.main.project.get("calibration_points", "")), id="points",
-                            placeholder="points.csv: frame, corner_id, xs, ys, xf, yf, X_mm, Y_mm, Z_mm")
+                            placeholder="points.csv: frame, corner_id, xs, ys, xf, yf, X_mm, Y_mm, Z_mm", compact=True)
             with Horizontal(classes="row"):
                 yield Select([("full", "full"), ("quick preview", "fast")], value="full", allow_blank=False,
                              id="config", compact=True)
