@@ -61,8 +61,56 @@ class BoardDetector:
             self._local.det = det
         return det
 
-    def detect(self, image: np.ndarray) -> BoardView | None:
+    def detect(self, image: np.ndarray, hint: BoardView | None = None) -> BoardView | None:
+        """Find the board. `hint` (the board in a nearby frame) restricts the search to a window
+        around it first; large images are first searched at half size to find that window.
+        Windows only save time: the corners are always refined on full-resolution pixels."""
         gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+        if hint is not None and len(hint):
+            box = _box(hint.corners, gray.shape, grow=0.6)
+            found = self._detect_in(gray, box)
+            if found is not None and len(found) >= max(self.min_corners, int(0.8 * len(hint))):
+                return found
+        if self.board.type == "charuco" and max(gray.shape) > 1400:
+            box = self._locate(gray)
+            if box is not None:
+                found = self._detect_in(gray, box)
+                if found is not None:
+                    return found
+        return self._detect_full(gray)
+
+    def _detect_in(self, gray: np.ndarray, box) -> BoardView | None:
+        x0, y0, x1, y1 = box
+        view = self._detect_full(np.ascontiguousarray(gray[y0:y1, x0:x1]))
+        if view is None:
+            return None
+        view.corners = view.corners + [x0, y0]
+        return view
+
+    def _locate(self, gray: np.ndarray):
+        """Bounding box (x0, y0, x1, y1) of the ArUco markers found at half size, or None."""
+        small = cv2.resize(gray, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
+        det = getattr(self._local, "aruco", None)
+        if det is None:
+            params = cv2.aruco.DetectorParameters()
+            params.detectInvertedMarker = bool(self.board.inverted)
+            det = self._local.aruco = cv2.aruco.ArucoDetector(self.board.aruco_dictionary(), params)
+        pts = []
+        for img, flip in ((small, False), (np.ascontiguousarray(small[:, ::-1]), True)):
+            corners, ids, _ = det.detectMarkers(img)
+            if ids is not None and len(ids):
+                c = np.concatenate([m.reshape(-1, 2) for m in corners]) * 2.0
+                if flip:
+                    c[:, 0] = gray.shape[1] - 1 - c[:, 0]
+                pts.append(c)
+                break
+            if not self.mirror_search:
+                break
+        if not pts:
+            return None
+        return _box(pts[0], gray.shape, grow=0.5)
+
+    def _detect_full(self, gray: np.ndarray) -> BoardView | None:
         if self.board.type == "chessboard":
             found = self._detect_chessboard(gray)
             mirrored = False
@@ -110,6 +158,16 @@ class BoardDetector:
         g = self._grid[ids].astype(float)
         g -= g.mean(0)
         return np.linalg.matrix_rank(g, tol=1e-6) >= 2
+
+
+def _box(points: np.ndarray, shape, grow: float = 0.5):
+    """Integer window around points, enlarged by `grow` times its size on each side (at least 80 px)."""
+    lo, hi = points.min(0), points.max(0)
+    pad = np.maximum(grow * (hi - lo), 80.0)
+    x0, y0 = np.maximum(np.floor(lo - pad), 0).astype(int)
+    x1 = int(min(np.ceil(hi[0] + pad[0]), shape[1]))
+    y1 = int(min(np.ceil(hi[1] + pad[1]), shape[0]))
+    return x0, y0, x1, y1
 
 
 def _sharpness(gray: np.ndarray, corners: np.ndarray) -> float:
@@ -185,8 +243,10 @@ def _gray_frames(source: FrameSource, wanted: Sequence[int]):
 
 def detect_in_sources(sources: dict[str, FrameSource], board: BoardSpec, ref_frames: Sequence[int],
                       pairing: dict[str, np.ndarray], progress: ProgressFn | None = None,
-                      mirror_search: bool = True, workers: int = 2) -> dict[str, dict[int, BoardView]]:
-    """Detect the board in the given reference-camera frames of every camera (one thread per camera).
+                      mirror_search: bool = True, workers: int = 2,
+                      max_gap: int = 10) -> dict[str, dict[int, BoardView]]:
+    """Detect the board in the given reference-camera frames of every camera (one thread per camera),
+    searching first near where it was up to `max_gap` frames before.
     Returns {camera: {reference frame: BoardView}}."""
     detector = BoardDetector(board, mirror_search=mirror_search)
     names = list(sources)
@@ -202,8 +262,12 @@ def detect_in_sources(sources: dict[str, FrameSource], board: BoardSpec, ref_fra
             if j >= 0:
                 by_own.setdefault(int(j), []).append(f)
         views: dict[int, BoardView] = {}
+        last: tuple[int, BoardView] | None = None
         for j, gray in _gray_frames(sources[name], list(by_own)):
-            view = detector.detect(gray)
+            hint = last[1] if last is not None and j - last[0] <= max_gap else None
+            view = detector.detect(gray, hint)
+            if view is not None:
+                last = (j, view)
             for f in by_own[j]:
                 if view is not None:
                     views[f] = BoardView(frame=f, source_frame=j, ids=view.ids, corners=view.corners,
