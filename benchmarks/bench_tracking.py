@@ -24,8 +24,9 @@ sys.path.insert(0, str(ROOT / "src"))
 from sandtrack_tui.camera import Calibration  # noqa: E402
 from sandtrack_tui.store import Project  # noqa: E402
 from sandtrack_tui.tracking import synthetic  # noqa: E402
+from sandtrack_tui.tracking.decoding import prefetch  # noqa: E402
 from sandtrack_tui.tracking.mil_baseline import track_mil_many  # noqa: E402
-from sandtrack_tui.tracking.run import _Prefetch, accept_seeds, auto_seed, track_project  # noqa: E402
+from sandtrack_tui.tracking.run import accept_seeds, auto_seed, track_project  # noqa: E402
 from sandtrack_tui.tracking.seeding import marker_box, snap_to_marker  # noqa: E402
 from sandtrack_tui.video import FrameSource  # noqa: E402
 
@@ -90,7 +91,7 @@ def _decode_only(videos, n_frames: dict) -> tuple[float, float]:
     """(wall s, process CPU s) to decode the same frames with the same prefetching threads, no tracking."""
     srcs = {c: FrameSource(v, cache_mb=64) for c, v in videos.items()}
     t0, c0 = time.perf_counter(), time.process_time()
-    feeds = [_Prefetch(srcs[c], list(range(n_frames[c]))) for c in srcs]
+    feeds = [prefetch(srcs[c], list(range(n_frames[c]))) for c in srcs]
     for _ in range(max(n_frames.values())):
         for c, f in zip(srcs, feeds, strict=True):
             if _ < n_frames[c]:

@@ -15,15 +15,14 @@ sub-frame remainder before the epipolar check.
 
 from __future__ import annotations
 
-import queue
 import sys
-import threading
 import time
 
 import numpy as np
 import pandas as pd
 
 from ..errors import SandtrackError
+from .decoding import prefetch
 from .engine import Engine
 from .seeding import detect_markers, marker_box, pair_by_epipolar, snap_to_marker
 from .stereo import StereoCheck
@@ -173,43 +172,6 @@ def seed_marker(project, marker: int, camera: str, frame: int, x: float, y: floa
 
 
 # -- tracking ---------------------------------------------------------------------------------
-class _Prefetch:
-    """Decode one camera's frames in a thread, in the order they will be needed."""
-
-    def __init__(self, source, indices: list[int], depth: int = 6):
-        self.q: queue.Queue = queue.Queue(maxsize=depth)
-        self._stop = threading.Event()
-        self._t = threading.Thread(target=self._run, args=(source, indices), daemon=True)
-        self._t.start()
-
-    def _run(self, source, indices):
-        try:
-            for j in indices:
-                if self._stop.is_set():
-                    return
-                self._put((j, source.frame(j)))
-        except BaseException as exc:  # handed to the consumer
-            self._put(exc)
-
-    def _put(self, item):
-        while not self._stop.is_set():
-            try:
-                self.q.put(item, timeout=0.1)
-                return
-            except queue.Full:
-                continue
-
-    def get(self):
-        item = self.q.get()
-        if isinstance(item, BaseException):
-            raise item
-        return item
-
-    def close(self):
-        self._stop.set()
-        self._t.join(timeout=2)
-
-
 def _close(sources):
     for s in sources.values():
         close = getattr(s, "close", None)
@@ -255,7 +217,7 @@ def track_project(project, markers=None, start: int | None = None, stop: int | N
     dirn = 1 if direction == "forward" else -1
     own = sources is None
     sources = sources or project.open_sources()
-    prefetch: list[_Prefetch] = []
+    feeds_list: list = []
     # The decoder threads need the GIL briefly for every frame; with the default 5 ms switch
     # interval they queue behind the tracking thread and decoding slows down a lot.
     switch = sys.getswitchinterval()
@@ -319,8 +281,9 @@ def track_project(project, markers=None, start: int | None = None, stop: int | N
                   for r in man_pts.itertuples() if (int(r.marker), r.camera) in engine.tracks}
         for key, (f, _, _) in seeds.items():
             manual.pop((key[0], key[1], f), None)
-        prefetch = [_Prefetch(sources[c], [st[c][0] for st in steps if c in st]) for c in cams]
-        feeds = dict(zip(cams, prefetch, strict=True))
+        feeds_list = [prefetch(sources[c], [st[c][0] for st in steps if c in st])
+                      for c in cams]
+        feeds = dict(zip(cams, feeds_list, strict=True))
         t0 = time.perf_counter()
         t_track = cpu_track = 0.0
         n_obs = 0
@@ -369,7 +332,7 @@ def track_project(project, markers=None, start: int | None = None, stop: int | N
         return summary
     finally:
         sys.setswitchinterval(switch)
-        for p in prefetch:
+        for p in feeds_list:
             p.close()
         if own:
             _close(sources)
