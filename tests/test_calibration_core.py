@@ -214,3 +214,19 @@ translation = [-0.5, 0.0, 0.0]
     bad.write_text("[something]\nx = 1\n")
     with pytest.raises(SandtrackError, match="no calibrated cameras"):
         import_caliscope(bad)
+
+
+def test_fisheye_rig_from_exact_views():
+    from sandtrack_tui.calibration.rig import calibrate_rig
+
+    truth = stereo_rig()
+    for cam, d in zip(truth.cameras.values(), ([0.05, -0.02, 0.004, -0.001], [-0.03, 0.01, 0.0, 0.0]), strict=True):
+        cam.model, cam.distortion = "fisheye", np.array(d)
+    poses = board_poses(24, BOARD, seed=8)
+    views = _exact_views(truth, poses)
+    rr = calibrate_rig(views, BOARD, {n: (c.width, c.height) for n, c in truth.cameras.items()},
+                       models={"side": "fisheye", "front": "fisheye"})
+    err = relative_pose_errors(rr.calibration, truth)
+    assert rr.calibration.cameras["front"].model == "fisheye"
+    assert err["focal_rel_err"] < 1e-4 and err["translation_err_mm"] < 0.01
+    assert rr.bundle["rmse_px"] < 1e-3

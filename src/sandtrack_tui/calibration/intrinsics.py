@@ -12,7 +12,7 @@ import numpy as np
 from ..board import BoardSpec
 from ..errors import SandtrackError
 from .detect import BoardView
-from .geometry import radial_is_monotonic
+from .geometry import distort_project, radial_is_monotonic
 
 GRID = (8, 6)  # coverage cells across, down
 
@@ -108,30 +108,33 @@ def coverage_report(views: dict[int, BoardView], frames: list[int], size: tuple[
     }
 
 
-def _calibrate(obj, img, size, model, flags_extra=0, K0=None):
-    if model == "fisheye":
-        flags = cv2.fisheye.CALIB_RECOMPUTE_EXTRINSIC | cv2.fisheye.CALIB_FIX_SKEW | flags_extra
-        K = np.eye(3) if K0 is None else K0.copy()
-        if K0 is not None:
-            flags |= cv2.fisheye.CALIB_USE_INTRINSIC_GUESS
-        crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-9)
-        rms, K, D, rvecs, tvecs = cv2.fisheye.calibrate(
-            [o.reshape(-1, 1, 3) for o in obj], [i.reshape(-1, 1, 2) for i in img], size, K, np.zeros(4),
-            flags=flags, criteria=crit)
-    else:
-        crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-9)
-        rms, K, D, rvecs, tvecs = cv2.calibrateCamera(
-            [o.astype(np.float32) for o in obj], [i.astype(np.float32) for i in img], size, None, None,
-            flags=flags_extra, criteria=crit)
-    return float(rms), K, np.asarray(D, dtype=np.float64).ravel(), rvecs, tvecs
+def _calibrate(obj, img, size, model, flags_extra=0):
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-9)
+    obj32 = [o.astype(np.float32) for o in obj]
+    img32 = [i.astype(np.float32) for i in img]
+    if model != "fisheye":
+        rms, K, D, rvecs, tvecs = cv2.calibrateCamera(obj32, img32, size, None, None, flags=flags_extra, criteria=crit)
+        return float(rms), K, np.asarray(D, dtype=np.float64).ravel(), rvecs, tvecs
+    # Fisheye: a distortion-free pinhole start, then the fisheye model fitted by our bundle adjustment.
+    from .bundle import BundleState, Observations, bundle_adjust
+
+    flags = cv2.CALIB_FIX_K1 | cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3 | cv2.CALIB_ZERO_TANGENT_DIST
+    _, K, _, rvecs, tvecs = cv2.calibrateCamera(obj32, img32, size, None, None, flags=flags, criteria=crit)
+    n = [len(o) for o in obj]
+    obs = Observations(cam=np.zeros(sum(n), int), frame=np.repeat(np.arange(len(obj)), n),
+                       corner=np.zeros(sum(n), int), board_xyz=np.concatenate(obj), uv=np.concatenate(img))
+    state = BundleState(cam_rvec=np.zeros((1, 3)), cam_tvec=np.zeros((1, 3)), K=np.asarray(K, float)[None],
+                        dist=[np.zeros(4)], models=["fisheye"],
+                        frame_rvec=np.array([np.ravel(r) for r in rvecs]),
+                        frame_tvec=np.array([np.ravel(t) for t in tvecs]), fixed_k3=[False])
+    state, info = bundle_adjust(state, obs, free_cameras=False, loss="linear")
+    return info["rmse_px"], state.K[0], state.dist[0], list(state.frame_rvec), list(state.frame_tvec)
 
 
 def _view_rmse(obj, img, K, D, rvec, tvec, model) -> float:
-    if model == "fisheye":
-        proj, _ = cv2.fisheye.projectPoints(obj.reshape(-1, 1, 3), rvec, tvec, K, D)
-    else:
-        proj, _ = cv2.projectPoints(obj, rvec, tvec, K, D)
-    return float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - img) ** 2, axis=1))))
+    R = cv2.Rodrigues(np.asarray(rvec, float).reshape(3, 1))[0]
+    proj = distort_project(obj @ R.T + np.ravel(tvec), K, D, model)
+    return float(np.sqrt(np.mean(np.sum((proj - img) ** 2, axis=1))))
 
 
 def calibrate_intrinsics(name: str, views: dict[int, BoardView], board: BoardSpec, size: tuple[int, int],
@@ -212,7 +215,8 @@ def board_pose(view: BoardView, board: BoardSpec, K: np.ndarray, D: np.ndarray,
     obj = board.corner_points_mm()[view.ids]
     img = view.corners
     if model == "fisheye":
-        img = cv2.fisheye.undistortPoints(img.reshape(-1, 1, 2), K, D, P=K).reshape(-1, 2)
+        crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10)
+        img = cv2.fisheye.undistortPoints(img.reshape(-1, 1, 2), K, D, P=K, criteria=crit).reshape(-1, 2)
         D = np.zeros(5)
     try:
         ok, rvec, tvec = cv2.solvePnP(obj, img, K, D, flags=cv2.SOLVEPNP_IPPE)
