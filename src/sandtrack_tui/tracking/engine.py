@@ -69,11 +69,12 @@ class Engine:
                     forced[key] = man
                     continue
                 live[cam].append(t)
+            crowd = self._neighbours(live[cam])
             for t in live[cam]:
                 if t.coasting:
                     continue
                 m = t.propose(img)
-                if m is not None and self._crowded_reject(t, m, live[cam]):
+                if m is not None and self._crowded_reject(t, m, crowd.get(id(t), ())):
                     m = None
                 if m is not None:
                     props[(t.marker, cam)] = _Proposal(m)
@@ -95,23 +96,31 @@ class Engine:
         return obs
 
     # -- steps ---------------------------------------------------------------------------------
-    def _crowded_reject(self, t: MarkerTrack, m: Match, tracks) -> bool:
+    def _neighbours(self, tracks) -> dict:
+        """For each track, the other tracks whose predictions touch it: id(track) -> [(track, xy)]."""
+        if len(tracks) < 2:
+            return {}
+        P = np.array([t.kf.x[:2] for t in tracks])
+        r = np.array([t.model.radius for t in tracks])
+        d = np.hypot(P[:, None, 0] - P[None, :, 0], P[:, None, 1] - P[None, :, 1])
+        close = d < self.crowd_factor * (r[:, None] + r[None, :])
+        np.fill_diagonal(close, False)
+        out = {}
+        for i, k in zip(*np.nonzero(close), strict=True):
+            out.setdefault(id(tracks[i]), []).append((tracks[k], P[k]))
+        return out
+
+    def _crowded_reject(self, t: MarkerTrack, m: Match, neighbours) -> bool:
         """Markers touching each other: their discs merge, the centroid and the NCC peak both lie.
-        Keep a match only if it is clearly this marker's: high score, not a merged blob, and nearer
-        to this track's prediction than to the neighbour's. Otherwise the track coasts (honestly)."""
-        p = t.kf.position
-        crowded = False
-        for o in tracks:
-            if o is t:
-                continue
-            q = o.kf.position
-            if np.hypot(*(p - q)) < self.crowd_factor * (t.model.radius + o.model.radius):
-                crowded = True
-                if t.kf.mahalanobis2((m.x, m.y))[0] >= t.kf.mahalanobis2(q)[0] * 0.25 + m.d2 * 0 \
-                        and np.hypot(m.x - q[0], m.y - q[1]) < np.hypot(m.x - p[0], m.y - p[1]):
-                    return True
-        if not crowded:
+        Keep a match only if it is clearly this marker's: nearer to this track's prediction than to
+        the neighbour's, a high score, not a merged blob. Otherwise the track coasts (honestly)."""
+        if not neighbours:
             return False
+        p = t.kf.x[:2]
+        own = np.hypot(m.x - p[0], m.y - p[1])
+        for _o, q in neighbours:
+            if np.hypot(m.x - q[0], m.y - q[1]) < own:
+                return True
         return m.score < self.crowded_min_score or m.colour_frac > self.crowded_max_colour
 
     def _resolve_conflicts(self, tracks, props, forced) -> None:

@@ -34,7 +34,7 @@ class TrackParams:
     lost_after: int = 25  # frames of coasting before a track is declared lost
     accel_px: float = 2.0  # Kalman process noise: white acceleration, px/frame²
     meas_px: float = 0.3  # measurement noise, px
-    max_search_px: float = 120.0  # cap of the half search window while hidden
+    max_search_px: float = 80.0  # cap of the half search window while hidden
     gate_d2: float = GATE_D2
 
 
