@@ -40,7 +40,7 @@ def scene_audio(rate: int, file_start_world_s: float, audio_start_s: float, dura
 
 
 def write_av(path, fps: int = 50, n_frames: int = 100, size=(64, 48), frame_fn=None, audio=None,
-             rate: int = 48000, audio_start_s: float = 0.0) -> None:
+             rate: int = 48000, audio_start_s: float = 0.0, gop: int | None = None) -> None:
     """Write an mp4 (H.264 video, optional AAC mono audio starting `audio_start_s` into the file)."""
     # movie_timescale: the mp4 muxer otherwise stores the audio's start gap (edit list) in whole
     # milliseconds, which moves the audio by up to 1 ms (e.g. 32 samples for a 50 ms start)
@@ -48,7 +48,7 @@ def write_av(path, fps: int = 50, n_frames: int = 100, size=(64, 48), frame_fn=N
     vs = c.add_stream("libx264", rate=fps)
     vs.width, vs.height = size
     vs.pix_fmt = "yuv420p"
-    vs.options = {"preset": "ultrafast", "crf": "18"}
+    vs.options = {"preset": "ultrafast", "crf": "18", **({"g": str(gop), "keyint_min": str(gop)} if gop else {})}
     ast = None
     if audio is not None:
         ast = c.add_stream("aac", rate=rate)
@@ -78,7 +78,7 @@ def write_av(path, fps: int = 50, n_frames: int = 100, size=(64, 48), frame_fn=N
 
 def make_pair(folder, offset_s: float = 0.7473, clap_world_s: float = 2.3, duration_s: float = 4.0,
               audio_start=(0.25, 0.05), fps: int = 50, seed: int = 0, rate: int = 48000, with_audio: bool = True,
-              frame_fns=(None, None), **audio_kw):
+              frame_fns=(None, None), gop: int | None = None, **audio_kw):
     """side.mp4 and front.mp4 in `folder`; returns their paths."""
     rng = np.random.default_rng(seed)
     wave = clap(rate, rng)
@@ -90,6 +90,6 @@ def make_pair(folder, offset_s: float = 0.7473, clap_world_s: float = 2.3, durat
             audio = scene_audio(rate, start_world, a0, duration_s - a0, clap_world_s, wave, rng, **audio_kw)
         p = folder / f"{name}.mp4"
         write_av(p, fps=fps, n_frames=int(duration_s * fps), frame_fn=fn, audio=audio, rate=rate,
-                 audio_start_s=a0)
+                 audio_start_s=a0, gop=gop)
         paths.append(p)
     return paths

@@ -133,9 +133,11 @@ def _motion_fn(start_world, speed):
         x = min(5 + speed * max(0.0, t - 1.9), 50)
         cols = np.arange(64)
         cover = np.clip(np.minimum(cols + 1 - x, x + 6 - cols), 0, 1)  # anti-aliased block
-        img = np.full((48, 64), 90.0)
+        # fresh sensor noise every frame, as in real footage; with keyframes every 40 frames (the
+        # same file frames in both views) the coding noise jumps there: not motion
+        img = np.full((48, 64), 90.0) + np.random.default_rng(i).normal(0, 4, (48, 64))
         img[15:30] += 140 * cover[None]
-        return np.repeat(img[:, :, None].astype(np.uint8), 3, axis=2)
+        return np.repeat(np.clip(img, 0, 255)[:, :, None].astype(np.uint8), 3, axis=2)
     return fn
 
 
@@ -149,7 +151,7 @@ def test_video_fallback_flash(tmp_path):
 
 
 def test_video_fallback_motion(tmp_path):
-    side, front = make_pair(tmp_path, offset_s=TRUE_OFFSET, with_audio=False,
+    side, front = make_pair(tmp_path, offset_s=TRUE_OFFSET, with_audio=False, gop=40,
                             frame_fns=(_motion_fn(0.0, 30), _motion_fn(TRUE_OFFSET, 21)))
     res = sync.estimate_offset(side, front, method="video")
     assert res.method == "motion"

@@ -28,9 +28,12 @@ Audio (preferred)
 
 Video fallback (no usable audio)
     Per frame, a small grey image: mean brightness (a flash) and mean absolute frame difference
-    (the tool's motion). The event's time in each view is where the normalised curve first
-    crosses 25 % of its rise (linear interpolation between frames: sub-frame); the offset is the
-    difference, cross-checked by correlating the two normalised curves.
+    (the tool's motion). The event's time in each view is where the curve first rises above its
+    baseline: a flash at 25 % of its step, the motion once 6 noise sigmas above
+    the baseline for 10 frames (0.2 s) running, after a 3-frame running median (keyframes' one-frame
+    spikes of coding noise are not motion); linear interpolation between frames gives sub-frame
+    times. A flash is cross-checked by correlating the changes of the two curves. The motion onset
+    is good to about a frame (the views see the motion differently), so its confidence is capped.
 """
 
 from __future__ import annotations
@@ -469,25 +472,37 @@ def _activity(src, max_frames: int | None = None, size=(96, 54)) -> tuple[np.nda
     return np.asarray(src.times_s[:n], dtype=np.float64), bright, motion
 
 
-def _onset(t: np.ndarray, y: np.ndarray, level: float = 0.25, min_rise: float = 0.0) -> tuple[float, float] | None:
-    """Time where y first rises through `level` of its rise above the baseline (sub-frame), and a
-    sharpness score (rise / baseline noise, noise floored at 1 % of the rise)."""
+def _onset(t: np.ndarray, y: np.ndarray, min_rise: float = 0.0, smooth: int = 1,
+           sustain: int = 1, level: float = 0.25) -> tuple[float, float] | None:
+    """Time where y first rises above its baseline and stays there for `sustain` frames (sub-frame,
+    by linear interpolation), and a sharpness score (rise / baseline noise).
+
+    smooth > 1: a running median first, which removes one-frame spikes (a keyframe's change of
+    coding noise looks like motion in every view at the same file time). The threshold is
+    baseline + max(6 noise sigmas, `level` x rise), the rise measured to the 95th percentile."""
     if len(y) < 8:
         return None
-    base_n = max(3, len(y) // 10)
+    if smooth > 1:
+        from scipy.ndimage import median_filter
+
+        y = median_filter(np.asarray(y, float), size=smooth, mode="nearest")
+    base_n = max(5, len(y) // 10)
     base = float(np.median(y[:base_n]))
-    top = float(np.max(y))
+    top = float(np.percentile(y, 95)) if smooth > 1 else float(np.max(y))
     rise = top - base
-    noise = max(1.4826 * float(np.median(np.abs(y[:base_n] - base))), 0.01 * rise, 1e-9)
-    if rise <= 8 * noise or rise < min_rise:
+    noise = max(1.4826 * float(np.median(np.abs(y[:base_n] - base))), 0.002 * abs(rise), 1e-9)
+    if rise <= 10 * noise or rise < min_rise:
         return None
-    thr = base + level * rise
-    above = np.nonzero(y > thr)[0]
-    if len(above) == 0 or above[0] == 0:
+    thr = base + max(6 * noise, level * rise)
+    above = y > thr
+    run = np.convolve(above.astype(int), np.ones(sustain, int), mode="full")[sustain - 1:]  # run[k] = sum above[k:k+s]
+    ok = np.nonzero(run[: len(y) - sustain + 1] == sustain)[0]
+    ok = ok[ok > 0]
+    if len(ok) == 0:
         return None
-    k = int(above[0])
-    f = (thr - y[k - 1]) / (y[k] - y[k - 1])
-    return float(t[k - 1] + f * (t[k] - t[k - 1])), rise / noise
+    k = int(ok[0])
+    f = (thr - y[k - 1]) / max(y[k] - y[k - 1], 1e-12)
+    return float(t[k - 1] + np.clip(f, 0, 1) * (t[k] - t[k - 1])), rise / noise
 
 
 def video_offset(side_src, front_src, fps: float | None = None, max_frames: int | None = None,
@@ -497,16 +512,16 @@ def video_offset(side_src, front_src, fps: float | None = None, max_frames: int 
     ts, bs, ms = _activity(side_src, max_frames)
     tf, bf, mf = _activity(front_src, max_frames)
     tries = []
-    for method, ys, yf, min_rise in (("flash", np.abs(bs - np.median(bs[: max(3, len(bs) // 10)])),
-                                      np.abs(bf - np.median(bf[: max(3, len(bf) // 10)])), FLASH_MIN_LEVELS),
-                                     ("motion", ms, mf, 0.0)):
-        os_, of_ = _onset(ts, ys, min_rise=min_rise), _onset(tf, yf, min_rise=min_rise)
+    for method, ys, yf, kw in (("flash", np.abs(bs - np.median(bs[: max(3, len(bs) // 10)])),
+                                np.abs(bf - np.median(bf[: max(3, len(bf) // 10)])), {"min_rise": FLASH_MIN_LEVELS}),
+                               ("motion", ms, mf, {"smooth": 3, "sustain": 10, "level": 0.0})):
+        os_, of_ = _onset(ts, ys, **kw), _onset(tf, yf, **kw)
         if os_ is None or of_ is None:
             continue
         offset = os_[0] - of_[0]
         xc = _curve_lag(ts, ys, tf, yf, fps)
         sharp = min(os_[1], of_[1])
-        conf = float(np.clip((sharp - 8) / 40, 0, 1))
+        conf = float(np.clip((sharp - 8) / (40 if method == "flash" else 10), 0, 1))
         if method == "flash" and xc is not None and abs(xc - offset) > 1.5 / fps:
             conf *= 0.3
         if method == "motion":
