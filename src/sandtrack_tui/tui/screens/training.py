@@ -4,21 +4,31 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from rich import box
+from rich.columns import Columns
+from rich.table import Table
 from textual.app import ComposeResult
 from textual.containers import Horizontal, VerticalScroll
-from textual.widgets import Button, Footer, Input, Label, Markdown, Select, Static
+from textual.widgets import Button, Footer, Input, Label, Select, Static
 
 from ..core import core
 from .base import TaskScreen
 
 
-def metrics_markdown(metrics: dict) -> str:
-    rows = [(k, v) for k, v in metrics.items() if isinstance(v, (int, float)) and not isinstance(v, bool)]
+def metrics_table(metrics: dict):
+    rows = [(k, v) for k, v in metrics.items() if isinstance(v, (int, float, str)) and not isinstance(v, bool)]
     if not rows:
-        return "(no metrics)"
-    lines = ["| metric | value |", "|---|---|"]
-    lines += [f"| {k} | {v:.4g} |" if isinstance(v, float) else f"| {k} | {v} |" for k, v in rows]
-    return "\n".join(lines)
+        return "(no model yet)"
+    half = (len(rows) + 1) // 2
+    tables = []
+    for chunk in (rows[:half], rows[half:]):
+        t = Table(box=box.SIMPLE_HEAD)
+        t.add_column("metric")
+        t.add_column("value", justify="right")
+        for k, v in chunk:
+            t.add_row(k, f"{v:.4g}" if isinstance(v, float) else str(v))
+        tables.append(t)
+    return Columns(tables, padding=(0, 4))
 
 
 class TrainingScreen(TaskScreen):
@@ -47,7 +57,7 @@ class TrainingScreen(TaskScreen):
                 yield Button("Train", id="train", variant="primary", compact=True)
             yield self.progress_row()
             yield Static("", id="status", classes="result")
-            yield Markdown(metrics_markdown(info.get("metrics", {})), id="metrics")
+            yield Static(metrics_table(info.get("metrics", {})), id="metrics")
         yield Footer()
 
     def on_mount(self) -> None:
@@ -94,6 +104,10 @@ class TrainingScreen(TaskScreen):
         self.main.run_task("training", job, on_result=self.show_result, refresh_points=False)
 
     def show_result(self, model) -> None:
-        self.query_one("#status", Static).update(f"[green]model saved[/]: {self.main.project.get('model')['path']}")
-        self.query_one("#metrics", Markdown).update(metrics_markdown(model.metrics))
+        stopped = model.metrics.get("stopped")
+        note = f" (training ended: {stopped})" if isinstance(stopped, str) else ""
+        self.query_one("#status", Static).update(
+            f"[green]model saved[/]: {self.main.project.get('model')['path']}{note}; the live table now shows "
+            "XYZ by the network")
+        self.query_one("#metrics", Static).update(metrics_table(model.metrics))
         self.main.refresh_all()
