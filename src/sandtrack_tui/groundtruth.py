@@ -1,0 +1,166 @@
+"""Scoring against the rendered rig's ground truth (`sandtrack sample` output).
+
+Every figure here is measured: the pipeline's outputs (calibration, tracks, XYZ, model
+predictions) are compared with the truth files written by the renderer, never copied from them.
+Used by `sandtrack demo` and the benchmarks.
+"""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .camera import Calibration
+from .errors import SandtrackError
+
+REPORTED = ("tracked", "manual")  # statuses that claim a measured position
+FLAGGED = ("occluded", "lost")  # statuses that admit the marker is not seen
+
+
+@dataclass
+class SampleTruth:
+    root: Path
+    calibration: Calibration
+    sync_offset_s: float
+    markers: dict[str, pd.DataFrame]  # per camera: frame, marker, x_px, y_px, visible, ...
+    trajectories: pd.DataFrame  # per side frame: frame, time_s, marker, X_mm, Y_mm, Z_mm, ...
+    corners: dict[str, pd.DataFrame]  # per camera: frame, corner_id, x_px, y_px, X_mm, Y_mm, Z_mm
+    dem_differences: dict
+    reference: dict
+
+
+def load_truth(sample_dir: str | Path) -> SampleTruth:
+    root = Path(sample_dir)
+    gt = root / "ground_truth"
+    if not (gt / "cameras.toml").is_file():
+        raise SandtrackError(f"{root}: no ground truth here (render it with `sandtrack sample {root}`)")
+    sync = json.loads((gt / "sync.json").read_text())
+    diff_path = root / "dem" / "differences.json"
+    ref_path = root / "calibration" / "reference.toml"
+    return SampleTruth(
+        root=root,
+        calibration=Calibration.load(gt / "cameras.toml"),
+        sync_offset_s=float(sync["offset_s"]),
+        markers={c: pd.read_csv(gt / f"markers_{c}.csv") for c in ("side", "front")},
+        trajectories=pd.read_csv(gt / "trajectories.csv"),
+        corners={c: pd.read_csv(gt / f"calibration_corners_{c}.csv") for c in ("side", "front")},
+        dem_differences=json.loads(diff_path.read_text()) if diff_path.is_file() else {},
+        reference=tomllib.loads(ref_path.read_text()) if ref_path.is_file() else {},
+    )
+
+
+# -- calibration ---------------------------------------------------------------------------------
+def score_calibration(est: Calibration, truth: SampleTruth) -> dict:
+    """Intrinsics and relative-pose errors, and the mean error of board corners triangulated from
+    their true pixels with the estimated calibration, in the estimated world frame (mm)."""
+    from .calibration.report import relative_pose_errors
+    from .triangulation import triangulate
+
+    pose = relative_pose_errors(est, truth.calibration)
+    out = {
+        "focal_error_pct": 100.0 * pose["focal_rel_err"],
+        "principal_point_error_px": pose["principal_point_err_px"],
+        "rotation_error_deg": pose["rotation_err_deg"],
+        "translation_error_mm": pose["translation_err_mm"],
+    }
+    # The calibration session's front clock lags the side's: pair the cameras' true corners by
+    # identical world positions (same instant), once per position (a resting board repeats them).
+    key = ["corner_id", "X_mm", "Y_mm", "Z_mm"]
+    side, front = (truth.corners[c].drop_duplicates(key) for c in ("side", "front"))
+    both = side.merge(front, on=key, suffixes=("_s", "_f"))
+    if len(both):
+        xyz, _ = triangulate(est, {"side": both[["x_px_s", "y_px_s"]].to_numpy(),
+                                   "front": both[["x_px_f", "y_px_f"]].to_numpy()})
+        err = np.linalg.norm(xyz - both[["X_mm", "Y_mm", "Z_mm"]].to_numpy(), axis=1)
+        out["corner_error_mm"] = float(np.nanmean(err))
+        out["corner_p95_error_mm"] = float(np.nanpercentile(err, 95))
+        out["corners_scored"] = int(np.isfinite(err).sum())
+    return out
+
+
+# -- tracking ------------------------------------------------------------------------------------
+def match_marker_ids(points: pd.DataFrame, truth: SampleTruth, max_px: float = 15.0) -> dict[int, int]:
+    """Project marker id -> true marker id: the true marker nearest to each marker's first point."""
+    mapping: dict[int, int] = {}
+    for marker, rows in points[points.x_px.notna()].groupby("marker"):
+        first = rows.sort_values(["frame", "camera"]).iloc[0]
+        t = truth.markers[first.camera]
+        t = t[t.frame == int(first.frame)]
+        if t.empty:
+            continue
+        d = np.hypot(t.x_px - first.x_px, t.y_px - first.y_px)
+        if d.min() <= max_px:
+            mapping[int(marker)] = int(t.marker.iloc[int(np.argmin(d))])
+    return mapping
+
+
+def score_tracking(points: pd.DataFrame, truth: SampleTruth, id_map: dict[int, int],
+                   false_lock_px: float = 3.0, reacquire_frames: int = 3) -> dict:
+    """Centre error on visible frames, false locks, honesty of hidden flags, re-acquisition."""
+    errors, false_locks = [], 0
+    hidden_n = hidden_flagged = flagged_n = flagged_hidden = 0
+    reacq_total = reacq_ok = 0
+    for camera, t in truth.markers.items():
+        p = points[(points.camera == camera) & points.marker.isin(list(id_map))].copy()
+        if p.empty:
+            continue
+        p["true_marker"] = p.marker.map(id_map)
+        m = p.merge(t, left_on=["frame", "true_marker"], right_on=["frame", "marker"], suffixes=("", "_true"))
+        err = np.hypot(m.x_px - m.x_px_true, m.y_px - m.y_px_true)
+        reported = m.status.isin(REPORTED) & m.x_px.notna()
+        visible = m.visible.astype(bool)
+        errors.append(err[reported & visible].to_numpy())
+        false_locks += int((reported & (err > false_lock_px)).sum())
+        flagged = m.status.isin(FLAGGED)
+        hidden_n += int((~visible).sum())
+        hidden_flagged += int((~visible & flagged).sum())
+        flagged_n += int(flagged.sum())
+        flagged_hidden += int((flagged & ~visible).sum())
+        for _, g in m.sort_values("frame").groupby("true_marker"):
+            vis = g.visible.to_numpy().astype(bool)
+            ok = g.status.isin(REPORTED).to_numpy()
+            for k in np.nonzero(vis[1:] & ~vis[:-1])[0] + 1:  # hidden -> visible
+                reacq_total += 1
+                if ok[k:k + reacquire_frames + 1].any():
+                    reacq_ok += 1
+    e = np.concatenate(errors) if errors else np.array([])
+    return {
+        "mean_error_px": float(e.mean()) if len(e) else float("nan"),
+        "p95_error_px": float(np.percentile(e, 95)) if len(e) else float("nan"),
+        "visible_frames_scored": int(len(e)),
+        "false_locks": false_locks,
+        "hidden_flagged_pct": 100.0 * hidden_flagged / hidden_n if hidden_n else float("nan"),
+        "flagged_truly_hidden_pct": 100.0 * flagged_hidden / flagged_n if flagged_n else float("nan"),
+        "reappearances": reacq_total,
+        "reacquired_within_3_frames_pct": 100.0 * reacq_ok / reacq_total if reacq_total else float("nan"),
+        "markers_matched": len(id_map),
+    }
+
+
+# -- 3D ------------------------------------------------------------------------------------------
+def score_xyz(xyz: pd.DataFrame, truth: SampleTruth, id_map: dict[int, int], method: str) -> dict:
+    """3D error of the tracked markers (rows with finite XYZ) against the true trajectories."""
+    d = xyz[(xyz.method == method) & xyz.marker.isin(list(id_map))].copy()
+    d["true_marker"] = d.marker.map(id_map)
+    m = d.merge(truth.trajectories, left_on=["frame", "true_marker"], right_on=["frame", "marker"],
+                suffixes=("", "_true"))
+    err = np.linalg.norm(m[["X_mm", "Y_mm", "Z_mm"]].to_numpy() - m[["X_mm_true", "Y_mm_true", "Z_mm_true"]]
+                         .to_numpy(), axis=1)
+    err = err[np.isfinite(err)]
+    return {
+        "mean_error_mm": float(err.mean()) if len(err) else float("nan"),
+        "p95_error_mm": float(np.percentile(err, 95)) if len(err) else float("nan"),
+        "points_scored": int(len(err)),
+    }
+
+
+def true_points_xyz(points: pd.DataFrame, truth: SampleTruth) -> np.ndarray:
+    """True world XYZ of calibration-point rows (side frame, corner_id), NaN where unknown."""
+    t = truth.corners["side"][["frame", "corner_id", "X_mm", "Y_mm", "Z_mm"]]
+    m = points[["frame", "corner_id"]].merge(t, on=["frame", "corner_id"], how="left")
+    return m[["X_mm", "Y_mm", "Z_mm"]].to_numpy(float)
