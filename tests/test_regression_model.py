@@ -177,3 +177,11 @@ def test_cli_train_bad_input_is_one_line(tmp_path, capsys):
     assert main(["train", str(tmp_path / "none.csv"), "-o", str(tmp_path / "m.pt")]) == 1
     err = capsys.readouterr().err
     assert "not found" in err and len(err.strip().splitlines()) == 1
+
+
+def test_cli_help_states_the_real_defaults(capsys):
+    with pytest.raises(SystemExit):
+        main(["train", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    d, f = TrainConfig(), TrainConfig.fast()
+    assert f"default {d.epochs}, --fast {f.epochs};" in text and f"batch size (default {d.batch_size})" in text
