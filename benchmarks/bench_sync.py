@@ -1,10 +1,9 @@
 """Sync: accuracy and speed of the audio offset; refusal without a shared event; sample_data if present.
 
-- files: synthetic mp4 pairs (AAC audio starting 0.25 s / 0.10 s into the files, independent
+- files: synthetic mp4 pairs (AAC audio starting 0.25 s / 0.05 s into the files, independent
   noise, mains hum in phase at each file start, one shared clap), several non-whole-frame offsets.
-- long: 10 minutes of 48 kHz audio per camera (arrays), clap somewhere in the middle; the time (wall and
-  CPU) of
-  `audio_offset` and, separately, of decoding a 10-minute AAC track with PyAV.
+- long: 10 minutes of 48 kHz audio per camera (arrays), clap somewhere in the middle; the time (wall
+  and CPU) of `audio_offset` and, separately, of decoding a 10-minute AAC track with PyAV.
 - refusal: two tracks with a clap each but nothing shared: how often sync refuses (it should).
 - sample_data: `sandtrack sync` on sample_data/experiment/{side,front}.mp4 vs ground_truth/sync.json.
 """
