@@ -294,22 +294,27 @@ class StripBuilder:
                 keys[r, c] = -1 - c  # unique in the row, so labels always break runs
         self.keys = keys
         strips = []
+        styles, runs = self._styles, self._runs
         style_of, text_of = self._style, self._text
+        # run boundaries for all rows at once; the Python loop only visits runs
+        change = np.zeros((rows, cols + 1), bool)
+        change[:, 0] = change[:, cols] = True
+        change[:, 1:cols] = keys[:, 1:] != keys[:, :-1]
         for r in range(rows):
-            row_keys = keys[r]
+            bounds = np.flatnonzero(change[r]).tolist()
+            run_keys = keys[r, bounds[:-1]].tolist()
             row_labels = label_rows.get(r)
-            cuts = np.flatnonzero(row_keys[1:] != row_keys[:-1]) + 1
-            starts = [0, *cuts.tolist()]
-            ends = [*cuts.tolist(), cols]
             segs = []
             append = segs.append
-            for a, b in zip(starts, ends, strict=True):
-                k = int(row_keys[a])
+            for i, k in enumerate(run_keys):
                 if k < 0:
-                    ch, style = row_labels[a]
+                    ch, style = row_labels[bounds[i]]
                     append(Segment(ch, style))
-                else:
-                    append(Segment(text_of(b - a), style_of(k)))
+                    continue
+                n = bounds[i + 1] - bounds[i]
+                text = runs.get(n) or text_of(n)
+                style = styles.get(k) or style_of(k)
+                append(Segment(text, style))
             strips.append(Strip(segs, cols))
         return strips
 
