@@ -69,15 +69,16 @@ def test_visible_markers_show_a_blue_blob_at_the_true_pixel(camera):
             if r.visible_fraction >= 0.95:
                 assert win.sum() >= 8, (f, r.marker, int(win.sum()))
                 errors.append(np.hypot(xx[win].mean() - x, yy[win].mean() - y))
-            elif r.visible == 0:
+            elif r.visible_fraction == 0:
                 n_hidden += 1
                 hidden_blue.append(int((win & near).sum()))
     errors = np.array(errors)
     assert len(errors) > 100
-    assert np.median(errors) < 0.5 and errors.max() < 2.0, (np.median(errors), errors.max())
+    assert np.median(errors) < 0.5 and np.percentile(errors, 95) < 1.0 and errors.max() < 2.0, (
+        np.median(errors), np.percentile(errors, 95), errors.max())
     assert n_hidden > 0
     # hidden markers leave (almost) no blue around their true pixel
-    assert np.mean(np.array(hidden_blue) <= 2) >= 0.95, hidden_blue
+    assert np.mean(np.array(hidden_blue) <= 2) >= 0.97, hidden_blue
 
 
 def test_some_markers_are_hidden_for_a_while_and_reappear():
@@ -121,7 +122,7 @@ def test_reference_pose_matches_the_world_frame():
     board = load_board(SAMPLE / "board.toml")
     cal = _cal()
     obj = board.corner_points_mm()
-    world = obj @ np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]]).T + np.array(ref["origin_mm"])
+    world = obj @ np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]]).T + np.array(ref["origin_mm"])
     for camera in ("side", "front"):
         src = FrameSource(SAMPLE / "calibration" / f"{camera}.mp4")
         img = src.frame(ref["frame"])

@@ -22,6 +22,7 @@ Y_MARCH_TOP = SAND_Y + 21.0
 Y_MARCH_BOT = SAND_Y - 25.0
 MARKER_BGR = np.array([0.70, 0.33, 0.09], np.float32)  # blue paint on wood
 STEEL_BGR = np.array([0.42, 0.43, 0.44], np.float32)
+SHADOW_TOP_Y = 800.0  # the lamp's light reaches the sand past the shank's parts below this height
 LIGHT_JITTER = np.array([[0.0, 0.0, 0.0], [0.05, 0.0, 0.03], [-0.05, 0.0, -0.03]])  # area lamp: soft shadows
 
 
@@ -144,10 +145,10 @@ class CameraView:
         return s4[..., :3] * shade[..., None]
 
     # -- surface update -----------------------------------------------------------------------
-    def image_bbox(self, lo, hi, pad=4):
+    def image_bbox(self, lo, hi, pad=4, ny=3):
         """Pixel bbox (y0, y1, x0, x1) of a world box, or None if not visible."""
         xs = np.linspace(lo[0], hi[0], 5)
-        ys = np.linspace(lo[1], hi[1], 3)
+        ys = np.linspace(lo[1], hi[1], ny)
         zs = np.linspace(lo[2], hi[2], 9)
         pts = np.stack(np.meshgrid(xs, ys, zs, indexing="ij"), -1).reshape(-1, 3)
         zc = (pts - self.C) @ self.cam.R[2]
@@ -213,7 +214,7 @@ class CameraView:
         tmax = cv2.resize(cv2.dilate(th, k), None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST)[: y1 - y0, : x1 - x0]
         t_lo = np.maximum(tmin - 3.0, ta)
         t_hi = np.minimum(tmax + 3.0, tb)
-        t_hit, found = self._march(d, C, surf.H, t_lo, t_hi, 3, 6)
+        t_hit, found = self._march(d, C, surf.H, t_lo, t_hi, 2, 5)
         sand = found & (t_hit < self.t_block[ys, xs])
         P = C + t_hit[..., None] * d
         g = cv2.remap(g3, P[..., 0] / GRID_MM, P[..., 2] / GRID_MM, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
@@ -230,7 +231,7 @@ class CameraView:
         L = LIGHT_DIR
         self.shank_t = None
         # shadow: lit fraction on the grid nodes of the footprint, then looked up per pixel
-        top = box[1, 1]
+        top = min(box[1, 1], SHADOW_TOP_Y)
         reach = (top - SAND_Y + 25) / L[1]
         xa = np.array([box[0, 0], box[1, 0], box[0, 0] - reach * L[0], box[1, 0] - reach * L[0]])
         za = np.array([box[0, 2], box[1, 2], box[0, 2] - reach * L[2], box[1, 2] - reach * L[2]])
@@ -239,8 +240,10 @@ class CameraView:
         zz, xx = np.mgrid[gz0:gz1, gx0:gx1].astype(np.float64) * GRID_MM
         Pn = np.stack([xx, surf.H[gz0:gz1, gx0:gx1], zz], -1).reshape(-1, 3)
         lit = np.zeros(len(Pn))
+        shadow_box = box.copy()
+        shadow_box[1, 1] = top
         for j in LIGHT_JITTER:
-            t, _ = ray_box(Pn, np.broadcast_to(_norm(L + j), Pn.shape), box)
+            t, _ = ray_box(Pn, np.broadcast_to(_norm(L + j), Pn.shape), shadow_box)
             lit += np.isinf(t)
         lit = (lit / len(LIGHT_JITTER)).reshape(zz.shape).astype(np.float32)
         lit = cv2.GaussianBlur(lit, (0, 0), 1.0)
@@ -253,33 +256,43 @@ class CameraView:
             mz = (P[..., 2] / GRID_MM - gz0).astype(np.float32)
             m = cv2.remap(lit, mx, mz, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=1.0)
             is_sand = np.isfinite(self.depth[ys, xs]) & (P[..., 1] < SAND_Y + 40)
-            factor = np.where(is_sand, 0.5 + 0.5 * m, 1.0)
-            img[ys, xs] = np.clip(img[ys, xs] * factor[..., None], 0, 255).astype(np.uint8)
-        # the shank itself
+            factor = np.where(is_sand, 0.5 + 0.5 * m, np.float32(1.0)).astype(np.float32)
+            if (factor < 0.999).any():
+                region = img[ys, xs].astype(np.float32) * factor[..., None]
+                img[ys, xs] = region.astype(np.uint8)
+        # the shank itself: coarse ray casting on every 4th pixel, then exact where it may be
         view_box = box.copy()
-        view_box[1, 1] = min(view_box[1, 1], self.C[1] - 25.0)  # higher parts are out of view
-        bb = self.image_bbox(view_box[0], view_box[1], pad=2)
+        view_box[1, 1] = min(view_box[1, 1], self.C[1] - 5.0)  # higher parts are out of view
+        bb = self.image_bbox(view_box[0], view_box[1], pad=6, ny=40)
         if bb is None:
             return img
         y0, y1, x0, x1 = bb
         ys, xs = slice(y0, y1), slice(x0, x1)
-        d = self.d[ys, xs].astype(np.float64)
-        t, axis = ray_box(self.C, d.reshape(-1, 3), box)
-        t = t.reshape(y1 - y0, x1 - x0)
-        vis = t < self.depth[ys, xs]
-        if vis.any():
-            ax = axis.reshape(t.shape)
-            nrm = np.zeros(t.shape + (3,))
-            for a in range(3):
-                nrm[..., a] = np.where(ax == a, -np.sign(d[..., a]), 0)
-            lamb = np.clip(nrm @ L, 0, 1)
-            Q = self.C + np.where(vis, t, 0)[..., None] * d
-            streak = 1.0 + 0.04 * np.sin(Q[..., 1] * 0.7 + np.sin(Q[..., 0] * 0.3 + Q[..., 2] * 0.2) * 2.0)
-            dusty = np.exp(-np.maximum(Q[..., 1] - SAND_Y, 0) / 30.0)[..., None]
-            base = STEEL_BGR * (1 - dusty) + np.array([0.42, 0.55, 0.64]) * dusty
-            col = base * ((0.45 + 0.7 * lamb) * streak)[..., None] * self.vignette[ys, xs, None] * 255.0
-            img[ys, xs] = np.where(vis[..., None], np.clip(col, 0, 255).astype(np.uint8), img[ys, xs])
-        self.shank_t = (bb, np.where(vis, t, np.inf))
+        h, w = y1 - y0, x1 - x0
+        dc = self.d[ys, xs][::4, ::4]
+        tc, _ = ray_box(self.C, dc.reshape(-1, 3).astype(np.float64), box)
+        cand = np.isfinite(tc).reshape(dc.shape[:2]).astype(np.uint8)
+        cand = cv2.dilate(cand, np.ones((3, 3), np.uint8))
+        cand = cv2.resize(cand, (cand.shape[1] * 4, cand.shape[0] * 4), interpolation=cv2.INTER_NEAREST)[:h, :w]
+        iy, ix = np.nonzero(cand)
+        tmap = np.full((h, w), np.inf)
+        if len(iy):
+            d = self.d[ys, xs][iy, ix].astype(np.float64)
+            t, axis = ray_box(self.C, d, box)
+            vis = t < self.depth[ys, xs][iy, ix]
+            if vis.any():
+                iy, ix, d, t, axis = iy[vis], ix[vis], d[vis], t[vis], axis[vis]
+                nrm = np.zeros_like(d)
+                nrm[np.arange(len(d)), axis] = -np.sign(d[np.arange(len(d)), axis])
+                lamb = np.clip(nrm @ L, 0, 1)
+                Q = self.C + t[:, None] * d
+                streak = 1.0 + 0.04 * np.sin(Q[:, 1] * 0.7 + np.sin(Q[:, 0] * 0.3 + Q[:, 2] * 0.2) * 2.0)
+                dusty = np.exp(-np.maximum(Q[:, 1] - SAND_Y, 0) / 30.0)[:, None]
+                base = STEEL_BGR * (1 - dusty) + np.array([0.42, 0.55, 0.64]) * dusty
+                col = base * ((0.45 + 0.7 * lamb) * streak)[:, None] * self.vignette[ys, xs][iy, ix][:, None] * 255.0
+                img[y0 + iy, x0 + ix] = np.clip(col, 0, 255).astype(np.uint8)
+                tmap[iy, ix] = t
+        self.shank_t = (bb, tmap)
         return img
 
     def _shank_depth_at(self, px_x, px_y):

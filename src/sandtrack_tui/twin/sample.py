@@ -66,8 +66,8 @@ class Preset:
     exp_frames: int  # per camera
     exp_start_s: float  # scene time of the side camera's first experiment frame
     cal_frames: int  # per camera
-    exp_crf: int = 27
-    cal_crf: int = 29
+    exp_crf: int = 23
+    cal_crf: int = 26
 
 
 PRESETS = {
@@ -80,17 +80,32 @@ PRESETS = {
 
 # -- workers ---------------------------------------------------------------------------------------
 
-def _experiment_worker(args) -> dict:
-    camera, seed, preset, out_path = args
-    cv2.setNumThreads(1)
+def _make_view(camera: str, seed: int) -> CameraView:
     from .textures import Textures
 
+    tex = Textures(seed)
+    return CameraView(world_cameras()[camera], tex, SandShader(tex), seed)
+
+
+def _camera_worker(args) -> tuple[dict, dict]:
+    """Both videos of one camera: the calibration session first (it needs the untouched sand), then the
+    experiment (which digs the furrow into the view's canvas)."""
+    camera, seed, preset, cal_path, exp_path = args
+    cv2.setNumThreads(1)
+    view = _make_view(camera, seed)
+    cal = _calibration_worker((camera, seed, preset, cal_path), view)
+    exp = _experiment_worker((camera, seed, preset, exp_path), view)
+    return exp, cal
+
+
+def _experiment_worker(args, view: CameraView | None = None) -> dict:
+    camera, seed, preset, out_path = args
+    cv2.setNumThreads(1)
     pr = PRESETS[preset]
     tl = Timeline()
     cams = world_cameras()
     cam = cams[camera]
-    tex = Textures(seed)
-    view = CameraView(cam, tex, SandShader(tex), seed)
+    view = view or _make_view(camera, seed)
     surf = SurfaceGrid(seed)
     g3 = np.zeros(surf.H.shape + (3,), np.float32)
     script = MarkerScript(seed, tl)
@@ -131,16 +146,13 @@ def _experiment_worker(args) -> dict:
     return {"camera": camera, "rows": rows, "traj": traj, "tool": tool, "frames": n}
 
 
-def _calibration_worker(args) -> dict:
+def _calibration_worker(args, view: CameraView | None = None) -> dict:
     camera, seed, preset, out_path = args
     cv2.setNumThreads(1)
-    from .textures import Textures
-
     pr = PRESETS[preset]
     tl = Timeline()
     cam = world_cameras()[camera]
-    tex = Textures(seed)
-    view = CameraView(cam, tex, SandShader(tex), seed + 500)
+    view = view or _make_view(camera, seed)
     motion = BoardMotion(BOARD, seed)
     painter = BoardRenderer(BOARD)
     rng = np.random.default_rng(seed + (5 if camera == "side" else 6))
@@ -184,24 +196,20 @@ def render_sample(out_dir: str | Path, seed: int = 0, preset: str = "small", wor
     for sub in ("calibration", "experiment", "ground_truth", "dem"):
         (out / sub).mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    jobs = [
-        (_experiment_worker, ("side", seed, preset, str(out / "experiment" / "side.mp4"))),
-        (_experiment_worker, ("front", seed, preset, str(out / "experiment" / "front.mp4"))),
-        (_calibration_worker, ("side", seed, preset, str(out / "calibration" / "side.mp4"))),
-        (_calibration_worker, ("front", seed, preset, str(out / "calibration" / "front.mp4"))),
-    ]
-    log(f"rendering {len(jobs)} videos ({preset} preset, seed {seed}) with {workers} worker(s)")
+    jobs = [(cam, seed, preset, str(out / "calibration" / f"{cam}.mp4"), str(out / "experiment" / f"{cam}.mp4"))
+            for cam in ("side", "front")]
+    log(f"rendering the videos of {len(jobs)} cameras ({preset} preset, seed {seed}) with {workers} worker(s)")
     if workers <= 1:
-        results = [fn(a) for fn, a in jobs]
+        results = [_camera_worker(a) for a in jobs]
     else:
-        with ProcessPoolExecutor(max_workers=workers) as ex:
-            futs = [ex.submit(fn, a) for fn, a in jobs]
+        with ProcessPoolExecutor(max_workers=min(workers, len(jobs))) as ex:
+            futs = [ex.submit(_camera_worker, a) for a in jobs]
             results = []
             for f in futs:
                 results.append(f.result())
-                log(f"  done: {len(results)}/{len(jobs)} videos ({time.perf_counter() - t0:.0f} s)")
-    exp = {r["camera"]: r for r in results[:2]}
-    cal = {r["camera"]: r for r in results[2:]}
+                log(f"  done: {len(results)}/{len(jobs)} cameras ({time.perf_counter() - t0:.0f} s)")
+    exp = {r[0]["camera"]: r[0] for r in results}
+    cal = {r[1]["camera"]: r[1] for r in results}
     _write_ground_truth(out, seed, preset, exp, cal)
     two_view = _two_view_count(cal)
     _write_readme(out, seed, preset, exp, cal, two_view)

@@ -23,7 +23,7 @@ TOOL_TRAVEL = 700.0
 TOOL_DEPTH = 75.0
 SHANK_HALF_X = 6.0  # shank plate 12 mm thick (X)
 SHANK_CHORD = 40.0  # along Z, behind the shank front
-SHANK_TOP_Y = 700.0
+SHANK_TOP_Y = 1500.0  # hangs from the carriage above the box: its top is never in view
 WING_HALF_SPAN = 55.0
 
 MARKER_RADIUS = 2.5

@@ -51,9 +51,11 @@ class Textures:
         bz = (np.roll(b, -1, 0) - np.roll(b, 1, 0)) / (2 * SAND_TEXEL_MM)
         self.sand4 = np.dstack([tex, -(bx * LIGHT_DIR[0] + bz * LIGHT_DIR[2])]).astype(np.float32)
         # plywood: grain streaks along the wall, knots of colour
-        w = cv2.GaussianBlur(_noise(rng, (256, 1024), 0.0), (0, 0), sigmaX=40.0, sigmaY=0.8)
+        w = cv2.GaussianBlur(_noise(rng, (256, 1024), 0.0), (0, 0), sigmaX=90.0, sigmaY=0.7)
         w = w / (w.std() + 1e-9)
-        self.wood = (1.0 + 0.06 * w + 0.03 * _noise(rng, (256, 1024), 8.0)).astype(np.float32)
+        fine = _noise(rng, (256, 1024), 0.6)
+        blotch = _noise(rng, (256, 1024), 25.0)
+        self.wood = (1.0 + 0.05 * w + 0.02 * fine + 0.035 * blotch).astype(np.float32)
 
     @staticmethod
     def _lookup(tex, u, v, wrap=True):
