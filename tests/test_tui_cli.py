@@ -35,6 +35,11 @@ def test_sample_project_is_made_once_and_remade_when_videos_change(sample_dir, t
     with Project.open(target) as proj:
         assert proj.markers().empty and proj.videos()["side"].frames == 8
     assert target.with_suffix(".sandtrack.old").is_file()
+    # never moved away while another sandtrack has it open
+    with Project.open(target):
+        write_clip(sample_dir / "experiment" / "front.mp4", n_frames=9, bframes=0)
+        with pytest.raises(SandtrackError, match="open in another"):
+            sample_project(sample_dir, target)
 
 
 def test_missing_sample_is_one_clear_error(tmp_path):

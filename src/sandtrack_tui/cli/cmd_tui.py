@@ -52,6 +52,10 @@ def sample_project(sample_data: Path = SAMPLE_DATA, target: Path | None = None) 
             problems = ["unreadable"]
         if not problems:
             return path
+        if Path(str(path) + "-wal").exists():
+            # SQLite removes the WAL when the last connection closes: someone still has it open
+            raise SandtrackError(f"the sample videos changed, but the sample project {path} is open in another "
+                                 "sandtrack: close that one first")
         backup = path.with_suffix(".sandtrack.old")
         shutil.move(path, backup)  # the sample changed: keep the old edits aside, start afresh
         for suffix in ("-wal", "-shm"):
