@@ -126,17 +126,19 @@ class Engine:
     def _resolve_conflicts(self, tracks, props, forced) -> None:
         """Two tracks on (nearly) the same spot: the better match keeps it, the other coasts."""
         keyed = [(t, props[(t.marker, t.camera)]) for t in tracks if (t.marker, t.camera) in props]
-        for i in range(len(keyed)):
-            for k in range(i + 1, len(keyed)):
-                (ta, pa), (tb, pb) = keyed[i], keyed[k]
-                ka, kb = (ta.marker, ta.camera), (tb.marker, tb.camera)
-                if ka not in props or kb not in props:
-                    continue
-                r = max(ta.model.radius, tb.model.radius)
-                if np.hypot(pa.match.x - pb.match.x, pa.match.y - pb.match.y) < 1.2 * r:
-                    worse = kb if (pa.match.score - 0.05 * pa.match.d2) >= (pb.match.score - 0.05 * pb.match.d2) \
-                        else ka
-                    del props[worse]
+        if len(keyed) < 2:
+            return
+        xy = np.array([(p.match.x, p.match.y) for _, p in keyed])
+        r = np.array([t.model.radius for t, _ in keyed])
+        d = np.hypot(xy[:, None, 0] - xy[None, :, 0], xy[:, None, 1] - xy[None, :, 1])
+        clash = np.triu(d < 1.2 * np.maximum(r[:, None], r[None, :]), 1)
+        for i, k in zip(*np.nonzero(clash), strict=True):
+            (ta, pa), (tb, pb) = keyed[i], keyed[k]
+            ka, kb = (ta.marker, ta.camera), (tb.marker, tb.camera)
+            if ka not in props or kb not in props:
+                continue
+            better_a = (pa.match.score - 0.05 * pa.match.d2) >= (pb.match.score - 0.05 * pb.match.d2)
+            del props[kb if better_a else ka]
 
     def _point_at(self, key, frames, props, forced):
         """Position of a marker in one camera at the step's wanted time, or None."""

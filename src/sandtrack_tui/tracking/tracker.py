@@ -30,7 +30,8 @@ class TrackParams:
     min_colour: float = 0.55  # marker coverage (fraction of the seed disc) to accept a match
     confident_score: float = 0.85  # the updated template learns only from matches this good ...
     confident_colour: float = 0.85  # ... and this complete
-    template_alpha: float = 0.08
+    template_alpha: float = 0.15
+    template_every: int = 2  # frames between template updates (slow drift; half the cost)
     lost_after: int = 25  # frames of coasting before a track is declared lost
     accel_px: float = 2.0  # Kalman process noise: white acceleration, px/frame²
     meas_px: float = 0.3  # measurement noise, px
@@ -84,6 +85,7 @@ class MarkerTrack:
         self.frame_index = frame_index
         self.seed_xy = (x, y)
         self.reacquisitions = 0
+        self._since_update = 0
         self.counts = {TRACKED: 0, OCCLUDED: 0, LOST: 0, MANUAL: 0}
 
     # -- per frame -----------------------------------------------------------------------------
@@ -134,9 +136,11 @@ class MarkerTrack:
                 self.reacquisitions += 1
             else:
                 self.kf.update((m.x, m.y), None if m.used_centroid else 1.0)
-            if (frame_bgr is not None and m.score >= p.confident_score and m.colour_frac >= p.confident_colour
-                    and m.used_centroid):
+            self._since_update += 1
+            if (frame_bgr is not None and self._since_update >= p.template_every and m.score >= p.confident_score
+                    and m.colour_frac >= p.confident_colour and m.used_centroid):
                 self.matcher.update_template(frame_bgr, m.x, m.y, p.template_alpha)
+                self._since_update = 0
             self.status, self.misses = TRACKED, 0
             obs = Observation(frame_index, self.camera, self.marker, m.x, m.y, TRACKED, m.score, m.psr, m.colour_frac)
         else:
