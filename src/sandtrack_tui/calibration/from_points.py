@@ -148,9 +148,17 @@ def calibrate_from_points(df: pd.DataFrame, cams: dict[str, tuple[str, str]],
         r, t = from_T(to_T(cam.rvec, cam.tvec) @ world_from_rig)
         cam.rvec, cam.tvec = r, t
     rmse = float(np.sqrt(np.mean([r["rmse_px"] ** 2 for r in reports.values()])))
-    return Calibration(cameras=cameras, world_from_rig=world_from_rig,
-                       report={"method": "from known points", "reprojection_rmse_px": rmse, "per_camera": reports,
-                               "points": int(len(df))})
+    cal = Calibration(cameras=cameras, world_from_rig=world_from_rig)
+    # how well the fitted cameras give the known points back (triangulated from their own pixels)
+    from ..triangulation import triangulate
+
+    xyz, _ = triangulate(cal, {n: df[list(c)].to_numpy(float) for n, c in cams.items()}, refine=True)
+    d = np.linalg.norm(xyz - X_all, axis=1)
+    d = d[np.isfinite(d)]
+    cal.report = {"method": "from known points", "reprojection_rmse_px": rmse, "per_camera": reports,
+                  "points": int(len(df)), "xyz_rmse_mm": float(np.sqrt(np.mean(d ** 2))) if len(d) else None,
+                  "xyz_mean_mm": float(np.mean(d)) if len(d) else None}
+    return cal
 
 
 def _standard_size(size: tuple[int, int]) -> tuple[int, int]:

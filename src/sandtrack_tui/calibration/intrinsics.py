@@ -43,6 +43,9 @@ class IntrinsicsResult:
             "cx": float(self.K[0, 2]), "cy": float(self.K[1, 2]),
             "distortion": self.dist.tolist(),
             "k3": self.k3,
+            "worst_views": [[int(f), float(e)] for f, e in
+                            sorted(self.per_view_rmse.items(), key=lambda kv: -kv[1])[:5]],
+            "dropped_views": [int(f) for f in self.dropped],
             "coverage": self.coverage,
             "warnings": self.warnings,
         }

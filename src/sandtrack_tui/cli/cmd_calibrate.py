@@ -110,11 +110,13 @@ def run(args) -> int:
 
 
 def _summary(report: dict) -> dict:
-    keys = ["reprojection_rmse_px", "board_rmse_mm", "per_camera", "views_used", "points", "seconds",
+    keys = ["reprojection_rmse_px", "board_rmse_mm", "xyz_rmse_mm", "xyz_mean_mm", "per_camera", "views_used",
+            "points", "seconds",
             "seconds_detect", "seconds_calibrate", "frames_detected", "corners_detected", "world", "warnings",
             "sync", "output", "points_csv", "caliscope_export", "project", "method", "source"]
     out = {k: report[k] for k in keys if k in report}
     out.setdefault("points", 0)
+    out.setdefault("board_rmse_mm", None)  # only a board calibration measures the board
     return out
 
 
