@@ -221,3 +221,10 @@ def test_fuzz_import_points_validates_ranges(project, xs, frames):
     assert len(got) == rows.drop_duplicates(["frame"]).shape[0]
     assert np.isfinite(got["x_px"]).all() and got["x_px"].between(-0.5 * W, 1.5 * W).all()
     project.undo()
+
+
+def test_davinci_headerless_ragged_rows(tmp_path):
+    f = tmp_path / "ragged.csv"
+    f.write_text("0.0,1.0,2.0\n0.0,0.0,0.0,0.0")  # found by the fuzzer
+    with pytest.raises(SandtrackError, match="not a readable"):
+        tr.read_davinci(f, W, H, "height")

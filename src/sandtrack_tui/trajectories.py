@@ -213,8 +213,12 @@ def read_davinci(path: str | Path, width: int, height: int, y_units: str = "heig
     lower = {c.lower(): c for c in df.columns}
     if not {"frame", "x", "y"} <= set(lower):
         if len(df.columns) == 3 and all(_is_number(c) for c in df.columns):  # no header line
-            df = pd.read_csv(path, sep=_delimiter(Path(path)), engine="python", header=None,
-                             names=["frame", "x", "y"])
+            try:
+                df = pd.read_csv(path, sep=_delimiter(Path(path)), engine="python", header=None,
+                                 names=["frame", "x", "y"])
+            except (pd.errors.ParserError, ValueError, csv.Error) as exc:
+                msg = str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__
+                raise SandtrackError(f"{path}: not a readable DaVinci tracker CSV ({msg})") from None
             lower = {"frame": "frame", "x": "x", "y": "y"}
         else:
             raise SandtrackError(f"{path}: expected columns frame, x, y (found: {', '.join(df.columns[:8])})")
