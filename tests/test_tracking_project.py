@@ -156,3 +156,12 @@ def test_seed_on_plain_sand_is_reported_not_crashed(stereo_data, tmp_path):
         seed_marker(proj, 1, "side", 0, 30.0, 30.0, 14, 14)  # no marker there
         s = track_project(proj, stop=5)
         assert s["frames"] == 0 and any("no marker" in p for p in s["problems"])
+
+
+def test_cli_auto_seed(stereo_data, tmp_path, capsys):
+    root, cal, _clips = stereo_data
+    _project(root, cal, tmp_path).close()
+    rc = main(["track", str(tmp_path / "exp.sandtrack"), "--auto-seed", "--to", "5", "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert rc == 0 and out["frames"] == 6 and len(out["per_marker"]) == 5
+    assert all(v["side"]["tracked"] == 5 and v["front"]["tracked"] == 5 for v in out["per_marker"].values())

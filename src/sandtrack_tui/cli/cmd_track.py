@@ -26,7 +26,9 @@ def register(sub) -> None:
     p.add_argument("project", help="project file (NAME.sandtrack)")
     p.add_argument("--seeds", metavar="CSV",
                    help="seed file: frame, camera, marker, x, y, w, h (pixels; x, y = marker centre)")
-    p.add_argument("--auto-seed", action="store_true", help="seed every blue marker found in frame --from (or 0)")
+    p.add_argument("--auto-seed", action="store_true",
+                   help="seed every blue marker found in frame --from (default: the first frame both cameras "
+                        "recorded), paired across cameras by epipolar distance")
     p.add_argument("--from", dest="start", type=int, metavar="N",
                    help="start frame (first camera's index); default: each marker's seed")
     p.add_argument("--to", dest="stop", type=int, metavar="M", help="last frame (inclusive); default: the end")
@@ -101,9 +103,10 @@ def run(args) -> int:
             seeded = accept_seeds(proj, seeds, f"seeds from {Path(args.seeds).name}")
             log(f"track: {seeded} seed points from {args.seeds}")
         if args.auto_seed:
-            proposal = auto_seed(proj, frame=args.start or 0)
+            proposal = auto_seed(proj, frame=args.start)
             if proposal.empty:
-                raise SandtrackError(f"auto-seed: no blue marker found in frame {args.start or 0}")
+                where = f"frame {args.start}" if args.start is not None else "the first frame both cameras recorded"
+                raise SandtrackError(f"auto-seed: no blue marker found in {where}")
             seeded += accept_seeds(proj, proposal, "auto-seed")
             n_pairs = int(proposal.epipolar_px.notna().sum() // 2)
             log(f"track: auto-seed found {proposal.marker.nunique()} markers ({n_pairs} paired across cameras)")

@@ -71,16 +71,28 @@ def _stereo_for(project, cameras, params_px=(2.0, 3.0)) -> StereoCheck | None:
 
 
 # -- seeding ----------------------------------------------------------------------------------
-def auto_seed(project, frame: int = 0, sources: dict | None = None, max_epipolar_px: float = 5.0) -> pd.DataFrame:
-    """Every blue marker in `frame` (first camera's index; the others at the paired frame), paired
-    across cameras by epipolar distance when the project holds a calibration. A proposal only:
-    nothing is written. Unpaired detections get their own marker ids (epipolar_px NaN)."""
+def first_common_frame(sources: dict, offsets: dict, ref: str) -> int:
+    """First frame of the first camera that every other camera also recorded (0 if none does)."""
+    for i in range(len(sources[ref])):
+        if all(paired_frame(sources, offsets, ref, i, c) is not None for c in sources if c != ref):
+            return i
+    return 0
+
+
+def auto_seed(project, frame: int | None = 0, sources: dict | None = None,
+              max_epipolar_px: float = 5.0) -> pd.DataFrame:
+    """Every blue marker in `frame` (first camera's index; the others at the paired frame; None =
+    the first frame all cameras recorded), paired across cameras by epipolar distance when the
+    project holds a calibration. A proposal only: nothing is written. Unpaired detections get
+    their own marker ids (epipolar_px NaN)."""
     own = sources is None
     sources = sources or project.open_sources()
     try:
-        cams = list(sources)
+        cams = [c for c in project.cameras() if c in sources] or list(sources)
         ref = cams[0]
         offsets = camera_offsets(project, cams)
+        if frame is None:
+            frame = first_common_frame(sources, offsets, ref)
         if not 0 <= frame < len(sources[ref]):
             raise SandtrackError(f"frame {frame} outside 0..{len(sources[ref]) - 1}")
         dets, frames = {}, {}
