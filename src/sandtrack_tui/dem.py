@@ -21,19 +21,22 @@ LIGGGHTS / LAMMPS ``dump custom``
     with many blocks, or one file per step (give several paths or a glob); ``.gz`` is read too.
 
 Exporting from DEM codes (short snippets, run inside the tool)
-    Ansys Rocky, PrePost scripting (Python shell)::
+    Ansys Rocky, PrePost scripting (Python shell; Rocky writes SI: use units "m")::
 
         study = app.GetStudy()
         particles = study.GetParticles()
+        gf = {k: particles.GetGridFunction(k) for k in
+              ("Particle ID", "Coordinate : X", "Coordinate : Y", "Coordinate : Z")}
         with open("particles.csv", "w") as fh:
-            fh.write("particle_id,time_s,x,y,z\\n")
-            for t in particles.GetTimeSet():
-                ids = particles.GetGridFunction("Particle ID").GetArray(time_step=t)
-                xyz = [particles.GetGridFunction(f"Coordinates : {a}").GetArray(time_step=t) for a in "XYZ"]
-                for i, x, y, z in zip(ids, *xyz):
-                    fh.write(f"{int(i)},{t.GetTime()},{x},{y},{z}\\n")
+            fh.write("particle_id,time_s,x,y,z\n")
+            for k, t in enumerate(study.GetTimeSet()):
+                ids, x, y, z = (g.GetArray(time_step=k) for g in gf.values())
+                for row in zip(ids, x, y, z):
+                    fh.write(f"{int(row[0])},{t},{row[1]},{row[2]},{row[3]}\n")
 
-    Altair EDEM, with EDEMpy::
+    (older Rocky releases name the coordinates "Particle X-Coordinate", ...)
+
+    Altair EDEM, with EDEMpy (SI: units "m")::
 
         from edempy import Deck
         deck = Deck("simulation.dem")
@@ -49,7 +52,7 @@ Exporting from DEM codes (short snippets, run inside the tool)
         dump  tracers tracer_group custom 200 dump.tracers id type x y z
         dump_modify tracers sort id
 
-    (Function names follow each vendor's scripting manual of the version at hand; check there.)
+    (Names follow the vendors' scripting APIs; check the manual of the release at hand.)
 """
 
 from __future__ import annotations
