@@ -28,11 +28,11 @@ Exporting from DEM codes (short snippets, run inside the tool)
         gf = {k: particles.GetGridFunction(k) for k in
               ("Particle ID", "Coordinate : X", "Coordinate : Y", "Coordinate : Z")}
         with open("particles.csv", "w") as fh:
-            fh.write("particle_id,time_s,x,y,z\n")
+            fh.write("particle_id,time_s,x,y,z\\n")
             for k, t in enumerate(study.GetTimeSet()):
                 ids, x, y, z = (g.GetArray(time_step=k) for g in gf.values())
                 for row in zip(ids, x, y, z):
-                    fh.write(f"{int(row[0])},{t},{row[1]},{row[2]},{row[3]}\n")
+                    fh.write(f"{int(row[0])},{t},{row[1]},{row[2]},{row[3]}\\n")
 
     (older Rocky releases name the coordinates "Particle X-Coordinate", ...)
 
