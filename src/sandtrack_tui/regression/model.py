@@ -6,13 +6,14 @@ of plain values and tensors only::
 
     format: "sandtrack-regression", version: 1
     config: training settings (hidden sizes, dropout, epochs, batch size, seed, ...)
-    state_dict: MLP weights (4 pixel inputs xs, ys, xf, yf -> 3 outputs X, Y, Z in mm)
+    state_dict: MLP weights (4 pixel inputs xs, ys, xf, yf -> 3 outputs X, Y, Z in mm; layers.N.weight/bias)
     normalisation: in_mean, in_std (px), out_mean, out_std (mm)
     bounds: in_min, in_max: per-input range of the training pixels
     hull: (F, 4) half-spaces of the convex hull of the training XYZ (n . x + d <= 0 inside)
     metrics: test-set figures (see train.metrics)
-    residual: None, or {state_dict, res_mean, res_std, calibration_toml}: a second MLP that
-        learns the correction (truth - triangulation) on top of triangulation with that calibration
+    residual: None, or {state_dict, res_mean, res_std, calibration_toml}: a second, lighter MLP
+        (config residual_hidden) that learns the correction (truth - triangulation, mm) on top of
+        triangulation with that calibration
 
 The MLP only interpolates: outside the volume the training board covered its errors grow fast
 (tens of mm), so `outside_training` flags such queries.
@@ -143,7 +144,7 @@ def load_model(path: str | Path) -> RegressionModel:
             hull=doc["hull"].numpy(), config=cfg, metrics=dict(doc.get("metrics", {})))
         res = doc.get("residual")
         if res:
-            model.residual_net = _net_from_state(res["state_dict"], cfg)
+            model.residual_net = _net_from_state(res["state_dict"], cfg, "residual_hidden")
             model.res_mean, model.res_std = res["res_mean"].numpy(), res["res_std"].numpy()
             model.calibration_toml = res["calibration_toml"]
     except (KeyError, RuntimeError, TypeError, AttributeError) as exc:
@@ -151,8 +152,8 @@ def load_model(path: str | Path) -> RegressionModel:
     return model
 
 
-def _net_from_state(state: dict, cfg: dict) -> MLP:
-    net = MLP(hidden=tuple(cfg.get("hidden", STUDY_HIDDEN)), dropout=float(cfg.get("dropout", 0.0)))
+def _net_from_state(state: dict, cfg: dict, key: str = "hidden") -> MLP:
+    net = MLP(hidden=tuple(cfg.get(key, cfg.get("hidden", STUDY_HIDDEN))), dropout=float(cfg.get("dropout", 0.0)))
     net.load_state_dict(state)
     net.eval()
     return net

@@ -32,7 +32,7 @@ StopFn = Callable[[], bool]
 @dataclass
 class TrainConfig:
     hidden: tuple[int, ...] = STUDY_HIDDEN
-    dropout: float = 0.05
+    dropout: float = 0.01  # measured on 44k points: 0 -> 0.80 mm, 0.01 -> 0.90 mm, 0.05 -> 1.29 mm mean error
     epochs: int = 30
     batch_size: int = 1024
     lr: float = 2e-3
@@ -43,7 +43,8 @@ class TrainConfig:
     test_frac: float = 0.15
     seed: int = 0
     residual: bool = True  # also train the residual variant when a calibration is given
-    residual_epochs: int = 10
+    residual_epochs: int = 20
+    residual_hidden: tuple[int, ...] = (256, 256)  # the correction is smooth and small: a light net suffices
     device: str | None = None  # None: CUDA when present, else CPU
     threads: int | None = None  # CPU threads; None: all cores, or 1 when they are busy (see _fastest_threads)
 
@@ -125,7 +126,7 @@ def _train_phases(cfg, calibration, device, x, y, xn, tr, va, in_mean, in_std, o
         res_mean, res_std = res[tr & ok].mean(0), _safe_std(res[tr & ok])
         rnet, rinfo = _fit(xn[tr & ok], (res[tr & ok] - res_mean) / res_std, xn[va & ok],
                            res[va & ok], res_mean, res_std, cfg, cfg.residual_epochs, device, progress,
-                           should_stop, epoch0=info["epochs_run"])
+                           should_stop, epoch0=info["epochs_run"], hidden=cfg.residual_hidden)
         model.residual_net = rnet.cpu().eval()
         model.res_mean, model.res_std = res_mean, res_std
         model.calibration_toml = calibration.to_toml()
@@ -164,14 +165,15 @@ def _safe_std(a: np.ndarray) -> np.ndarray:
 def _config_dict(cfg: TrainConfig) -> dict:
     d = asdict(cfg)
     d["hidden"] = list(cfg.hidden)
+    d["residual_hidden"] = list(cfg.residual_hidden)
     d["device"] = cfg.device or ""
     return d
 
 
 def _fit(x_tr, y_tr, x_va, y_va_mm, out_mean, out_std, cfg: TrainConfig, epochs: int, device,
-         progress, should_stop, epoch0: int):
+         progress, should_stop, epoch0: int, hidden=None):
     """Adam + cosine decay + early stopping on the validation mean error (mm). Returns the best net."""
-    net = MLP(hidden=cfg.hidden, dropout=cfg.dropout).to(device)
+    net = MLP(hidden=hidden or cfg.hidden, dropout=cfg.dropout).to(device)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(epochs, 1), eta_min=cfg.lr * cfg.lr_final_frac)
     xt = torch.as_tensor(x_tr, dtype=torch.float32, device=device)
