@@ -24,6 +24,7 @@ from ..errors import SandtrackError
 from ..video import FrameSource
 
 ProgressFn = Callable[[str, int, int], None]
+LARGE_PX = 1400  # images wider than this are searched in windows first (smaller ones: whole image, cheap enough)
 
 
 @dataclass
@@ -62,22 +63,28 @@ class BoardDetector:
         return det
 
     def detect(self, image: np.ndarray, hint: BoardView | None = None) -> BoardView | None:
-        """Find the board. `hint` (the board in a nearby frame) restricts the search to a window
-        around it first; large images are first searched at half size to find that window.
+        """Find the board. In large images, `hint` (the board in a nearby frame) restricts the search to
+        a window around it first, else the board is located at half size to find that window.
         Windows only save time: the corners are always refined on full-resolution pixels."""
         gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-        if hint is not None and len(hint):
+        near = None
+        large = max(gray.shape) > LARGE_PX
+        if hint is not None and len(hint) and large:
             box = _box(hint.corners, gray.shape, grow=0.6)
-            found = self._detect_in(gray, box)
-            if found is not None and len(found) >= max(self.min_corners, int(0.8 * len(hint))):
-                return found
-        if self.board.type == "charuco" and max(gray.shape) > 1400:
+            near = self._detect_in(gray, box)
+            # keep the window's answer only when it lost nothing: no fewer corners than before, none near its edge
+            if near is not None and len(near) >= len(hint) and not _touches(near.corners, box, 20, gray.shape):
+                return near
+        found = None
+        if self.board.type == "charuco" and large:
             box = self._locate(gray)
             if box is not None:
                 found = self._detect_in(gray, box)
-                if found is not None:
-                    return found
-        return self._detect_full(gray)
+        if found is None or (near is not None and len(found) < len(near)):
+            found = self._detect_full(gray)
+        if near is not None and (found is None or len(near) > len(found)):
+            return near
+        return found
 
     def _detect_in(self, gray: np.ndarray, box) -> BoardView | None:
         x0, y0, x1, y1 = box
@@ -168,6 +175,14 @@ def _box(points: np.ndarray, shape, grow: float = 0.5):
     x1 = int(min(np.ceil(hi[0] + pad[0]), shape[1]))
     y1 = int(min(np.ceil(hi[1] + pad[1]), shape[0]))
     return x0, y0, x1, y1
+
+
+def _touches(points: np.ndarray, box, margin: float, shape) -> bool:
+    """True when points come within `margin` px of a window edge that is not the image edge."""
+    x0, y0, x1, y1 = box
+    lo, hi = points.min(0), points.max(0)
+    return bool((x0 > 0 and lo[0] - x0 < margin) or (y0 > 0 and lo[1] - y0 < margin)
+                or (x1 < shape[1] and hi[0] > x1 - margin) or (y1 < shape[0] and hi[1] > y1 - margin))
 
 
 def _sharpness(gray: np.ndarray, corners: np.ndarray) -> float:

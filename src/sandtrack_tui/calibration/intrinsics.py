@@ -87,6 +87,24 @@ def select_views(views: dict[int, BoardView], size: tuple[int, int], max_views: 
     return sorted(chosen)
 
 
+def _distinct(views: dict[int, BoardView], min_move_px: float = 3.0) -> dict[int, BoardView]:
+    """Drop views where the board sits where it was in an earlier kept view (a board held still gives
+    the same view many times over, which adds nothing but weight)."""
+    kept: dict[int, BoardView] = {}
+    for f in sorted(views):
+        v = views[f]
+        same = False
+        for k in list(kept)[-30:]:
+            common, ia, ib = np.intersect1d(v.ids, kept[k].ids, return_indices=True)
+            if len(common) >= 0.8 * len(v.ids) and \
+                    np.median(np.linalg.norm(v.corners[ia] - kept[k].corners[ib], axis=1)) < min_move_px:
+                same = True
+                break
+        if not same:
+            kept[f] = v
+    return kept
+
+
 def coverage_report(views: dict[int, BoardView], frames: list[int], size: tuple[int, int], K: np.ndarray,
                     poses: dict[int, tuple[np.ndarray, np.ndarray]]) -> dict:
     w, h = size
@@ -156,6 +174,11 @@ def calibrate_intrinsics(name: str, views: dict[int, BoardView], board: BoardSpe
     rich = {f: v for f, v in usable.items() if len(v) >= max(6, 0.3 * board.n_corners)}
     if len(rich) >= min_views:
         usable = rich
+    usable = _distinct(usable)
+    if len(usable) < min_views:
+        raise SandtrackError(
+            f"camera {name}: only {len(usable)} distinct view(s) of the board (it hardly moved); record at least 10 "
+            "views at different angles (tilted 20-45 degrees) and distances, covering the image")
     frames = select_views(usable, size, max_views)
     warnings: list[str] = []
 
