@@ -7,158 +7,36 @@ messages; widgets are only touched on the UI thread.
 
 from __future__ import annotations
 
-import functools
-import inspect
 import math
 import time
 import traceback
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 from textual import on
 from textual.app import App, ComposeResult, SystemCommand
-from textual.binding import Binding
 from textual.containers import Horizontal
 from textual.message import Message
 from textual.screen import Screen
 from textual.widgets import Footer, Label, ProgressBar, Static
-from textual.worker import Worker, WorkerState, get_current_worker
 
-from .. import corrections
 from ..errors import NotAvailableYet, SandtrackError
 from ..store import Project
 from ..video import FramePair
-from .core import available, core
+from .core import core
+from .editing import EditingMixin
 from .feeder import FrameFeeder, FrameRequest, FrameResult
 from .frame_view import FrameView, MarkerMark, Overlays, ViewTransform
+from .keys import ANYWHERE, KEY_DISPLAY, KEYS, bindings
 from .screens.help import HelpScreen
 from .screens.prompts import AskNumber, Confirm
+from .seeding import SeedingMixin
 from .table import MarkerRow, MarkerTable
+from .tasks import Task, TasksMixin, guarded
 from .timeline import Timeline, next_problem, status_codes
 
 GOOD = ("tracked", "manual", "interpolated", "imported")
-
-# (key, action, description, group, shown in footer)
-KEYS = [
-    ("right,full_stop", "step(1)", "next frame", "Navigate", True),
-    ("left,comma", "step(-1)", "previous frame", "Navigate", False),
-    ("shift+right", "step(10)", "+10 frames", "Navigate", False),
-    ("shift+left", "step(-10)", "-10 frames", "Navigate", False),
-    ("pagedown", "step(50)", "+50 frames", "Navigate", False),
-    ("pageup", "step(-50)", "-50 frames", "Navigate", False),
-    ("home", "go(0)", "first frame", "Navigate", False),
-    ("end", "go(-1)", "last frame", "Navigate", False),
-    ("g", "goto", "go to frame…", "Navigate", False),
-    ("space", "play", "play / pause", "Navigate", True),
-    ("n", "problem(1)", "next problem (lost, occluded, gap)", "Navigate", True),
-    ("N", "problem(-1)", "previous problem", "Navigate", False),
-    ("1,2,3,4,5,6,7,8", "", "select marker 1-8 (a new number starts a new marker)", "Markers", False),
-    ("tab", "switch_view", "switch active view (side / front)", "Markers", False),
-    ("h,j,k,l", "", "move the cursor (H J K L: 8x)", "Seed", False),
-    ("enter", "seed_cursor", "place the selected marker at the cursor", "Seed", True),
-    ("A", "auto_seed", "auto-seed all markers (confirm list)", "Seed", False),
-    ("t", "track(1,0)", "track the selected marker forward", "Track", True),
-    ("T", "track(-1,0)", "track the selected marker backward", "Track", False),
-    ("r", "track(1,1)", "track all markers forward", "Track", False),
-    ("R", "track(-1,1)", "track all markers backward", "Track", False),
-    ("escape", "cancel", "cancel the running task", "Track", False),
-    ("w,a,s,d", "", "nudge the selected point 1 px (W A S D: 5 px)", "Correct", False),
-    ("o", "occlude", "mark occluded (range if set, else this frame)", "Correct", False),
-    ("left_square_bracket", "mark_in", "range start [", "Correct", False),
-    ("right_square_bracket", "mark_out", "range end ]", "Correct", False),
-    ("delete,backspace", "delete", "delete points (range if set, else this frame)", "Correct", False),
-    ("i", "interpolate", "interpolate the gap (range if set, else the gap here)", "Correct", False),
-    ("X", "swap", "swap identities with another marker over the range", "Correct", False),
-    ("u,ctrl+z", "undo", "undo", "Correct", True),
-    ("U,ctrl+y", "redo", "redo", "Correct", False),
-    ("z", "zoom_marker", "zoom to the selected marker and follow it", "View", True),
-    ("plus,equals_sign", "zoom(2)", "zoom in", "View", False),
-    ("minus", "zoom(0.5)", "zoom out", "View", False),
-    ("0", "zoom_fit", "fit the whole frame", "View", False),
-    ("b", "toggle_boost", "marker boost on / off", "View", False),
-    ("v", "cycle_layout", "layout: views + timeline + table / no table / views only", "View", False),
-    ("f2", "screen('sync')", "sync", "Screens", False),
-    ("f3", "screen('calibration')", "calibration", "Screens", False),
-    ("f4", "screen('training')", "train the regression model", "Screens", False),
-    ("f5,e", "screen('export')", "export trajectories", "Screens", True),
-    ("f6", "screen('compare')", "DEM comparison", "Screens", False),
-    ("question_mark", "help", "help", "Screens", True),
-    ("q", "quit", "quit", "Screens", True),
-]
-
-KEY_DISPLAY = {"left_square_bracket": "[", "right_square_bracket": "]", "question_mark": "?",
-               "full_stop": ".", "comma": ",", "plus": "+", "equals_sign": "=", "minus": "-"}
-
-
-FOOTER = {"step(1)": "next", "play": "play", "problem(1)": "problem", "seed_cursor": "place", "track(1,0)": "track",
-          "undo": "undo", "zoom_marker": "zoom", "screen('export')": "export", "help": "help", "quit": "quit"}
-
-
-def _bindings() -> list[Binding]:
-    out = []
-    for keys, action, desc, _group, show in KEYS:
-        if not action:
-            continue
-        first = keys.split(",")[0]
-        out.append(Binding(keys, action, FOOTER.get(action, desc.split(" (")[0]), show=show,
-                           key_display=KEY_DISPLAY.get(first), priority=keys == "tab"))
-    for n in range(1, 9):
-        out.append(Binding(str(n), f"select({n})", f"marker {n}", show=False))
-    for k, (dx, dy) in {"h": (-1, 0), "j": (0, 1), "k": (0, -1), "l": (1, 0)}.items():
-        out.append(Binding(k, f"cursor({dx},{dy},1)", "cursor", show=False))
-        out.append(Binding(k.upper(), f"cursor({dx},{dy},8)", "cursor fast", show=False))
-    for k, (dx, dy) in {"a": (-1, 0), "s": (0, 1), "w": (0, -1), "d": (1, 0)}.items():
-        out.append(Binding(k, f"nudge({dx},{dy})", "nudge", show=False))
-        out.append(Binding(k.upper(), f"nudge({5 * dx},{5 * dy})", "nudge 5 px", show=False))
-    return out
-
-
-def guarded(fn):
-    """Turn any exception of a UI handler into an error notification: never a dead app."""
-    if inspect.iscoroutinefunction(fn):
-        @functools.wraps(fn)
-        async def async_wrapper(self, *args, **kwargs):
-            try:
-                return await fn(self, *args, **kwargs)
-            except Exception as exc:  # noqa: BLE001
-                self.report_error(exc)
-
-        return async_wrapper
-
-    @functools.wraps(fn)
-    def wrapper(self, *args, **kwargs):
-        try:
-            return fn(self, *args, **kwargs)
-        except Exception as exc:  # noqa: BLE001
-            self.report_error(exc)
-
-    return wrapper
-
-
-# Actions that act on the main screen's views: off while another screen (sync, export, ...) is shown.
-ANYWHERE = {"quit", "help", "cancel", "command_palette"}
-
-
-@dataclass
-class Task:
-    name: str
-    worker: Worker | None = None
-    cancel_requested: bool = False
-
-
-class TaskProgress(Message):
-    def __init__(self, name: str, done: int, total: int, text: str = "") -> None:
-        super().__init__()
-        self.name, self.done, self.total, self.text = name, done, total, text
-
-
-class TaskFinished(Message):
-    def __init__(self, name: str, text: str, error: str | None = None, refresh_points: bool = True) -> None:
-        super().__init__()
-        self.name, self.text, self.error, self.refresh_points = name, text, error, refresh_points
-
 
 class TableReady(Message):
     def __init__(self, frame: int, rows, error: str | None = None) -> None:
@@ -172,7 +50,7 @@ class FrameReady(Message):
         self.result = result
 
 
-class SandtrackApp(App):
+class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, App):
     TITLE = "sandtrack"
     CSS = """
     Screen { layout: vertical; }
@@ -185,7 +63,7 @@ class SandtrackApp(App):
     Screen.-no-table MarkerTable { display: none; }
     Screen.-views-only MarkerTable, Screen.-views-only Timeline { display: none; }
     """
-    BINDINGS = _bindings()
+    BINDINGS = bindings()
 
     def __init__(self, project: Project | str | Path, colors: str | None = None, prefetch: int = 4):
         super().__init__()
@@ -719,398 +597,6 @@ class SandtrackApp(App):
         else:
             self.refresh_all()
 
-    # -- seeding -----------------------------------------------------------------------------
-    @on(FrameView.Clicked)
-    @guarded
-    def _clicked(self, msg: FrameView.Clicked) -> None:
-        cam = msg.view.camera
-        if cam != self.active:
-            self.active = cam
-            for v in self.views():
-                v.set_class(v.camera == cam, "-active")
-        self.cursor[cam] = (msg.x, msg.y)
-        if msg.button == 3:
-            self._select_near(cam, msg.x, msg.y)
-            return
-        self.seed_at(cam, msg.x, msg.y)
-
-    def _select_near(self, cam: str, x: float, y: float) -> None:
-        best, best_d = None, math.inf
-        for rec in self._by_cam_frame.get((cam, self.cam_index(cam)), ()):
-            if rec.x_px is None or not np.isfinite(rec.x_px):
-                continue
-            d = math.hypot(rec.x_px - x, rec.y_px - y)
-            if d < best_d:
-                best, best_d = int(rec.marker), d
-        tf = self.view(cam).tf
-        if best is not None and best_d <= max(20.0, 3 * (tf.s if tf else 1.0)):
-            self.selected = best
-        self.refresh_all()
-
-    def action_seed_cursor(self) -> None:
-        x, y = self.cursor[self.active]
-        self.seed_at(self.active, x, y)
-
-    def snap(self, camera: str, x: float, y: float) -> tuple[float, float] | None:
-        """The marker centroid near (x, y), or None when there is no marker there."""
-        tf = self.view(camera).tf
-        radius = max(12.0, 2.0 * (tf.s if tf else 1.0))  # a click is good to about ±s
-        tracking = core("tracking.run", "snap_to_marker")
-        frame = self.sources[camera].frame(self.cam_index(camera))
-        return tracking.snap_to_marker(frame, x, y, radius=int(math.ceil(radius)))
-
-    def seed_at(self, camera: str, x: float, y: float) -> None:
-        if self.selected is None:
-            existing = [m for m, _ in self.marker_list]
-            self.selected = next(n for n in range(1, 1000) if n not in existing)
-        marker = self.selected
-        try:
-            snapped = self.snap(camera, x, y)
-        except NotAvailableYet as exc:
-            self.notify(f"{exc}: placed where clicked", severity="warning")
-            snapped = (x, y)
-        except SandtrackError as exc:
-            self.notify(str(exc), severity="error")
-            return
-        if snapped is None:
-            self.notify(f"no marker found near ({x:.0f}, {y:.0f}) in {camera}: zoom in (+) or try closer",
-                        severity="warning")
-            self.update_overlays(camera)
-            return
-        sx, sy = float(snapped[0]), float(snapped[1])
-        frame = self.cam_index(camera)
-        try:
-            corrections.ensure_marker(self.project, marker)
-            if available("tracking.run", "seed_marker"):
-                core("tracking.run").seed_marker(self.project, marker, camera, frame, sx, sy)
-            else:
-                corrections.set_manual(self.project, marker, camera, frame, sx, sy)
-        except SandtrackError as exc:
-            self.notify(str(exc), severity="error")
-            return
-        self.cursor[camera] = (sx, sy)
-        self.after_edit(f"marker {marker} placed in {camera} at ({sx:.1f}, {sy:.1f})")
-
-    def after_edit(self, message: str | None = None) -> None:
-        self.reload_points()
-        self.refresh_all()
-        if message:
-            self.notify(message, timeout=3)
-
-    def action_auto_seed(self) -> None:
-        try:
-            tracking = core("tracking.run", "auto_seed", "accept_seeds")
-        except NotAvailableYet as exc:
-            self.notify(str(exc), severity="warning")
-            return
-        from .screens.autoseed import AutoSeedScreen
-
-        try:
-            first, last = self.pair.side_range()
-        except SandtrackError as exc:
-            self.notify(str(exc), severity="error")
-            return
-        if not first <= self.frame <= last:
-            self.go_to(first if self.frame < first else last)
-            self.notify(f"the front camera has no frame there: auto-seeding at frame {self.frame}, the "
-                        f"{'first' if self.frame == first else 'last'} frame both cameras recorded")
-        frame = self.frame
-
-        def job(progress, should_stop):
-            proj = self._worker_project()
-            try:
-                return tracking.auto_seed(proj, frame)
-            finally:
-                proj.close()
-
-        self.run_task("auto-seed", job,
-                      on_result=lambda seeds: self.push_screen(AutoSeedScreen(seeds), self._accept_seeds))
-
-    def _accept_seeds(self, seeds) -> None:
-        if seeds is None or len(seeds) == 0:
-            return
-        try:
-            core("tracking.run", "accept_seeds").accept_seeds(self.project, seeds)
-        except SandtrackError as exc:
-            self.notify(str(exc), severity="error")
-            return
-        self.after_edit(f"{seeds['marker'].nunique()} markers seeded")
-        if self.selected is None and self.marker_list:
-            self.selected = self.marker_list[0][0]
-
-    # -- tracking and other background tasks -------------------------------------------------
-    def _worker_project(self) -> Project:
-        """Workers use their own connection: SQLite transactions must not interleave with the UI's."""
-        return Project.open(self.project.path)
-
-    def action_track(self, direction: int, all_markers: int) -> None:
-        if all_markers:
-            markers = None
-            what = "all markers"
-        else:
-            if self.selected is None:
-                self.notify("select a marker first (1-8), or press r to track all", severity="warning")
-                return
-            markers = [self.selected]
-            what = f"marker {self.selected}"
-        try:
-            tracking = core("tracking.run", "track_project")
-        except NotAvailableYet as exc:
-            self.notify(str(exc), severity="warning")
-            return
-        start = self.frame
-        stop = self.n_frames - 1 if direction > 0 else 0
-        d = "forward" if direction > 0 else "backward"
-
-        def job(progress, should_stop):
-            proj = self._worker_project()
-            try:
-                return tracking.track_project(proj, markers=markers, start=start, stop=stop, direction=d,
-                                              progress=progress, should_stop=should_stop)
-            finally:
-                proj.close()
-
-        self.run_task(f"tracking {what} {d}", job, on_result=self._tracking_done)
-
-    def _tracking_done(self, result) -> None:
-        if not isinstance(result, dict):
-            self.notify("tracking finished")
-            return
-        text = f"tracking {result.get('direction', '')}: {result.get('rows_written', 0)} points written"
-        if result.get("frames") is not None:
-            text += f" over {result['frames']} frames"
-        if result.get("stereo"):
-            text += " (stereo check on)"
-        if result.get("stopped"):
-            text += "; cancelled"
-        problems = result.get("problems") or []
-        if problems:
-            text += f"; {len(problems)} problem(s): " + "; ".join(map(str, problems[:3]))
-        self.notify(text, severity="warning" if problems else "information", timeout=8)
-
-    def run_task(self, name: str, fn, on_result=None, refresh_points: bool = True) -> None:
-        """Run fn(progress, should_stop) in a thread worker; progress(done, total) posts throttled
-        messages; the result goes to on_result on the UI thread; errors become notifications."""
-        if self.bg_task is not None:
-            self.notify(f"{self.bg_task.name} is still running (escape cancels it)", severity="warning")
-            return
-        task = Task(name)
-        self.bg_task = task
-        bar = self._w['task-bar']
-        bar.update(total=None, progress=0)
-        self._w['task-label'].update(f"{name} (esc cancels)")
-        self._w['task'].add_class("-running")
-        self._task_results: dict = {}
-        if hasattr(self.screen, "task_started"):
-            self.screen.task_started(name)
-
-        app = self
-
-        def worker() -> None:
-            last = [0.0]
-            me = get_current_worker()
-
-            def progress(done, total, text: str = "", *_, **__):
-                now = time.perf_counter()
-                if now - last[0] >= 0.2 or done >= total:
-                    last[0] = now
-                    app.post_message(TaskProgress(name, int(done), int(total), str(text)))
-
-            def should_stop() -> bool:
-                return task.cancel_requested or me.is_cancelled
-
-            try:
-                result = fn(progress, should_stop)
-            except NotAvailableYet as exc:
-                app.post_message(TaskFinished(name, "", str(exc), refresh_points))
-                return
-            except SandtrackError as exc:
-                app.post_message(TaskFinished(name, "", str(exc), refresh_points))
-                return
-            except Exception as exc:  # noqa: BLE001 - any failure becomes a notification, never a dead app
-                app.post_message(TaskFinished(name, "", f"{type(exc).__name__}: {exc}", refresh_points))
-                return
-            app._task_results[name] = (result, on_result)
-            stopped = " (cancelled, kept what was done)" if task.cancel_requested else ""
-            app.post_message(TaskFinished(name, f"{name} done{stopped}", None, refresh_points))
-
-        task.worker = self.run_worker(worker, name=name, group="task", exclusive=True, thread=True,
-                                      exit_on_error=False)
-
-    @on(TaskProgress)
-    @guarded
-    def _task_progress(self, msg: TaskProgress) -> None:
-        bar = self._w['task-bar']
-        bar.update(total=max(msg.total, 1), progress=msg.done)
-        if hasattr(self.screen, "task_progress"):
-            self.screen.task_progress(msg.done, msg.total, msg.text)
-        if self.bg_task is not None and self.bg_task.name.startswith("tracking") and time.perf_counter() - getattr(
-                self, "_last_live_reload", 0.0) > 1.0:
-            self._last_live_reload = time.perf_counter()
-            self.reload_points()
-            self.update_overlays()
-
-    @on(TaskFinished)
-    @guarded
-    def _task_finished(self, msg: TaskFinished) -> None:
-        self.bg_task = None
-        self._w['task'].remove_class("-running")
-        self._w['task-bar'].update(total=100, progress=0)
-        for scr in self.screen_stack:
-            if hasattr(scr, "task_finished"):
-                scr.task_finished()
-        if msg.refresh_points:
-            self.reload_points()
-            self.refresh_all()
-        if msg.error:
-            self.notify(f"{msg.name}: {msg.error}", severity="error", timeout=10)
-            return
-        result, on_result = self._task_results.pop(msg.name, (None, None))
-        if on_result is not None:
-            on_result(result)
-        elif msg.text:
-            self.notify(msg.text)
-
-    def on_worker_state_changed(self, event: Worker.StateChanged) -> None:
-        if event.state == WorkerState.ERROR and self.bg_task is not None and event.worker is self.bg_task.worker:
-            self.post_message(TaskFinished(self.bg_task.name, "", str(event.worker.error)))
-
-    def action_cancel(self) -> None:
-        if self.bg_task is None:
-            if self.range_in is not None or self.range_out is not None:
-                self.range_in = self.range_out = None
-                self.refresh_all()
-            return
-        self.bg_task.cancel_requested = True
-        if self.bg_task.worker is not None:
-            self.bg_task.worker.cancel()
-        self.notify(f"cancelling {self.bg_task.name}…")
-
-    # -- corrections -------------------------------------------------------------------------
-    def _range(self) -> tuple[int, int] | None:
-        if self.range_in is None and self.range_out is None:
-            return None
-        a = self.range_in if self.range_in is not None else self.frame
-        b = self.range_out if self.range_out is not None else self.frame
-        return (min(a, b), max(a, b))
-
-    def _cam_range(self, camera: str, rng: tuple[int, int]) -> tuple[int, int]:
-        return self.cam_index(camera, rng[0]), self.cam_index(camera, rng[1])
-
-    def _need_selected(self) -> int | None:
-        if self.selected is None:
-            self.notify("select a marker first (1-8)", severity="warning")
-        return self.selected
-
-    def _edit(self, fn, message: str | None = None) -> None:
-        try:
-            result = fn()
-        except SandtrackError as exc:
-            self.notify(str(exc), severity="error")
-            return
-        self.after_edit(message(result) if callable(message) else message)
-
-    def action_nudge(self, dx: int, dy: int) -> None:
-        m = self._need_selected()
-        if m is None:
-            return
-        cam = self.active
-
-        def fn():
-            corrections.nudge(self.project, m, cam, self.cam_index(cam), dx, dy)
-            rec = self.project.points(frame=self.cam_index(cam), camera=cam, marker=m).iloc[0]
-            self.cursor[cam] = (float(rec.x_px), float(rec.y_px))
-
-        self._edit(fn)
-
-    def action_occlude(self) -> None:
-        m = self._need_selected()
-        if m is None:
-            return
-        rng = self._range() or (self.frame, self.frame)
-        cam = self.active
-        self._edit(lambda: corrections.mark_occluded(self.project, m, cam, self._cam_range(cam, rng)),
-                   f"marker {m} marked occluded in {cam}")
-
-    def action_mark_in(self) -> None:
-        self.range_in = self.frame
-        self.refresh_all()
-
-    def action_mark_out(self) -> None:
-        self.range_out = self.frame
-        self.refresh_all()
-
-    def action_delete(self) -> None:
-        m = self._need_selected()
-        if m is None:
-            return
-        rng = self._range() or (self.frame, self.frame)
-        cam = self.active
-        self._edit(lambda: corrections.delete_range(self.project, m, cam, self._cam_range(cam, rng)),
-                   f"deleted marker {m} in {cam}, frames {rng[0]}-{rng[1]} (u undoes)")
-
-    def action_interpolate(self) -> None:
-        m = self._need_selected()
-        if m is None:
-            return
-        cam = self.active
-        rng = self._range()
-        if rng is None:
-            gap = corrections.gap_around(self.project, m, cam, self.cam_index(cam))
-            if gap is None:
-                self.notify("no gap here: set a range with [ and ], or go into a gap (n)", severity="warning")
-                return
-            cam_rng = gap
-        else:
-            cam_rng = self._cam_range(cam, rng)
-        self._edit(lambda: corrections.interpolate_gap(self.project, m, cam, cam_rng),
-                   lambda n: f"interpolated {n} frames of marker {m} in {cam} (marked 'interpolated')")
-
-    def action_swap(self) -> None:
-        m = self._need_selected()
-        if m is None:
-            return
-        rng = self._range() or (self.frame, self.n_frames - 1)
-
-        def done(other):
-            if other is None:
-                return
-            # the range is in side frames: each camera swaps over its own frames, all in one edit
-            def fn():
-                ranges = {cam: self._cam_range(cam, rng) for cam in self.cameras}
-                return corrections.swap_markers(self.project, m, other, ranges)
-
-            self._edit(fn, lambda n: f"swapped markers {m} and {other} over frames {rng[0]}-{rng[1]} ({n} points)")
-
-        self.push_screen(AskNumber(f"Swap marker {m} with which marker, frames {rng[0]}-{rng[1]}?", None, 1, 999),
-                         done)
-
-    def action_undo(self) -> None:
-        try:
-            what = self.project.undo()
-        except SandtrackError as exc:
-            self.notify(str(exc), severity="error")
-            return
-        self._after_history(what, "undone")
-
-    def action_redo(self) -> None:
-        try:
-            what = self.project.redo()
-        except SandtrackError as exc:
-            self.notify(str(exc), severity="error")
-            return
-        self._after_history(what, "redone")
-
-    def _after_history(self, what: str | None, verb: str) -> None:
-        if what is None:
-            self.notify(f"nothing to {verb[:-2]}")
-            return
-        if what.startswith("set sync_offset_s") or "sync" in what:
-            self.apply_sync_offset(self.project.sync_offset_s, save=False)
-        if "calibration" in what:
-            self._calibration = self._load_calibration()
-        self.after_edit(f"{verb}: {what}")
-
     # -- screens -----------------------------------------------------------------------------
     def apply_sync_offset(self, offset_s: float, save: bool = True) -> None:
         if save:
@@ -1161,6 +647,8 @@ class SandtrackApp(App):
         self.exit()
 
 
-for _name, _fn in list(vars(SandtrackApp).items()):
-    if _name.startswith("action_") and callable(_fn):
-        setattr(SandtrackApp, _name, guarded(_fn))
+for _cls in SandtrackApp.__mro__:
+    if _cls.__module__.startswith(__package__):
+        for _name, _fn in list(vars(_cls).items()):
+            if _name.startswith("action_") and callable(_fn) and _name in vars(_cls):
+                setattr(_cls, _name, guarded(_fn))

@@ -1,0 +1,180 @@
+"""Seeding and tracking actions of the main view: click or cursor + enter places the selected
+marker (snapped to the blob centre), auto-seed with a confirmation list, track forward/backward."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .. import corrections
+from ..errors import NotAvailableYet, SandtrackError
+from .core import available, core
+from .frame_view import FrameView
+from .tasks import guarded
+
+
+class SeedingMixin:
+    """Part of SandtrackApp."""
+
+    @guarded
+    def on_frame_view_clicked(self, msg: FrameView.Clicked) -> None:
+        cam = msg.view.camera
+        if cam != self.active:
+            self.active = cam
+            for v in self.views():
+                v.set_class(v.camera == cam, "-active")
+        self.cursor[cam] = (msg.x, msg.y)
+        if msg.button == 3:
+            self._select_near(cam, msg.x, msg.y)
+            return
+        self.seed_at(cam, msg.x, msg.y)
+
+    def _select_near(self, cam: str, x: float, y: float) -> None:
+        best, best_d = None, math.inf
+        for rec in self._by_cam_frame.get((cam, self.cam_index(cam)), ()):
+            if rec.x_px is None or not np.isfinite(rec.x_px):
+                continue
+            d = math.hypot(rec.x_px - x, rec.y_px - y)
+            if d < best_d:
+                best, best_d = int(rec.marker), d
+        tf = self.view(cam).tf
+        if best is not None and best_d <= max(20.0, 3 * (tf.s if tf else 1.0)):
+            self.selected = best
+        self.refresh_all()
+
+    def action_seed_cursor(self) -> None:
+        x, y = self.cursor[self.active]
+        self.seed_at(self.active, x, y)
+
+    def snap(self, camera: str, x: float, y: float) -> tuple[float, float] | None:
+        """The marker centroid near (x, y), or None when there is no marker there."""
+        tf = self.view(camera).tf
+        radius = max(12.0, 2.0 * (tf.s if tf else 1.0))  # a click is good to about ±s
+        tracking = core("tracking.run", "snap_to_marker")
+        frame = self.sources[camera].frame(self.cam_index(camera))
+        return tracking.snap_to_marker(frame, x, y, radius=int(math.ceil(radius)))
+
+    def seed_at(self, camera: str, x: float, y: float) -> None:
+        if self.selected is None:
+            existing = [m for m, _ in self.marker_list]
+            self.selected = next(n for n in range(1, 1000) if n not in existing)
+        marker = self.selected
+        try:
+            snapped = self.snap(camera, x, y)
+        except NotAvailableYet as exc:
+            self.notify(f"{exc}: placed where clicked", severity="warning")
+            snapped = (x, y)
+        except SandtrackError as exc:
+            self.notify(str(exc), severity="error")
+            return
+        if snapped is None:
+            self.notify(f"no marker found near ({x:.0f}, {y:.0f}) in {camera}: zoom in (+) or try closer",
+                        severity="warning")
+            self.update_overlays(camera)
+            return
+        sx, sy = float(snapped[0]), float(snapped[1])
+        frame = self.cam_index(camera)
+        try:
+            corrections.ensure_marker(self.project, marker)
+            if available("tracking.run", "seed_marker"):
+                core("tracking.run").seed_marker(self.project, marker, camera, frame, sx, sy)
+            else:
+                corrections.set_manual(self.project, marker, camera, frame, sx, sy)
+        except SandtrackError as exc:
+            self.notify(str(exc), severity="error")
+            return
+        self.cursor[camera] = (sx, sy)
+        self.after_edit(f"marker {marker} placed in {camera} at ({sx:.1f}, {sy:.1f})")
+
+    def after_edit(self, message: str | None = None) -> None:
+        self.reload_points()
+        self.refresh_all()
+        if message:
+            self.notify(message, timeout=3)
+
+    def action_auto_seed(self) -> None:
+        try:
+            tracking = core("tracking.run", "auto_seed", "accept_seeds")
+        except NotAvailableYet as exc:
+            self.notify(str(exc), severity="warning")
+            return
+        from .screens.autoseed import AutoSeedScreen
+
+        try:
+            first, last = self.pair.side_range()
+        except SandtrackError as exc:
+            self.notify(str(exc), severity="error")
+            return
+        if not first <= self.frame <= last:
+            self.go_to(first if self.frame < first else last)
+            self.notify(f"the front camera has no frame there: auto-seeding at frame {self.frame}, the "
+                        f"{'first' if self.frame == first else 'last'} frame both cameras recorded")
+        frame = self.frame
+
+        def job(progress, should_stop):
+            proj = self._worker_project()
+            try:
+                return tracking.auto_seed(proj, frame)
+            finally:
+                proj.close()
+
+        self.run_task("auto-seed", job,
+                      on_result=lambda seeds: self.push_screen(AutoSeedScreen(seeds), self._accept_seeds))
+
+    def _accept_seeds(self, seeds) -> None:
+        if seeds is None or len(seeds) == 0:
+            return
+        try:
+            core("tracking.run", "accept_seeds").accept_seeds(self.project, seeds)
+        except SandtrackError as exc:
+            self.notify(str(exc), severity="error")
+            return
+        self.after_edit(f"{seeds['marker'].nunique()} markers seeded")
+        if self.selected is None and self.marker_list:
+            self.selected = self.marker_list[0][0]
+
+    def action_track(self, direction: int, all_markers: int) -> None:
+        if all_markers:
+            markers = None
+            what = "all markers"
+        else:
+            if self.selected is None:
+                self.notify("select a marker first (1-8), or press r to track all", severity="warning")
+                return
+            markers = [self.selected]
+            what = f"marker {self.selected}"
+        try:
+            tracking = core("tracking.run", "track_project")
+        except NotAvailableYet as exc:
+            self.notify(str(exc), severity="warning")
+            return
+        start = self.frame
+        stop = self.n_frames - 1 if direction > 0 else 0
+        d = "forward" if direction > 0 else "backward"
+
+        def job(progress, should_stop):
+            proj = self._worker_project()
+            try:
+                return tracking.track_project(proj, markers=markers, start=start, stop=stop, direction=d,
+                                              progress=progress, should_stop=should_stop)
+            finally:
+                proj.close()
+
+        self.run_task(f"tracking {what} {d}", job, on_result=self._tracking_done)
+
+    def _tracking_done(self, result) -> None:
+        if not isinstance(result, dict):
+            self.notify("tracking finished")
+            return
+        text = f"tracking {result.get('direction', '')}: {result.get('rows_written', 0)} points written"
+        if result.get("frames") is not None:
+            text += f" over {result['frames']} frames"
+        if result.get("stereo"):
+            text += " (stereo check on)"
+        if result.get("stopped"):
+            text += "; cancelled"
+        problems = result.get("problems") or []
+        if problems:
+            text += f"; {len(problems)} problem(s): " + "; ".join(map(str, problems[:3]))
+        self.notify(text, severity="warning" if problems else "information", timeout=8)
