@@ -129,6 +129,10 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, App):
         for v in self.views():
             v.color_mode = "truecolor" if colors == "truecolor" else "256"
             v.border_title = v.camera
+        if colors != "truecolor":
+            self.notify("256 colours: the frames are drawn in grey (markers in blue). For colour, start with "
+                        "COLORTERM=truecolor (ssh does not pass it on); in tmux also set "
+                        "terminal-features ',*:RGB'.", timeout=12)
         self.feeder = FrameFeeder(self.sources, lambda r: self.post_message(FrameReady(r)), self.prefetch)
         if self.size.height < 40:
             self._set_layout(1)
