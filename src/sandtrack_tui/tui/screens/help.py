@@ -18,8 +18,9 @@ TIPS = """
 
 ### Over SSH / tmux
 - sshd does not forward `COLORTERM`: start with `COLORTERM=truecolor sandtrack` (otherwise 256 colours).
-- tmux: `set -as terminal-features ',*:RGB'` in `~/.tmux.conf`, and `set -g mouse on` is not needed
-  (the app asks for the mouse itself).
+- tmux: `set -as terminal-features ',*:RGB'` in `~/.tmux.conf` (tmux 3.2+; older: `set -ga
+  terminal-overrides ',*:Tc'`). If clicks do nothing in tmux, add `set -g mouse on`; the keys do
+  everything the mouse does.
 - Every edit is saved at once: a dropped link loses nothing; run `sandtrack PROJECT` again.
 """
 
