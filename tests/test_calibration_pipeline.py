@@ -179,3 +179,30 @@ def test_face_on_views_are_rejected(tmp_path):
         views[f] = BoardView(frame=f, source_frame=f, ids=np.arange(len(pts)), corners=uv)
     with pytest.raises(SandtrackError, match="face-on"):
         calibrate_intrinsics("side", views, board, (cam.width, cam.height))
+
+
+def test_fractional_sync_offset_is_interpolated(tmp_path):
+    """The front camera started 3.5 frames after the side camera while the board kept moving: the front
+    corners are interpolated to the side camera's instants, so the rig comes out right."""
+    from sandtrack_tui.calibration.geometry import to_T
+    from sandtrack_tui.calibration.synthetic import _write_mp4, render, stereo_rig
+
+    board = BoardSpec(columns=8, rows=5, square_mm=30.0, dictionary="DICT_4X4_50")
+    truth = stereo_rig()
+    w, h = board.size_mm
+
+    def pose(t):
+        T = to_T(np.array([0.5 * np.sin(1.3 * t), 0.45 * np.sin(0.9 * t + 1), 0.2 * np.sin(0.7 * t)]), np.zeros(3))
+        c = np.array([150 * np.sin(1.1 * t), 70 * np.sin(1.7 * t + 0.5), 700 + 120 * np.sin(0.8 * t)])
+        T[:3, 3] = c - T[:3, :3] @ np.array([w / 2, h / 2, 0])
+        return T
+
+    fps, n, offset = 25.0, 40, 3.5 / 25.0
+    _write_mp4(tmp_path / "side.mp4", render(truth.cameras["side"], board, [pose(k / fps) for k in range(n)]), fps)
+    _write_mp4(tmp_path / "front.mp4", render(truth.cameras["front"], board,
+                                              [pose(k / fps + offset) for k in range(n)], seed=1), fps)
+    res = calibrate_videos({"side": str(tmp_path / "side.mp4"), "front": str(tmp_path / "front.mp4")}, board,
+                           offsets_s={"front": offset}, detect_budget=40)
+    err = relative_pose_errors(res.calibration, truth)
+    assert err["rotation_err_deg"] < 0.2 and err["translation_err_mm"] < 1.5
+    assert err["focal_rel_err"] < 0.005

@@ -32,7 +32,7 @@ def _tables(doc: dict) -> list[tuple[str, dict]]:
         items = [(str(k), v) for k, v in doc["cameras"].items() if isinstance(v, dict)]
     else:
         items = [(k[4:], v) for k, v in doc.items() if k.startswith("cam_") and isinstance(v, dict)]
-    return sorted(items, key=lambda kv: (not kv[0].isdigit(), int(kv[0]) if kv[0].isdigit() else 0, kv[0]))
+    return sorted(items, key=lambda kv: (not kv[0].isdecimal(), int(kv[0]) if kv[0].isdecimal() else 0, kv[0]))
 
 
 def import_caliscope(path: str | Path, names: list[str] | None = None) -> Calibration:
@@ -67,8 +67,11 @@ def import_caliscope(path: str | Path, names: list[str] | None = None) -> Calibr
             cams[name] = Camera(name=name, width=int(size[0]), height=int(size[1]),
                                 matrix=np.asarray(d["matrix"], dtype=float), distortion=dist, model=model,
                                 rmse_px=float(d["error"]) if d.get("error") is not None else None)
-        except (KeyError, TypeError, ValueError, IndexError) as exc:
+        except (KeyError, TypeError, ValueError, IndexError, OverflowError) as exc:
             raise SandtrackError(f"{p}: camera {cid} is malformed ({exc})") from None
+        cams[name].check()
+        if not np.isfinite(T).all():
+            raise SandtrackError(f"{p}: camera {cid} has a pose value that is not a finite number")
         T_cw[name] = T
     first = next(iter(cams))
     world_from_rig = inv_T(T_cw[first])

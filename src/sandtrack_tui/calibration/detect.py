@@ -202,23 +202,26 @@ def open_source(path: str | Path) -> FrameSource:
 
 
 def frame_pairing(sources: dict[str, FrameSource], offsets_s: dict[str, float] | None = None) -> dict[str, np.ndarray]:
-    """For every frame of the reference (first) camera, the matching frame index of each camera
-    (-1 where none lies within half a frame). offsets_s[name] = how much later that camera started
-    recording than the reference camera (the project's sync convention)."""
+    """For every frame of the reference (first) camera, the matching position of each camera on its
+    own frame axis, as a fractional frame index (NaN outside that camera's video). offsets_s[name] =
+    how much later that camera started recording than the reference camera (the project's sync
+    convention)."""
     names = list(sources)
     ref = sources[names[0]]
     t = np.asarray(ref.times_s, dtype=float) - float(ref.times_s[0])
-    out = {names[0]: np.arange(len(ref))}
+    out = {names[0]: np.arange(len(ref), dtype=float)}
     for n in names[1:]:
         s = sources[n]
         ts = np.asarray(s.times_s, dtype=float) - float(s.times_s[0])
         target = t - float((offsets_s or {}).get(n, 0.0))
-        j = np.clip(np.searchsorted(ts, target), 0, len(ts) - 1)
-        jm = np.clip(j - 1, 0, len(ts) - 1)
-        j = np.where(np.abs(ts[jm] - target) < np.abs(ts[j] - target), jm, j)
-        tol = 0.5 / max(s.fps, 1e-6) + 1e-6
-        out[n] = np.where(np.abs(ts[j] - target) <= tol, j, -1)
+        pos = np.interp(target, ts, np.arange(len(ts), dtype=float))
+        half = 0.5 / max(s.fps, 1e-6)
+        pos[(target < ts[0] - half) | (target > ts[-1] + half)] = np.nan
+        out[n] = pos
     return out
+
+
+SUBFRAME = 0.1  # a camera more than this fraction of a frame off the reference instant is interpolated
 
 
 def _gray_frames(source: FrameSource, wanted: Sequence[int]):
@@ -266,31 +269,65 @@ def detect_in_sources(sources: dict[str, FrameSource], board: BoardSpec, ref_fra
     detector = BoardDetector(board, mirror_search=mirror_search)
     names = list(sources)
     ref_frames = sorted(set(int(f) for f in ref_frames))
-    total = len(ref_frames) * len(names)
     done = [0]
     lock = threading.Lock()
 
+    def plan(name: str) -> dict[int, list[tuple[int, int, float]]]:
+        # each reference frame needs one own frame, or two around it when the instant falls between
+        pos = pairing[name][ref_frames]
+        need: dict[int, list[tuple[int, int, float]]] = {}
+        for f, p in zip(ref_frames, pos, strict=True):
+            if not np.isfinite(p):
+                continue
+            j0 = int(np.floor(p))
+            a = p - j0
+            last_index = len(sources[name]) - 1
+            if a <= SUBFRAME or j0 >= last_index:
+                need.setdefault(min(j0, last_index), []).append((f, -1, 0.0))
+            elif a >= 1 - SUBFRAME:
+                need.setdefault(j0 + 1, []).append((f, -1, 0.0))
+            else:
+                need.setdefault(j0, []).append((f, j0 + 1, a))
+                need.setdefault(j0 + 1, [])
+        return need
+
+    needs = {n: plan(n) for n in names}
+    total = [sum(len(v) for v in needs.values())]
+
     def run(name: str) -> dict[int, BoardView]:
-        own = pairing[name][ref_frames]
-        by_own: dict[int, list[int]] = {}
-        for f, j in zip(ref_frames, own, strict=True):
-            if j >= 0:
-                by_own.setdefault(int(j), []).append(f)
-        views: dict[int, BoardView] = {}
+        need = needs[name]
+        found: dict[int, BoardView] = {}
         last: tuple[int, BoardView] | None = None
-        for j, gray in _gray_frames(sources[name], list(by_own)):
+        for j, gray in _gray_frames(sources[name], list(need)):
             hint = last[1] if last is not None and j - last[0] <= max_gap else None
             view = detector.detect(gray, hint)
             if view is not None:
                 last = (j, view)
-            for f in by_own[j]:
-                if view is not None:
-                    views[f] = BoardView(frame=f, source_frame=j, ids=view.ids, corners=view.corners,
-                                         sharpness=view.sharpness, mirrored=view.mirrored)
+                found[j] = view
             with lock:
-                done[0] += len(by_own[j])
+                done[0] += 1
                 if progress is not None:
-                    progress("detect", done[0], total)
+                    progress("detect", done[0], total[0])
+        views: dict[int, BoardView] = {}
+        for j, wants in need.items():
+            for f, j1, a in wants:
+                v0 = found.get(j)
+                if v0 is None:
+                    continue
+                if j1 < 0:
+                    views[f] = BoardView(frame=f, source_frame=j, ids=v0.ids, corners=v0.corners,
+                                         sharpness=v0.sharpness, mirrored=v0.mirrored)
+                    continue
+                v1 = found.get(j1)
+                if v1 is None:
+                    continue
+                common, i0, i1 = np.intersect1d(v0.ids, v1.ids, return_indices=True)
+                if len(common) < detector.min_corners:
+                    continue
+                # linear motion between the two frames around the reference instant
+                corners = (1 - a) * v0.corners[i0] + a * v1.corners[i1]
+                views[f] = BoardView(frame=f, source_frame=j if a < 0.5 else j1, ids=common, corners=corners,
+                                     sharpness=min(v0.sharpness, v1.sharpness), mirrored=v0.mirrored)
         return views
 
     with ThreadPoolExecutor(max_workers=max(1, min(workers, len(names)))) as pool:

@@ -28,7 +28,7 @@ def read_points_table(path: str | Path) -> tuple[pd.DataFrame, dict[str, tuple[s
     try:
         df = pd.read_csv(p)
     except (pd.errors.ParserError, UnicodeDecodeError, pd.errors.EmptyDataError) as exc:
-        raise SandtrackError(f"{p}: not a readable CSV ({exc})") from None
+        raise SandtrackError(f"{p}: not a readable CSV ({str(exc).strip().splitlines()[0]})") from None
     missing = [c for c in ("X_mm", "Y_mm", "Z_mm") if c not in df.columns]
     if missing:
         raise SandtrackError(f"{p}: missing columns {missing} (need X_mm, Y_mm, Z_mm and pixel columns)")
@@ -42,6 +42,9 @@ def read_points_table(path: str | Path) -> tuple[pd.DataFrame, dict[str, tuple[s
             cams[c[2:]] = (c, f"y_{c[2:]}")
     if len(cams) < 1:
         raise SandtrackError(f"{p}: no pixel columns (xs, ys / xf, yf, or x_NAME, y_NAME)")
+    # numbers only; anything else (text, inf) counts as missing
+    for c in ["X_mm", "Y_mm", "Z_mm", *(col for xy in cams.values() for col in xy)]:
+        df[c] = pd.to_numeric(df[c], errors="coerce").astype(float).where(lambda v: np.isfinite(v))
     return df, cams
 
 
@@ -90,7 +93,9 @@ def fit_camera(name: str, X: np.ndarray, uv: np.ndarray, size: tuple[int, int]) 
         raise SandtrackError(f"camera {name}: only {len(X)} known points; at least {MIN_POINTS} are needed")
     centred = X - X.mean(0)
     sv = np.linalg.svd(centred, compute_uv=False)
-    if sv[2] < 1e-3 * sv[0]:
+    if np.ptp(uv, axis=0).min() <= 0:
+        raise SandtrackError(f"camera {name}: the pixels of the known points do not spread over the image")
+    if sv[2] <= 1e-3 * sv[0]:
         raise SandtrackError(
             f"camera {name}: the known points lie on one plane; a single plane cannot fix the camera this way: "
             "use points spread in depth (several board positions or a 3D target), or calibrate with the board")
@@ -137,10 +142,15 @@ def calibrate_from_points(df: pd.DataFrame, cams: dict[str, tuple[str, str]],
         ok = np.isfinite(uv).all(1) & np.isfinite(X_all).all(1)
         if sizes and name in sizes:
             size = sizes[name]
+        elif not ok.any():
+            raise SandtrackError(f"camera {name}: no row has both its pixels and X, Y, Z")
         else:
-            size = (int(np.ceil(np.nanmax(uv[:, 0]) + 1)), int(np.ceil(np.nanmax(uv[:, 1]) + 1)))
+            size = (int(np.ceil(np.max(uv[ok, 0]) + 1)), int(np.ceil(np.max(uv[ok, 1]) + 1)))
             size = _standard_size(size)
-        cameras[name], reports[name] = fit_camera(name, X_all[ok], uv[ok], size)
+        try:
+            cameras[name], reports[name] = fit_camera(name, X_all[ok], uv[ok], size)
+        except (np.linalg.LinAlgError, ValueError) as exc:  # degenerate numbers (e.g. 1e300) the checks let through
+            raise SandtrackError(f"camera {name}: cannot fit a camera to these points ({exc})") from None
     first = next(iter(cameras))
     T0w = to_T(cameras[first].rvec, cameras[first].tvec)
     world_from_rig = inv_T(T0w)
