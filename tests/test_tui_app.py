@@ -51,6 +51,8 @@ async def settle(pilot, app, cond=None, timeout=10.0):
 
 async def click_source(pilot, app, camera, x, y, dcol=0, drow=0):
     """Click the cell showing source pixel (x, y) of `camera`, shifted by (dcol, drow) cells."""
+    app.clear_notifications()  # a toast over the view would catch the click
+    await pilot.pause()
     v = app.view(camera)
     col, row = v.tf.source_to_cell(x, y)
     await pilot.click(f"#view-{camera}", offset=(col + dcol + v.gutter.left, row + drow + v.gutter.top))
