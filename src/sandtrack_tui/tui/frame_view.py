@@ -212,6 +212,13 @@ def draw_overlays(rgb: np.ndarray, tf: ViewTransform, ov: Overlays) -> dict[tupl
             continue
         colour = STATUS_RGB.get(m.status, (255, 255, 255))
         hs = max(m.half_size_px, 1.5 * tf.s)
+        if hs / tf.s < 2.5 and not m.selected:
+            # zoomed out, boxes of neighbouring markers would merge: a status bar under the marker
+            u, v = tf.source_to_display(m.x, m.y)
+            u, v = int(round(float(u))), int(round(float(v)))
+            for du in (-1, 0, 1):
+                _put(rgb, u + du, v + 2, colour)
+            continue
         _rect(rgb, tf, m.x - hs, m.y - hs, m.x + hs, m.y + hs, SELECTED_RGB if m.selected else colour)
         if m.selected:
             _rect(rgb, tf, m.x - hs - tf.s, m.y - hs - tf.s, m.x + hs + tf.s, m.y + hs + tf.s, colour)
