@@ -153,6 +153,10 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, App):
             self.notify("; ".join(warnings), severity="warning", timeout=8)
 
     def on_unmount(self) -> None:
+        # Quitting or a dropped link: a running task stops at its next check (what it wrote is kept),
+        # so the process does not linger until a long tracking run ends.
+        if self.bg_task is not None:
+            self.bg_task.cancel_requested = True
         if self.feeder is not None:
             self.feeder.stop()
 
