@@ -12,11 +12,11 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from scipy.optimize import least_squares
 
 from ..camera import Calibration, Camera
 from ..errors import SandtrackError
-from .geometry import distort_project, from_T, inv_T, radial_is_monotonic, rodrigues, to_T
+from .bundle import BundleState, Observations, bundle_adjust, residuals
+from .geometry import from_T, inv_T, radial_is_monotonic, to_T
 
 MIN_POINTS = 12
 
@@ -65,7 +65,8 @@ def dlt_projection(X: np.ndarray, uv: np.ndarray) -> np.ndarray:
     A[0::2, 8:12] = -un[:, :1] * Xh
     A[1::2, 4:8] = Xh
     A[1::2, 8:12] = -un[:, 1:] * Xh
-    P = np.linalg.svd(A)[2][-1].reshape(3, 4)
+    # smallest eigenvector of A^T A (12 x 12): the same solution as the SVD of A, without the tall SVD
+    P = np.linalg.eigh(A.T @ A)[1][:, 0].reshape(3, 4)
     return np.linalg.inv(Tu) @ P @ Tx
 
 
@@ -103,28 +104,27 @@ def fit_camera(name: str, X: np.ndarray, uv: np.ndarray, size: tuple[int, int]) 
     K[0, 1] = 0.0
     rvec, _ = from_T(np.vstack([np.hstack([R, t[:, None]]), [0, 0, 0, 1]]))
 
-    def unpack(p):
-        Kp = np.array([[p[0], 0, p[2]], [0, p[1], p[3]], [0, 0, 1]])
-        return Kp, p[4:9], p[9:12], p[12:15]
+    # The points play the part of one rigid "board" whose pose is the camera's world -> camera pose.
+    obs = Observations(cam=np.zeros(len(X), int), frame=np.zeros(len(X), int), corner=np.zeros(len(X), int),
+                       board_xyz=X, uv=uv)
 
-    def fun(p):
-        Kp, d, rv, tv = unpack(p)
-        xc = X @ rodrigues(rv)[0].T + tv
-        return (distort_project(xc, Kp, d) - uv).ravel()
+    def fit(mask, start: BundleState | None = None):
+        st = start.copy() if start is not None else BundleState(
+            cam_rvec=np.zeros((1, 3)), cam_tvec=np.zeros((1, 3)), K=K[None].copy(), dist=[np.zeros(5)],
+            models=["pinhole"], frame_rvec=rvec[None].copy(), frame_tvec=t[None].copy(), fixed_k3=[False])
+        st.dist_free = [np.asarray(mask, bool)]
+        st.dist[0] = np.where(st.dist_free[0], st.dist[0], 0.0)
+        st, _ = bundle_adjust(st, obs, free_intrinsics=False, free_cameras=False)  # pose first
+        return bundle_adjust(st, obs, free_cameras=False, f_scale=2.0)
 
-    p0 = np.concatenate([[K[0, 0], K[1, 1], K[0, 2], K[1, 2]], np.zeros(5), rvec, t])
-    res = least_squares(fun, p0, loss="soft_l1", f_scale=2.0, x_scale="jac", method="trf")
-    Kp, d, rv, tv = unpack(res.x)
+    state, info = fit([1, 1, 1, 1, 1])
     k3_note = "free"
-    if not radial_is_monotonic(d, Kp, size):
-        # refit without k3: the free k3 folds the image edge back
-        def fun5(p):
-            return fun(np.concatenate([p[:8], [0.0], p[8:]]))
-        r5 = least_squares(fun5, np.delete(res.x, 8), loss="soft_l1", f_scale=2.0, x_scale="jac", method="trf")
-        res.x = np.concatenate([r5.x[:8], [0.0], r5.x[8:]])
-        Kp, d, rv, tv = unpack(res.x)
+    if not radial_is_monotonic(state.dist[0], state.K[0], size):
+        state, info = fit([1, 1, 1, 1, 0], state)
         k3_note = "fixed at 0 (a free k3 folded the image edge back)"
-    err = np.linalg.norm(fun(res.x).reshape(-1, 2), axis=1)
+    Kp, d = state.K[0], state.dist[0]
+    rv, tv = state.frame_rvec[0], state.frame_tvec[0]
+    err = np.linalg.norm(residuals(state, obs), axis=1)
     rmse = float(np.sqrt(np.mean(err ** 2)))
     cam = Camera(name=name, width=size[0], height=size[1], matrix=Kp, distortion=d, rvec=rv, tvec=tv, rmse_px=rmse)
     return cam, {"rmse_px": rmse, "points": int(len(X)), "k3": k3_note,
