@@ -13,6 +13,9 @@ from .core import available, core
 from .frame_view import FrameView
 from .tasks import guarded
 
+# Workers decode on their own (sequentially); a small cache keeps the app's memory in check.
+WORKER_CACHE_MB = 48
+
 
 class SeedingMixin:
     """Part of SandtrackApp."""
@@ -114,9 +117,12 @@ class SeedingMixin:
 
         def job(progress, should_stop):
             proj = self._worker_project()
+            sources = proj.open_sources(cache_mb=WORKER_CACHE_MB)
             try:
-                return tracking.auto_seed(proj, frame)
+                return tracking.auto_seed(proj, frame, sources=sources)
             finally:
+                for src in sources.values():
+                    src.close()
                 proj.close()
 
         self.run_task("auto-seed", job,
@@ -155,10 +161,13 @@ class SeedingMixin:
 
         def job(progress, should_stop):
             proj = self._worker_project()
+            sources = proj.open_sources(cache_mb=WORKER_CACHE_MB)
             try:
                 return tracking.track_project(proj, markers=markers, start=start, stop=stop, direction=d,
-                                              progress=progress, should_stop=should_stop)
+                                              progress=progress, should_stop=should_stop, sources=sources)
             finally:
+                for src in sources.values():
+                    src.close()
                 proj.close()
 
         self.run_task(f"tracking {what} {d}", job, on_result=self._tracking_done)
