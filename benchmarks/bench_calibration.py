@@ -153,10 +153,23 @@ def _points_vs_truth(res, truth) -> dict:
     xyz_est, _ = triangulate(res.calibration, px, refine=True)
     xyz_true, _ = triangulate(truth, px, refine=True)
     table = pts[["X_mm", "Y_mm", "Z_mm"]].to_numpy(float)
-    return {
+    out = {
         "triangulated_vs_true_cameras_mean_mm": float(np.nanmean(np.linalg.norm(xyz_est - xyz_true, axis=1))),
         "points_table_vs_true_cameras_mean_mm": float(np.nanmean(np.linalg.norm(table - xyz_true, axis=1))),
     }
+    corners_csv = SAMPLE / "ground_truth" / "calibration_corners_side.csv"
+    if corners_csv.exists():
+        import pandas as pd
+
+        gt = pd.read_csv(corners_csv).set_index(["frame", "corner_id"])
+        keys = list(zip(pts.frame, pts.corner_id, strict=True))
+        ok = np.array([k in gt.index for k in keys])
+        true_xyz = gt.loc[[k for k, o in zip(keys, ok, strict=True) if o], ["X_mm", "Y_mm", "Z_mm"]].to_numpy(float)
+        out["triangulated_corners_vs_truth_mean_mm"] = float(np.nanmean(np.linalg.norm(xyz_est[ok] - true_xyz, axis=1)))
+        out["triangulated_corners_true_calibration_mean_mm"] = float(
+            np.nanmean(np.linalg.norm(xyz_true[ok] - true_xyz, axis=1)))
+        out["points_table_vs_truth_mean_mm"] = float(np.nanmean(np.linalg.norm(table[ok] - true_xyz, axis=1)))
+    return out
 
 
 if __name__ == "__main__":
