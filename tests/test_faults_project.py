@@ -13,6 +13,7 @@ import sqlite3
 import subprocess
 import sys
 import tempfile
+import textwrap
 import time
 from pathlib import Path
 
@@ -53,11 +54,12 @@ def media():
     shutil.rmtree(root, ignore_errors=True)
 
 
-def make_project(root: Path, cal, name: str) -> Path:
+def make_project(root: Path, cal, name: str, side: str = "side.mp4") -> Path:
+    """A project on the media in `root` (name may hold a sub-folder)."""
     path = root / name
     for suffix in ("", "-wal", "-shm"):
         Path(f"{path}{suffix}").unlink(missing_ok=True)
-    with Project.create(path, {"side": root / "side.mp4", "front": root / "front.mp4"}) as proj:
+    with Project.create(path, {"side": root / side, "front": root / "front.mp4"}) as proj:
         proj.set_calibration(cal)
     path.chmod(0o666)
     return path
@@ -181,3 +183,109 @@ def test_sigkill_while_tracking_loses_nothing_and_resumes(media):
         ok = e[e.status.isin(["tracked", "manual"])]
         assert len(ok) / len(e) > 0.97
         assert ok.err.mean() < 0.5 and ok.err.max() < 3.0, ok.err.describe()
+
+
+# -- read-only project, full disk -------------------------------------------------------------
+def unprivileged() -> str | None:
+    """Root ignores file permissions: run the child as `nobody` then (None: we are not root)."""
+    if os.geteuid() != 0:
+        return None
+    if shutil.which("setpriv") is None:
+        pytest.skip("running as root without setpriv: cannot make a file read-only for the child")
+    return "nobody"
+
+
+def project_state(path: Path) -> tuple:
+    with Project.open(path) as proj:
+        return len(proj.markers()), len(proj.points()), len(proj.history()), proj.get("tracking_boxes")
+
+
+@pytest.mark.parametrize("folder_writable", [True, False], ids=["file-read-only", "folder-read-only-too"])
+def test_read_only_project_is_one_clear_line_and_unchanged(media, folder_writable):
+    root, cal, _ = media
+    folder = root / f"ro-{folder_writable}"
+    folder.mkdir(exist_ok=True)
+    path = make_project(root, cal, f"{folder.name}/p.sandtrack")
+    before = project_state(path)
+    path.chmod(0o444)
+    folder.chmod(0o777 if folder_writable else 0o555)
+    try:
+        child = sandtrack("track", path, "--auto-seed", user=unprivileged())
+        _, err = child.communicate(timeout=180)
+        line = one_line_error(child, err)
+        assert "read-only" in line, line
+    finally:
+        folder.chmod(0o755)
+        path.chmod(0o644)
+    assert project_state(path) == before
+
+
+def _can_mount_tmpfs() -> bool:
+    if os.geteuid() != 0 or shutil.which("unshare") is None:
+        return False
+    probe = subprocess.run(["unshare", "--mount", "--propagation", "private", "sh", "-c",
+                            "mount -t tmpfs -o size=64k tmpfs /mnt && umount /mnt"], capture_output=True)
+    return probe.returncode == 0
+
+
+FREE_KB = 600  # room for the seeds and a few chunks of tracking (450-750 all fill up mid-run)
+
+
+def test_full_disk_while_tracking_keeps_committed_rows(media, tmp_path):
+    """The project lives on a tiny tmpfs (in a private mount namespace) that fills up mid-run."""
+    if not _can_mount_tmpfs():
+        pytest.skip("needs root to mount a small tmpfs (the store's own test covers the core path)")
+    root, cal, _ = media
+    path = make_project(root, cal, "full.sandtrack")
+    mnt, out = tmp_path / "mnt", tmp_path / "out"
+    mnt.mkdir()
+    out.mkdir()
+    size_kb = path.stat().st_size // 1024 + FREE_KB
+    script = textwrap.dedent(f"""
+        set -e
+        mount -t tmpfs -o size={size_kb}k tmpfs {mnt}
+        cp {path} {mnt}/p.sandtrack
+        set +e
+        {sys.executable} -m sandtrack_tui track {mnt}/p.sandtrack --auto-seed 2> {out}/stderr
+        echo $? > {out}/rc
+        cp {mnt}/p.sandtrack* {out}/
+    """)
+    subprocess.run(["unshare", "--mount", "--propagation", "private", "sh", "-c", script], check=True, timeout=300)
+    err = (out / "stderr").read_text()
+    assert int((out / "rc").read_text()) == 1, err
+    line = [ln for ln in err.splitlines() if "error:" in ln]
+    assert len(line) == 1 and "disk is full" in line[0] and "Traceback" not in err, err
+    with Project.open(out / "p.sandtrack") as proj:
+        assert proj.conn.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+        hist = proj.history()
+        assert hist.description.iloc[0].startswith("track forward")
+        kept = edit_log_agrees(proj, int(hist.id.iloc[0]))
+        assert 0 < kept < 2 * 5 * (N - 1)  # some chunks were saved before the disk filled, not all
+        assert proj.undo() == hist.description.iloc[0]
+        assert set(proj.points().status) == {"manual"}
+
+
+# -- a video cut short ------------------------------------------------------------------------
+def test_truncated_video_tracks_up_to_where_it_ends(media, capsys):
+    root, cal, truth = media
+    data = (root / "side.mp4").read_bytes()
+    (root / "side_cut.mp4").write_bytes(data[: len(data) // 2])  # a copy interrupted half-way
+    path = make_project(root, cal, "cut.sandtrack", side="side_cut.mp4")
+    with Project.open(path) as proj:
+        decodable = proj.videos()["side"].frames
+    assert 20 < decodable < N
+    rc = main(["track", str(path), "--auto-seed", "--json"])
+    captured = capsys.readouterr()
+    assert rc == 0, captured.err
+    assert "Traceback" not in captured.err
+    notes = [ln for ln in captured.err.splitlines() if "cut short" in ln]
+    assert len(notes) == 1 and f"0..{decodable - 1}" in notes[0], captured.err
+    summary = json.loads(captured.out)
+    assert summary["last_frame"] == decodable - 1
+    with Project.open(path) as proj:
+        pts = proj.points()
+    per = pts.groupby(["marker", "camera"]).frame.agg(["min", "max", "count"])
+    assert (per["min"] == 0).all() and (per["max"] == decodable - 1).all() and (per["count"] == decodable).all()
+    e = errors_px(pts, truth)
+    ok = e[e.status.isin(["tracked", "manual"])]
+    assert len(ok) == len(e) and ok.err.mean() < 0.5, ok.err.describe()

@@ -166,7 +166,12 @@ class Project:
             conn = cls._connect(p)
             version = cls._read_version(conn)
         except sqlite3.DatabaseError as exc:
+            if "readonly" in str(exc) or "unable to open" in str(exc):
+                raise SandtrackError(f"{p}: cannot open the project: the file or its folder is read-only "
+                                     f"(SQLite needs to write beside it; use a writable copy)") from None
             raise SandtrackError(f"{p}: project file is damaged ({exc})") from None
+        except ValueError:
+            raise SandtrackError(f"{p}: project file is damaged (bad schema version)") from None
         if version is None:
             conn.close()
             raise SandtrackError(f"{p}: not a sandtrack project (no schema version)")
@@ -231,13 +236,27 @@ class Project:
         try:
             with self._tx():
                 return fn()
-        except sqlite3.OperationalError as exc:
+        except sqlite3.IntegrityError:
+            raise
+        except (sqlite3.DatabaseError, json.JSONDecodeError) as exc:
             msg = str(exc)
             if "readonly" in msg:
                 msg = "the project file is read-only"
             elif "full" in msg:
                 msg = "the disk is full"
+            elif isinstance(exc, json.JSONDecodeError):
+                msg = "the edit log is damaged"
             raise SandtrackError(f"{self.path}: cannot save ({msg}); nothing was changed") from None
+
+    @contextmanager
+    def _reading(self):
+        """Damage inside the file only shows when its pages are read: one line instead of a traceback."""
+        try:
+            yield
+        except (sqlite3.DatabaseError, pd.errors.DatabaseError, json.JSONDecodeError) as exc:
+            cause = exc.__cause__ if isinstance(exc.__cause__, sqlite3.Error) else exc
+            raise SandtrackError(f"{self.path}: cannot read the project file, it is damaged "
+                                 f"({str(cause).splitlines()[0][:200]})") from None
 
     # -- videos --------------------------------------------------------------------------------
     def link_video(self, camera: str, path: str | Path) -> VideoRef:
@@ -252,7 +271,9 @@ class Project:
         return ref
 
     def videos(self) -> dict[str, VideoRef]:
-        rows = self.conn.execute("SELECT * FROM videos ORDER BY rowid").fetchall()
+        with self._reading():
+            rows = self.conn.execute(
+                "SELECT camera, path, fingerprint, width, height, fps, frames FROM videos ORDER BY rowid").fetchall()
         return {r[0]: VideoRef(*r) for r in rows}
 
     def cameras(self) -> list[str]:
@@ -282,8 +303,9 @@ class Project:
 
     # -- settings ------------------------------------------------------------------------------
     def get(self, key: str, default=None):
-        row = self.conn.execute("SELECT value FROM settings WHERE key=?", (key,)).fetchone()
-        return json.loads(row[0]) if row else default
+        with self._reading():
+            row = self.conn.execute("SELECT value FROM settings WHERE key=?", (key,)).fetchone()
+            return json.loads(row[0]) if row else default
 
     def set(self, key: str, value, description: str | None = None) -> None:
         """Set a setting (JSON-serialisable) as one undoable edit."""
@@ -305,6 +327,8 @@ class Project:
         from .camera import Calibration
 
         text = self.get("calibration")
+        if text is not None and not isinstance(text, str):
+            raise SandtrackError(f"{self.path}: the stored calibration is damaged")
         return Calibration.from_toml(text, source=f"{self.path} calibration") if text else None
 
     def set_calibration(self, calibration) -> None:
@@ -318,7 +342,8 @@ class Project:
 
     # -- markers -------------------------------------------------------------------------------
     def markers(self) -> pd.DataFrame:
-        return pd.read_sql_query("SELECT id, label FROM markers ORDER BY id", self.conn)
+        with self._reading():
+            return pd.read_sql_query("SELECT id, label FROM markers ORDER BY id", self.conn)
 
     def add_marker(self, label: str | None = None, marker_id: int | None = None) -> int:
         def fn():
@@ -366,7 +391,8 @@ class Project:
         if where:
             sql += " WHERE " + " AND ".join(where)
         sql += " ORDER BY marker, camera, frame"
-        return pd.read_sql_query(sql, self.conn, params=args)
+        with self._reading():
+            return pd.read_sql_query(sql, self.conn, params=args)
 
     def set_points(self, rows, description: str = "edit points", kind: str = "points") -> int:
         """Insert or replace point rows (DataFrame or iterable of dicts/tuples in POINT_COLUMNS
@@ -419,9 +445,10 @@ class Project:
         self.conn.execute("INSERT INTO edit_rows VALUES (?,?,?,?,?,?)", (eid, seq, table, key, before, after))
 
     def history(self, limit: int = 50) -> pd.DataFrame:
-        return pd.read_sql_query(
-            "SELECT id, kind, description, created, undone FROM edits ORDER BY id DESC LIMIT ?",
-            self.conn, params=(limit,))
+        with self._reading():
+            return pd.read_sql_query(
+                "SELECT id, kind, description, created, undone FROM edits ORDER BY id DESC LIMIT ?",
+                self.conn, params=(limit,))
 
     def can_undo(self) -> bool:
         return self.conn.execute("SELECT 1 FROM edits WHERE undone=0 LIMIT 1").fetchone() is not None
@@ -431,7 +458,9 @@ class Project:
 
     def undo(self) -> str | None:
         """Undo the latest edit; returns its description, or None if there is nothing to undo."""
-        row = self.conn.execute("SELECT id, description FROM edits WHERE undone=0 ORDER BY id DESC LIMIT 1").fetchone()
+        with self._reading():
+            row = self.conn.execute(
+                "SELECT id, description FROM edits WHERE undone=0 ORDER BY id DESC LIMIT 1").fetchone()
         if row is None:
             return None
 
@@ -443,7 +472,9 @@ class Project:
         return row[1]
 
     def redo(self) -> str | None:
-        row = self.conn.execute("SELECT id, description FROM edits WHERE undone=1 ORDER BY id ASC LIMIT 1").fetchone()
+        with self._reading():
+            row = self.conn.execute(
+                "SELECT id, description FROM edits WHERE undone=1 ORDER BY id ASC LIMIT 1").fetchone()
         if row is None:
             return None
 

@@ -22,6 +22,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import SandtrackError
+from .chroma import Chroma420Frame, block_replicated
 from .decoding import prefetch
 from .engine import Engine
 from .seeding import detect_markers, marker_box, pair_by_epipolar, snap_to_marker
@@ -253,6 +254,10 @@ def track_project(project, markers=None, start: int | None = None, stop: int | N
         seeds, problems = _find_seeds(project, points, markers, cams, sources, offsets, ref, start, dirn)
         summary = {"direction": direction, "cameras": cams, "markers": markers, "problems": problems,
                    "stereo": False, "rows_written": 0, "stopped": False, "per_marker": {}}
+        for c in cams:
+            if getattr(sources[c], "truncated", False):
+                problems.append(f"{c} video is cut short: only its frames 0..{len(sources[c]) - 1} can be decoded; "
+                                f"{c} is tracked up to there")
         if not seeds:
             summary.update(frames=0, status="nothing to track")
             return summary
@@ -278,11 +283,16 @@ def track_project(project, markers=None, start: int | None = None, stop: int | N
         engine = Engine(stereo=stereo, direction=dirn)
         boxes = project.get(BOXES_KEY, {}) or {}
         params = params or TrackParams()
+        # Decoded 4:2:0 video: the tracker reads windows with the colour re-interpolated (chroma.py).
+        wrap = {}
         for (m, c), (f, x, y) in sorted(seeds.items(), key=lambda kv: (kv[0][1], kv[1][0])):
             img = sources[c].frame(f)
+            if c not in wrap:
+                wrap[c] = block_replicated(img)
             box = boxes.get(f"{m}/{c}") or marker_box(img, x, y) or (DEFAULT_BOX_PX, DEFAULT_BOX_PX)
             try:
-                engine.add(MarkerTrack(m, c, img, f, x, y, box[0], box[1], params), f)
+                engine.add(MarkerTrack(m, c, Chroma420Frame(img) if wrap[c] else img, f, x, y, box[0], box[1],
+                                       params), f)
             except SandtrackError as exc:
                 problems.append(str(exc))
         if not engine.tracks:
@@ -311,7 +321,7 @@ def track_project(project, markers=None, start: int | None = None, stop: int | N
                     jj, img = feeds[c].get()
                     if jj != j:
                         raise RuntimeError(f"frame order broken ({c}: wanted {j}, got {jj})")
-                    frames[c] = (j, img, rem)
+                    frames[c] = (j, Chroma420Frame(img) if wrap.get(c) else img, rem)
                 t1, c1 = time.perf_counter(), time.thread_time()
                 obs = engine.step(frames, manual)
                 t_track += time.perf_counter() - t1
