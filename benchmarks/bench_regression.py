@@ -47,7 +47,8 @@ def run(epochs: int | None = None) -> dict:
     cfg = TrainConfig() if epochs is None else TrainConfig(epochs=epochs)
     model = train(points, cfg, calibration=estimated)
     m = model.metrics
-    out = {"points": m["points"], "train_seconds": round(m["train_seconds"], 1), "epochs_run": m["epochs_run"],
+    out = {"points": m["points"], "train_seconds": round(m["train_seconds"], 1),
+           "train_cpu_seconds": round(m["train_cpu_seconds"], 1), "epochs_run": m["epochs_run"],
            "residual_epochs_run": m.get("residual_epochs_run"), "threads": m["threads"]}
     for key in ("mlp_mean_error_mm", "mlp_sd_mm", "mlp_median_mm", "mlp_p95_mm", "r2_x", "r2_y", "r2_z",
                 "triangulation_mean_error_mm", "triangulation_sd_mm", "residual_mean_error_mm", "residual_sd_mm"):

@@ -35,6 +35,9 @@ def check_points(df: pd.DataFrame, source: str = "points") -> pd.DataFrame:
     out = out[np.isfinite(out.to_numpy(dtype=float)).all(axis=1)].reset_index(drop=True)
     if len(out) == 0:
         raise SandtrackError(f"{source}: no complete rows")
+    frame = out["frame"].to_numpy(dtype=float)
+    if ((frame % 1 != 0) | (np.abs(frame) > 2 ** 53)).any():
+        raise SandtrackError(f"{source}: frame must be a whole number on every row")
     out["frame"] = out["frame"].astype(np.int64)
     return out
 

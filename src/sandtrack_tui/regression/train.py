@@ -82,7 +82,7 @@ def train(points: pd.DataFrame, config: TrainConfig | None = None, calibration=N
     keeping the best weights so far (metrics["stopped"] says why training ended)."""
     cfg = config or TrainConfig()
     df = check_points(points)
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     device = pick_device(cfg.device)
     threads_before = torch.get_num_threads()
     x = df[INPUTS].to_numpy(np.float64)
@@ -102,6 +102,7 @@ def train(points: pd.DataFrame, config: TrainConfig | None = None, calibration=N
     finally:
         torch.set_num_threads(threads_before)
     train_seconds = time.perf_counter() - t0
+    info["cpu_seconds"] = time.process_time() - cpu0  # with busy cores, wall time says little
     model.metrics = _metrics(model, df, tr, va, te, x, y, tri, info, train_seconds, device, threads)
     return model
 
@@ -279,7 +280,8 @@ def _metrics(model, df, tr, va, te, x, y, tri, info, train_seconds, device, thre
     m["test_outside_bounds"] = int(outside_training(model, x[te]).sum())
     m["test_outside_hull"] = int((hull_distance(model, y[te]) > 0).sum())
     m.update({"epochs_run": int(info["epochs_run"]), "best_epoch": int(info["best_epoch"]),
-              "stopped": info["stopped"], "train_seconds": float(train_seconds), "device": device.type,
+              "stopped": info["stopped"], "train_seconds": float(train_seconds),
+              "train_cpu_seconds": float(info["cpu_seconds"]), "device": device.type,
               "threads": int(threads)})
     if "residual_epochs_run" in info:
         m["residual_epochs_run"] = int(info["residual_epochs_run"])
