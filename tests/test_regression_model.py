@@ -185,3 +185,17 @@ def test_cli_help_states_the_real_defaults(capsys):
     text = " ".join(capsys.readouterr().out.split())
     d, f = TrainConfig(), TrainConfig.fast()
     assert f"default {d.epochs}, --fast {f.epochs};" in text and f"batch size (default {d.batch_size})" in text
+
+
+def test_small_validation_sets_are_measured_every_epoch_and_both_inference_paths_agree(rig):
+    few = calibration_points(rig, n_points=1200, seed=8)
+    vals = []
+    model = train(few, TrainConfig.fast(hidden=(32, 32), epochs=4, residual=False),
+                  progress=lambda e, loss, val: vals.append(val))
+    assert model.metrics["val_points"] <= 256 and len(set(vals)) == len(vals)
+    from sandtrack_tui.regression.model import SMALL_BATCH
+
+    px = few[["xs", "ys", "xf", "yf"]].to_numpy()[: SMALL_BATCH + 10]
+    big = predict(model, px)  # torch
+    small = np.concatenate([predict(model, px[i:i + 50]) for i in range(0, len(px), 50)])  # numpy
+    assert np.allclose(big, small, atol=1e-3)

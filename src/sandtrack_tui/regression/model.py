@@ -159,8 +159,10 @@ def _net_from_state(state: dict, cfg: dict, key: str = "hidden") -> MLP:
     return net
 
 
-def _forward(net: MLP, x_std: np.ndarray, batch: int = 65536) -> np.ndarray:
-    if len(x_std) <= SMALL_BATCH:
+def _forward(net: MLP, x_std: np.ndarray, batch: int = 65536, allow_numpy: bool = True) -> np.ndarray:
+    """Standardised inputs -> standardised outputs. The numpy path caches the weights: only for a
+    trained net (allow_numpy=False while its weights still change)."""
+    if allow_numpy and len(x_std) <= SMALL_BATCH:
         return _forward_numpy(net, x_std)
     device = next(net.parameters()).device
     out = np.empty((len(x_std), 3))

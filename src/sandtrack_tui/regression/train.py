@@ -224,7 +224,7 @@ def _fit(x_tr, y_tr, x_va, y_va_mm, out_mean, out_std, cfg: TrainConfig, epochs:
 def _val_error(net, x_va, y_va_mm, out_mean, out_std) -> float:
     from .model import _forward
 
-    pred = _forward(net, x_va) * out_std + out_mean
+    pred = _forward(net, x_va, allow_numpy=False) * out_std + out_mean
     return float(np.linalg.norm(pred - y_va_mm, axis=1).mean())
 
 
