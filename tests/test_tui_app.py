@@ -354,3 +354,23 @@ async def test_escape_cancels_a_running_track(project, monkeypatch):
         await settle(pilot, app, lambda: app.bg_task is None)
         assert 0 < seen["stopped_at"] < 500
         assert any("cancelled" in n.message for n in app._notifications)
+
+
+@aio
+async def test_drag_pans_a_zoomed_view_without_seeding(project):
+    from textual.events import MouseDown, MouseMove, MouseUp
+
+    app = SandtrackApp(project)
+    async with app.run_test(size=SIZE) as pilot:
+        await settle(pilot, app)
+        await pilot.press("1", "plus", "plus")
+        await settle(pilot, app)
+        app.clear_notifications()
+        x0 = app.view("side").tf.x0
+        await pilot._post_mouse_events([MouseDown], "#view-side", (20, 10), button=1)
+        await pilot._post_mouse_events([MouseMove], "#view-side", (15, 10), button=1)
+        await pilot._post_mouse_events([MouseMove, MouseUp], "#view-side", (12, 10), button=1)
+        await settle(pilot, app)
+        s = app.view("side").tf.s
+        assert app.view("side").tf.x0 == pytest.approx(x0 + 8 * s)  # dragged left by 8 cells
+        assert project.points().empty  # a drag is not a click: nothing was placed

@@ -595,6 +595,18 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, App):
         self.request_frames()
         self.update_status()
 
+    @on(FrameView.Pan)
+    @guarded
+    def _drag_pan(self, msg: FrameView.Pan) -> None:
+        cam = msg.view.camera
+        tf = msg.view.tf
+        if tf is None or self.zoom[cam] <= 1.0:
+            return
+        cx, cy = tf.center if self.center[cam] is None else self.center[cam]
+        self.center[cam] = (cx + msg.dx, cy + msg.dy)
+        self.follow = False
+        self.request_frames()
+
     @on(Timeline.Seek)
     @guarded
     def _timeline_seek(self, msg: Timeline.Seek) -> None:

@@ -348,6 +348,13 @@ class FrameView(Widget):
     class Resized(Message):
         pass
 
+    class Pan(Message):
+        """A drag: move the view by (dx, dy) source px."""
+
+        def __init__(self, view: FrameView, dx: float, dy: float) -> None:
+            super().__init__()
+            self.view, self.dx, self.dy = view, dx, dy
+
     class Zoom(Message):
         def __init__(self, view: FrameView, factor: float, x: float, y: float) -> None:
             super().__init__()
@@ -367,6 +374,8 @@ class FrameView(Widget):
         self._strips: list[Strip] = []
         self._labels: dict = {}
         self._partial_ok = False  # True once the terminal shows our last strips in full
+        self._drag_from: tuple[int, int] | None = None
+        self._dragged = False
         self.last_compose_ms = 0.0
 
     # -- data in -----------------------------------------------------------------------------
@@ -441,7 +450,32 @@ class FrameView(Widget):
         self.post_message(self.Resized())
 
     # -- mouse -------------------------------------------------------------------------------
+    def on_mouse_down(self, event: events.MouseDown) -> None:
+        if event.button == 1 and self.tf is not None and event.get_content_offset(self) is not None:
+            self._drag_from = (event.screen_x, event.screen_y)
+            self._dragged = False
+            self.capture_mouse()
+
+    def on_mouse_move(self, event: events.MouseMove) -> None:
+        if self._drag_from is None or not event.button or self.tf is None:
+            return
+        dx, dy = event.screen_x - self._drag_from[0], event.screen_y - self._drag_from[1]
+        if dx or dy:
+            self._dragged = True
+            self._drag_from = (event.screen_x, event.screen_y)
+            # the picture follows the pointer: the view's centre moves the other way
+            self.post_message(self.Pan(self, -dx * self.tf.s, -2 * dy * self.tf.s))
+
+    def on_mouse_up(self, event: events.MouseUp) -> None:
+        if self._drag_from is not None:
+            self._drag_from = None
+            self.release_mouse()
+
     def on_click(self, event: events.Click) -> None:
+        if self._dragged:  # the end of a drag is not a click
+            self._dragged = False
+            event.stop()
+            return
         off = event.get_content_offset(self)
         if off is None or self.tf is None:
             return
