@@ -206,3 +206,13 @@ def test_fractional_sync_offset_is_interpolated(tmp_path):
     err = relative_pose_errors(res.calibration, truth)
     assert err["rotation_err_deg"] < 0.2 and err["translation_err_mm"] < 1.5
     assert err["focal_rel_err"] < 0.005
+
+
+def test_world_frame_from_known_points(session, result, tmp_path):
+    # known world points (here: corners placed by the reference-frame calibration) define the same world frame
+    known = result.points.iloc[::25].reset_index(drop=True)
+    res = calibrate_videos(session["videos"], session["board"], known_points=known)
+    assert res.report["world"]["method"].startswith("known points")
+    assert res.report["world"]["rmse_mm"] < 0.5
+    probe = np.array([[0.0, 0.0, 0.0], [200.0, 50.0, 300.0]])
+    assert np.abs(res.calibration.to_world(probe) - result.calibration.to_world(probe)).max() < 1.0
