@@ -40,7 +40,7 @@ class ColourModel:
         """Per-pixel score, float32: ~0 on sand, ~1 on the marker."""
         if not bgr.size:
             return np.zeros(bgr.shape[:2], dtype=np.float32)
-        f = cv2.transform(bgr.astype(np.float32), self._matrix)
+        f = cv2.transform(bgr.astype(np.float32, copy=False), self._matrix)
         out = f[..., 0] / f[..., 1]
         out += self.b
         return out

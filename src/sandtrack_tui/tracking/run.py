@@ -283,16 +283,16 @@ def track_project(project, markers=None, start: int | None = None, stop: int | N
         engine = Engine(stereo=stereo, direction=dirn)
         boxes = project.get(BOXES_KEY, {}) or {}
         params = params or TrackParams()
-        # Decoded 4:2:0 video: the tracker reads windows with the colour re-interpolated (chroma.py).
+        # Decoded 4:2:0 video, on request: windows read with the colour re-interpolated (chroma.py).
         wrap = {}
         for (m, c), (f, x, y) in sorted(seeds.items(), key=lambda kv: (kv[0][1], kv[1][0])):
             img = sources[c].frame(f)
             if c not in wrap:
-                wrap[c] = block_replicated(img)
+                wrap[c] = params.chroma_siting if params.chroma_siting and block_replicated(img) else None
             box = boxes.get(f"{m}/{c}") or marker_box(img, x, y) or (DEFAULT_BOX_PX, DEFAULT_BOX_PX)
             try:
-                engine.add(MarkerTrack(m, c, Chroma420Frame(img) if wrap[c] else img, f, x, y, box[0], box[1],
-                                       params), f)
+                seed_img = Chroma420Frame(img, wrap[c]) if wrap[c] else img
+                engine.add(MarkerTrack(m, c, seed_img, f, x, y, box[0], box[1], params), f)
             except SandtrackError as exc:
                 problems.append(str(exc))
         if not engine.tracks:
@@ -321,7 +321,7 @@ def track_project(project, markers=None, start: int | None = None, stop: int | N
                     jj, img = feeds[c].get()
                     if jj != j:
                         raise RuntimeError(f"frame order broken ({c}: wanted {j}, got {jj})")
-                    frames[c] = (j, Chroma420Frame(img) if wrap.get(c) else img, rem)
+                    frames[c] = (j, Chroma420Frame(img, wrap[c]) if wrap.get(c) else img, rem)
                 t1, c1 = time.perf_counter(), time.thread_time()
                 obs = engine.step(frames, manual)
                 t_track += time.perf_counter() - t1

@@ -36,6 +36,9 @@ class TrackParams:
     accel_px: float = 2.0  # Kalman process noise: white acceleration, px/frame²
     meas_px: float = 0.3  # measurement noise, px
     max_search_px: float = 80.0  # cap of the half search window while hidden
+    # Re-interpolate 4:2:0 chroma at this sample position (x, y) within its 2 x 2 block (chroma.py);
+    # None = use the decoder's replicated chroma. The position depends on the camera/encoder chain.
+    chroma_siting: tuple | None = None
     gate_d2: float = GATE_D2
 
 
