@@ -14,7 +14,7 @@ TIPS = """
 ### Mouse
 - **click** in a view: place the selected marker there (snaps to the blob centre)
 - **right-click**: select the marker under the pointer
-- **wheel**: zoom about the pointer; **click the timeline**: go to that frame
+- **wheel**: zoom about the pointer; **drag**: pan a zoomed view; **click the timeline**: go to that frame
 
 ### Over SSH / tmux
 - sshd does not forward `COLORTERM`: start with `COLORTERM=truecolor sandtrack` (otherwise 256 colours).
