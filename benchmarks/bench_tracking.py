@@ -14,6 +14,7 @@ import tempfile
 import time
 from fractions import Fraction
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
@@ -22,6 +23,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
 from sandtrack_tui.camera import Calibration  # noqa: E402
+from sandtrack_tui.groundtruth import match_marker_ids, score_tracking  # noqa: E402
 from sandtrack_tui.store import Project  # noqa: E402
 from sandtrack_tui.tracking import synthetic  # noqa: E402
 from sandtrack_tui.tracking.decoding import prefetch  # noqa: E402
@@ -104,41 +106,10 @@ def _decode_only(videos, n_frames: dict) -> tuple[float, float]:
     return dt, dc
 
 
-def _accuracy(points: pd.DataFrame, truth: dict, seeds: pd.DataFrame) -> dict:
-    errs, hidden_flag, flagged_hidden, reacq = [], [], [], []
-    covered = []
-    for cam, t in truth.items():
-        p = points[points.camera == cam].merge(t, on=["frame", "marker"], suffixes=("", "_true"), how="inner")
-        seed_frames = set(map(tuple, seeds[seeds.camera == cam][["marker", "frame"]].to_numpy()))
-        p = p[[(m, f) not in seed_frames for m, f in zip(p.marker, p.frame, strict=True)]]
-        p["err"] = np.hypot(p.x_px - p.x_px_true, p.y_px - p.y_px_true)
-        vis = p[p.visible]
-        covered.append(vis.status.eq("tracked").to_numpy())
-        errs.append(vis[vis.status == "tracked"].err.to_numpy())
-        hidden_flag.append(p[~p.visible].status.isin(["occluded", "lost"]).to_numpy())
-        flagged_hidden.append((~p[p.status.isin(["occluded", "lost"])].visible).to_numpy())
-        for _m, g in p.sort_values("frame").groupby("marker"):
-            v = g.visible.to_numpy()
-            ok = (g.status.eq("tracked") & (g.err < 3)).to_numpy()
-            for k in np.nonzero(~v[:-1] & v[1:])[0] + 1:
-                later = np.nonzero(ok[k:])[0]
-                reacq.append(int(later[0]) if len(later) else 10**6)
-    e = np.concatenate(errs) if errs else np.array([])
-    hf, fh, rq = np.concatenate(hidden_flag), np.concatenate(flagged_hidden), np.array(reacq)
-    return {
-        "visible_frames": int(sum(len(c) for c in covered)),
-        "visible_tracked_frac": float(np.concatenate(covered).mean()) if covered else float("nan"),
-        "err_mean_px": float(e.mean()) if len(e) else float("nan"),
-        "err_p95_px": float(np.percentile(e, 95)) if len(e) else float("nan"),
-        "err_max_px": float(e.max()) if len(e) else float("nan"),
-        "false_locks_gt3px": int((e > 3).sum()),
-        "hidden_frames": int(len(hf)),
-        "hidden_flagged_frac": float(hf.mean()) if len(hf) else float("nan"),
-        "flagged_truly_hidden_frac": float(fh.mean()) if len(fh) else float("nan"),
-        "reappearances": int(len(rq)),
-        "reacquired_within_3_frames_frac": float((rq <= 3).mean()) if len(rq) else float("nan"),
-        "reacquire_frames_max": int(rq.max()) if len(rq) and rq.max() < 10**6 else (None if len(rq) else 0),
-    }
+def _score(points: pd.DataFrame, truth: dict) -> dict:
+    """The demo's scoring (groundtruth.score_tracking): markers matched to true ids by their first point."""
+    t = SimpleNamespace(markers=truth)
+    return score_tracking(points, t, match_marker_ids(points, t))
 
 
 def _mil(videos, truth, seeds, cam: str, n: int) -> dict:
@@ -217,10 +188,10 @@ def run(mil_frames: int = 60) -> dict:
                    cpu_rate_ratio=round(c_dec / c_trk, 3),
                    track_ms_per_marker_frame=ms_wall, track_cpu_ms_per_marker_frame=ms_cpu,
                    stereo_flags=flags, ambiguous=amb)
-        out.update(_accuracy(points, truth, seeds))
-        ours = _accuracy(points[points.frame < mil_frames], {"side": truth["side"][truth["side"].frame < mil_frames]},
-                         seeds)
-        out["ours_first_frames_err_mean_px"] = ours["err_mean_px"]
+        out.update(_score(points, truth))
+        side = points[(points.camera == "side") & (points.frame < mil_frames)]
+        ours = _score(side, {"side": truth["side"][truth["side"].frame < mil_frames]})
+        out["ours_first_frames_err_mean_px"] = ours["mean_error_px"]
         out.update(_mil(videos, truth, seeds, "side", mil_frames))
     return out
 
