@@ -12,6 +12,7 @@ from __future__ import annotations
 import copy
 import math
 import os
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -27,6 +28,8 @@ from .model import MLP, STUDY_HIDDEN, RegressionModel, hull_distance, outside_tr
 
 ProgressFn = Callable[[int, float, float], None]  # (epoch, train loss, validation mean error mm)
 StopFn = Callable[[], bool]
+# torch's RNG and thread count are process-wide: one training at a time keeps each run reproducible.
+_TRAIN_LOCK = threading.Lock()
 
 
 @dataclass
@@ -84,7 +87,6 @@ def train(points: pd.DataFrame, config: TrainConfig | None = None, calibration=N
     df = check_points(points)
     t0, cpu0 = time.perf_counter(), time.process_time()
     device = pick_device(cfg.device)
-    threads_before = torch.get_num_threads()
     x = df[INPUTS].to_numpy(np.float64)
     y = df[TARGETS].to_numpy(np.float64)
     tr, va, te = split_by_frame(df["frame"].to_numpy(), cfg.val_frac, cfg.test_frac, cfg.seed)
@@ -94,13 +96,14 @@ def train(points: pd.DataFrame, config: TrainConfig | None = None, calibration=N
     out_mean, out_std = y[tr].mean(0), _safe_std(y[tr])
     xn = (x - in_mean) / in_std
 
-    try:
-        with torch.random.fork_rng(devices=[]):  # deterministic, and leaves the caller's RNG alone
+    with _TRAIN_LOCK, torch.random.fork_rng(devices=[]):  # deterministic; leaves the caller's RNG alone
+        threads_before = torch.get_num_threads()
+        try:
             model, tri, info = _train_phases(cfg, calibration, device, x, y, xn, tr, va, in_mean, in_std,
                                              out_mean, out_std, progress, should_stop)
             threads = torch.get_num_threads()
-    finally:
-        torch.set_num_threads(threads_before)
+        finally:
+            torch.set_num_threads(threads_before)
     train_seconds = time.perf_counter() - t0
     info["cpu_seconds"] = time.process_time() - cpu0  # with busy cores, wall time says little
     model.metrics = _metrics(model, df, tr, va, te, x, y, tri, info, train_seconds, device, threads)
