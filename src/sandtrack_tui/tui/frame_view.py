@@ -207,28 +207,44 @@ def draw_overlays(rgb: np.ndarray, tf: ViewTransform, ov: Overlays) -> dict[tupl
     if ov.search is not None:
         x, y, hw, hh = ov.search
         _rect(rgb, tf, x - hw, y - hh, x + hw, y + hh, SEARCH_RGB)
+    requests = []  # (priority, label, style, candidate cells) for the ids, placed after drawing
+    marker_cells = set()
     for m in ov.marks:
         if not (np.isfinite(m.x) and np.isfinite(m.y)):
             continue
         colour = STATUS_RGB.get(m.status, (255, 255, 255))
+        style = Style(color=RichColor.from_triplet(_t(colour)), bgcolor=RichColor.from_rgb(0, 0, 0),
+                      bold=m.selected, reverse=m.selected)
         hs = max(m.half_size_px, 1.5 * tf.s)
+        mc, mr = tf.source_to_cell(m.x, m.y)
+        marker_cells.add((mr, mc))
         if hs / tf.s < 2.5 and not m.selected:
             # zoomed out, boxes of neighbouring markers would merge: a status bar under the marker
             u, v = tf.source_to_display(m.x, m.y)
             u, v = int(round(float(u))), int(round(float(v)))
             for du in (-1, 0, 1):
                 _put(rgb, u + du, v + 2, colour)
+            n = len(m.label)
+            spots = [(mr, mc + 1), (mr, mc - n), (mr - 1, mc), (mr + 1, mc)]
+            requests.append((1, m.label, style, spots))
             continue
         _rect(rgb, tf, m.x - hs, m.y - hs, m.x + hs, m.y + hs, SELECTED_RGB if m.selected else colour)
         if m.selected:
             _rect(rgb, tf, m.x - hs - tf.s, m.y - hs - tf.s, m.x + hs + tf.s, m.y + hs + tf.s, colour)
         col, row = tf.source_to_cell(m.x + hs, m.y - hs)
-        style = Style(color=RichColor.from_triplet(_t(colour)), bgcolor=RichColor.from_rgb(0, 0, 0),
-                      bold=m.selected, reverse=m.selected)
-        for k, ch in enumerate(m.label):
-            cell = (row - 1 if row > 0 else row, col + 1 + k)
-            if 0 <= cell[0] < tf.rows and 0 <= cell[1] < tf.cols:
+        requests.append((0, m.label, style, [(row - 1 if row > 0 else row, col + 1)]))
+    # ids: boxed (and selected) markers first; a crowded id is left out rather than drawn over another
+    # id or over a marker (the timeline and the table name every marker anyway)
+    for prio, text, style, spots in sorted(requests, key=lambda r: r[0]):
+        for r0, c0 in spots:
+            cells = [(r0, c0 + k) for k in range(len(text))]
+            if not all(0 <= r < tf.rows and 0 <= c < tf.cols for r, c in cells):
+                continue
+            if prio and any(cell in labels or cell in marker_cells for cell in cells):
+                continue
+            for cell, ch in zip(cells, text, strict=True):
                 labels[cell] = (ch, style)
+            break
     if ov.cursor is not None:
         u, v = tf.source_to_display(*ov.cursor)
         u, v = int(round(float(u))), int(round(float(v)))
