@@ -54,7 +54,7 @@ class TrainConfig:
     @classmethod
     def fast(cls, **kw) -> TrainConfig:
         """A quick configuration for tests and previews (same shape, few epochs)."""
-        base = {"epochs": 6, "residual_epochs": 3, "patience": 6}
+        base = {"epochs": 6, "residual_epochs": 3, "patience": 6, "batch_size": 256}
         return cls(**{**base, **kw})
 
     def total_epochs(self, with_residual: bool) -> int:
