@@ -73,7 +73,7 @@ class Engine:
             for t in live[cam]:
                 if t.coasting:
                     continue
-                m = t.propose(img)
+                m = t.propose(img, j)
                 if m is not None and self._crowded_reject(t, m, crowd.get(id(t), ())):
                     m = None
                 if m is not None:

@@ -28,6 +28,7 @@ class Match:
     colour_frac: float  # marker coverage found around the centre / seed disc area
     d2: float = float("nan")  # Mahalanobis distance² from the prediction (set by the caller)
     used_centroid: bool = True
+    luma: tuple | None = None  # centre of the marker's brightness edge (luma.py), when measured
 
 
 class TemplateMatcher:

@@ -25,6 +25,7 @@ from ..errors import SandtrackError
 from .chroma import Chroma420Frame, block_replicated
 from .decoding import prefetch
 from .engine import Engine
+from .luma import intra_frames
 from .seeding import detect_markers, marker_box, pair_by_epipolar, snap_to_marker
 from .stereo import StereoCheck
 from .tracker import DEFAULT_BOX_PX, LOST, MANUAL, OCCLUDED, TRACKED, MarkerTrack, TrackParams
@@ -298,6 +299,10 @@ def track_project(project, markers=None, start: int | None = None, stop: int | N
         if not engine.tracks:
             summary.update(frames=0, status="no marker could be started")
             return summary
+        if params.luma_carry:
+            intra = {c: intra_frames(sources[c]) for c in cams}
+            for (_m, c), t in engine.tracks.items():
+                t.intra = intra.get(c)
         man_pts = points[(points.status == MANUAL) & points.x_px.notna()]
         manual = {(int(r.marker), r.camera, int(r.frame)): (float(r.x_px), float(r.y_px))
                   for r in man_pts.itertuples() if (int(r.marker), r.camera) in engine.tracks}

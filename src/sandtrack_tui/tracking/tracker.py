@@ -17,6 +17,7 @@ import numpy as np
 from ..errors import SandtrackError
 from .colour import ColourModel, learn
 from .kalman import GATE_D2, ConstantVelocityKF
+from .luma import edge_centre
 from .matcher import Match, TemplateMatcher
 
 TRACKED, OCCLUDED, LOST, MANUAL, INTERPOLATED = "tracked", "occluded", "lost", "manual", "interpolated"
@@ -36,6 +37,10 @@ class TrackParams:
     accel_px: float = 2.0  # Kalman process noise: white acceleration, px/frame²
     meas_px: float = 0.3  # measurement noise, px
     max_search_px: float = 80.0  # cap of the half search window while hidden
+    # Between intra-coded frames, report the luma edge centre + the colour-minus-luma offset of the
+    # last intra frame (luma.py), while the marker stays within this distance of where it was then.
+    luma_carry: bool = True
+    luma_carry_max_px: float = 5.0
     # Re-interpolate 4:2:0 chroma at this sample position (x, y) within its 2 x 2 block (chroma.py);
     # None = use the decoder's replicated chroma. The position depends on the camera/encoder chain.
     chroma_siting: tuple | None = None
@@ -90,6 +95,9 @@ class MarkerTrack:
         self.reacquisitions = 0
         self._since_update = 0
         self.counts = {TRACKED: 0, OCCLUDED: 0, LOST: 0, MANUAL: 0}
+        self.intra: np.ndarray | None = None  # per frame of this camera: intra-coded (set by the caller)
+        self._offset: tuple | None = None  # colour centre - luma centre at the last intra frame
+        self._anchor_luma: tuple | None = None
 
     # -- per frame -----------------------------------------------------------------------------
     @property
@@ -104,7 +112,7 @@ class MarkerTrack:
         cap = self.params.max_search_px
         return min(hx, cap), min(hy, cap)
 
-    def propose(self, frame_bgr: np.ndarray) -> Match | None:
+    def propose(self, frame_bgr: np.ndarray, frame_index: int | None = None) -> Match | None:
         """Best acceptable match inside the gate (after predict), or None."""
         px, py = self.kf.position
         hx, hy = self.search_halfsize()
@@ -113,7 +121,36 @@ class MarkerTrack:
         if m is None:
             return None
         m.d2 = float(self.kf.mahalanobis2((m.x, m.y))[0])
-        return m if self.acceptable(m) else None
+        if not self.acceptable(m):
+            return None
+        self._carry(frame_bgr, m, frame_index)
+        return m
+
+    def _is_intra(self, frame_index: int | None) -> bool:
+        i = self.intra
+        return i is not None and frame_index is not None and 0 <= frame_index < len(i) and bool(i[frame_index])
+
+    def _carry(self, frame_bgr, m: Match, frame_index: int | None) -> None:
+        """Measure the luma centre of a whole, clearly seen marker; between intra frames, move the
+        match to luma centre + the last intra frame's offset (see luma.py)."""
+        if self.intra is None or not self.params.luma_carry or not m.used_centroid:
+            return
+        m.luma = edge_centre(frame_bgr, m.x, m.y, self.model.radius)
+        if m.luma is None or self._is_intra(frame_index) or self._offset is None:
+            return
+        lx, ly = m.luma
+        ax, ay = self._anchor_luma
+        if np.hypot(lx - ax, ly - ay) <= self.params.luma_carry_max_px:
+            m.x, m.y = lx + self._offset[0], ly + self._offset[1]
+
+    def _update_offset(self, frame_index: int, m: Match | None, reattach: bool) -> None:
+        if m is not None and m.luma is not None and self._is_intra(frame_index):
+            self._offset = (m.x - m.luma[0], m.y - m.luma[1])
+            self._anchor_luma = m.luma
+        elif m is None or m.luma is None or reattach or self._anchor_luma is None or \
+                np.hypot(m.luma[0] - self._anchor_luma[0], m.luma[1] - self._anchor_luma[1]) \
+                > self.params.luma_carry_max_px:
+            self._offset = self._anchor_luma = None  # the chain from the intra frame is broken
 
     def acceptable(self, m: Match, relax: float = 1.0) -> bool:
         p = self.params
@@ -133,6 +170,7 @@ class MarkerTrack:
         """Commit this frame's outcome and return its observation."""
         self.frame_index = frame_index
         p = self.params
+        self._update_offset(frame_index, m, reattach)
         if m is not None:
             if reattach and self.misses > 2:
                 self.kf.reset(m.x, m.y)
@@ -161,6 +199,7 @@ class MarkerTrack:
 
     def set_manual(self, frame_index: int, frame_bgr: np.ndarray | None, x: float, y: float) -> Observation:
         """An operator's point met along the way: trust it, keep tracking from it."""
+        self._offset = self._anchor_luma = None
         if self.misses > 2:
             self.kf.reset(x, y)
         else:
