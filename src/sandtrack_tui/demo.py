@@ -9,6 +9,7 @@ training set has the study's size; `fast=True` uses the small preset only and fe
 
 from __future__ import annotations
 
+import hashlib
 import os
 import shutil
 import tempfile
@@ -30,6 +31,16 @@ def cache_dir() -> Path:
     return Path(base)
 
 
+def renderer_version() -> str:
+    """Hash of the renderer's source: a cached render is redone when the renderer changed."""
+    h = hashlib.sha1()
+    twin = Path(__file__).resolve().parent / "twin"
+    for f in sorted(twin.glob("*.py")):
+        h.update(f.name.encode())
+        h.update(f.read_bytes())
+    return h.hexdigest()[:10]
+
+
 def ensure_sample(preset: str, seed: int = 0, log: Callable[[str], None] = print) -> Path:
     """The sample folder for a preset: the bundled one for "small" (seed 0), else rendered once into
     the cache (an interrupted render is redone: a marker file is written last)."""
@@ -37,7 +48,7 @@ def ensure_sample(preset: str, seed: int = 0, log: Callable[[str], None] = print
         return REPO_SAMPLE
     from .twin.sample import render_sample
 
-    out = cache_dir() / f"sample-{preset}-seed{seed}"
+    out = cache_dir() / f"sample-{preset}-seed{seed}-{renderer_version()}"
     done = out / ".complete"
     if not done.is_file():
         log(f"rendering the {preset} sample preset into {out} (once)")
