@@ -20,7 +20,7 @@ def register(sub) -> None:
                                      "(its calibration is used for the comparison unless --calibration is given)")
     p.add_argument("--calibration", help="calibration.toml for the triangulation comparison and the residual variant")
     p.add_argument("--epochs", type=int, help="maximum epochs (default 30, --fast 6; early stopping may end sooner)")
-    p.add_argument("--batch-size", type=int, help="batch size (default 1024, --fast 256)")
+    p.add_argument("--batch-size", type=int, help="batch size (default 512, --fast 256)")
     p.add_argument("--seed", type=int, default=0, help="random seed (split, weights, batches); default 0")
     p.add_argument("--fast", action="store_true", help="a quick, rougher model (few epochs): for tests and previews")
     p.add_argument("--no-residual", action="store_true", help="skip the residual variant")

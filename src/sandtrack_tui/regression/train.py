@@ -37,7 +37,7 @@ class TrainConfig:
     hidden: tuple[int, ...] = STUDY_HIDDEN
     dropout: float = 0.01  # measured on 44k points: 0 -> 0.80 mm, 0.01 -> 0.90 mm, 0.05 -> 1.29 mm mean error
     epochs: int = 30
-    batch_size: int = 1024
+    batch_size: int = 512  # measured on 44k points, 30 epochs: 1024 -> 0.90 mm, 512 -> 0.77 mm, same CPU time
     lr: float = 2e-3
     lr_final_frac: float = 0.01  # cosine decay from lr to lr * lr_final_frac
     weight_decay: float = 0.0
