@@ -22,13 +22,14 @@ import numpy as np
 
 from .chroma import LUMA_BGR
 
-N_RAYS = 24
+N_RAYS = 32
 _ANG = np.linspace(0, 2 * np.pi, N_RAYS, endpoint=False)
 _COS, _SIN = np.cos(_ANG).astype(np.float32), np.sin(_ANG).astype(np.float32)
 STEP = 0.25
+MIN_RISE = 2.0  # luma levels per half pixel: a real edge, not noise on flat sand
 
 
-def edge_centre(frame_bgr, x: float, y: float, radius: float, iterations: int = 1):
+def edge_centre(frame_bgr, x: float, y: float, radius: float, iterations: int = 3, settle_px: float = 0.2):
     """Centre (x, y) of the marker's dark silhouette near (x, y) in frame coordinates, or None."""
     H, W = frame_bgr.shape[:2]
     R = int(np.ceil(1.8 * radius + 3))
@@ -43,12 +44,12 @@ def edge_centre(frame_bgr, x: float, y: float, radius: float, iterations: int = 
     for _ in range(iterations):
         px = _COS_S[n] + np.float32(cx)
         py = _SIN_S[n] + np.float32(cy)
-        prof = cv2.remap(luma, px, py, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        prof = cv2.remap(luma, px, py, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)
         g = prof[:, 2:] - prof[:, :-2]  # outward rise of brightness (central difference)
         k = np.minimum(np.maximum(np.argmax(g, axis=1), 1), n - 4)
         a, b, c = g[_ROWS, k - 1], g[_ROWS, k], g[_ROWS, k + 1]
         den = a - 2 * b + c
-        ok = (b > 0) & (den < 0)
+        ok = (b > MIN_RISE) & (den < 0)
         if ok.sum() < N_RAYS // 2:
             return None
         den = np.where(ok, den, -1.0)
@@ -60,6 +61,8 @@ def edge_centre(frame_bgr, x: float, y: float, radius: float, iterations: int = 
         if ox * ox + oy * oy > 4.0 or abs(r - radius) > 0.5 * radius + 1:
             return None
         cx, cy = cx + ox, cy + oy
+        if ox * ox + oy * oy < settle_px * settle_px:
+            break  # rays from here cross the edge nearly square: another round changes little
     return cx + x0, cy + y0
 
 

@@ -1,0 +1,77 @@
+"""Tracking H.264 video of synthetic markers (clean, and dusty with a tool passing over them), with and
+without the luma carry between intra-coded frames: the carry must not cost accuracy or cause a false lock."""
+
+from __future__ import annotations
+
+from fractions import Fraction
+
+import av
+import numpy as np
+import pytest
+
+from sandtrack_tui.store import Project
+from sandtrack_tui.tracking import synthetic
+from sandtrack_tui.tracking.luma import edge_centre, intra_frames
+from sandtrack_tui.tracking.run import accept_seeds, track_project
+from sandtrack_tui.tracking.tracker import TrackParams
+from sandtrack_tui.video import FrameSource
+
+N = 75
+KEYINT = 25
+
+
+def _encode(frames, path) -> None:
+    with av.open(str(path), "w") as out:
+        s = out.add_stream("libx264", rate=Fraction(50))
+        s.width, s.height, s.pix_fmt = frames[0].shape[1], frames[0].shape[0], "yuv420p"
+        s.options = {"crf": "26", "preset": "veryfast",
+                     "x264-params": f"keyint={KEYINT}:min-keyint={KEYINT}:scenecut=0:bframes=2"}
+        for img in frames:
+            for p in s.encode(av.VideoFrame.from_ndarray(img, format="bgr24")):
+                out.mux(p)
+        for p in s.encode():
+            out.mux(p)
+
+
+def _paths():
+    t = np.arange(N, dtype=float)
+    paths = synthetic.standard_paths(N)
+    paths.append(synthetic.MarkerPath(7, np.stack([100 + 0.15 * t, 60 + 0.08 * t], 1), radius=4.5))  # creeping
+    paths.append(synthetic.MarkerPath(8, np.stack([380 + 0.3 * t, 40 + 0.0 * t], 1), radius=4.2))
+    return paths
+
+
+def _track(video, clip, tmp_path, carry: bool):
+    with Project.create(tmp_path / f"carry{carry}.sandtrack", {"side": video}) as proj:
+        accept_seeds(proj, clip.seeds.rename(columns={"x": "x_px", "y": "y_px"}).assign(camera="side"))
+        track_project(proj, params=TrackParams(luma_carry=carry))
+        p = proj.points().merge(clip.truth, on=["frame", "marker"], suffixes=("", "_t"))
+    p = p[(p.status == "tracked") & p.visible]
+    return np.hypot(p.x_px - p.x_px_t, p.y_px - p.y_px_t).to_numpy()
+
+
+@pytest.mark.parametrize("dusty, tool", [(0.0, None), (0.35, (240, 300, 40, -60, 6.0))], ids=["clean", "dusty"])
+def test_luma_carry_costs_nothing_on_clean_or_dusty_video(tmp_path, dusty, tool):
+    clip = synthetic.render(_paths(), N, dusty=dusty, tool=tool, seed=3)
+    video = tmp_path / "side.mp4"
+    _encode(clip.frames, video)
+    with FrameSource(video, cache_mb=8) as src:
+        assert np.flatnonzero(intra_frames(src)).tolist() == list(range(0, N, KEYINT))
+    off, on = _track(video, clip, tmp_path, False), _track(video, clip, tmp_path, True)
+    assert len(on) == len(off) > 0.9 * clip.truth.visible.sum()  # the carry never changes what is tracked
+    assert on.max() < 3.0  # no false lock
+    assert on.mean() <= off.mean() + 0.03 and np.percentile(on, 95) <= np.percentile(off, 95) + 0.05
+
+
+def test_edge_centre_finds_a_dark_disc_and_refuses_flat_sand():
+    img = np.full((60, 60, 3), (110, 150, 185), np.uint8)
+    yy, xx = np.mgrid[0:60, 0:60]
+    cx, cy, r = 30.3, 28.6, 4.5
+    ss = 8  # anti-aliased disc
+    sub = ((xx[..., None, None] + (np.arange(ss)[None, None, :, None] + 0.5) / ss - 0.5 - cx) ** 2
+           + (yy[..., None, None] + (np.arange(ss)[None, None, None, :] + 0.5) / ss - 0.5 - cy) ** 2) < r * r
+    cov = sub.mean(axis=(2, 3))[..., None]
+    img = (img * (1 - cov) + np.array([175, 95, 35]) * 0.6 * cov).astype(np.uint8)
+    x, y = edge_centre(img, cx + 0.7, cy - 0.5, r)
+    assert np.hypot(x - cx, y - cy) < 0.1
+    assert edge_centre(np.full((60, 60, 3), 128, np.uint8), 30, 30, r) is None
