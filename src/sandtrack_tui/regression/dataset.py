@@ -21,8 +21,11 @@ def load_points(path: str | Path) -> pd.DataFrame:
         raise SandtrackError(f"points file not found: {p}")
     try:
         df = pd.read_csv(p)
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
-        raise SandtrackError(f"{p}: not a readable CSV ({str(exc).splitlines()[0]})") from None
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError, ValueError) as exc:
+        first = (str(exc).splitlines() or [type(exc).__name__])[0]
+        raise SandtrackError(f"{p}: not a readable CSV ({first})") from None
+    except OSError as exc:
+        raise SandtrackError(f"cannot read {p}: {exc.strerror}") from None
     return check_points(df, str(p))
 
 
@@ -32,7 +35,9 @@ def check_points(df: pd.DataFrame, source: str = "points") -> pd.DataFrame:
         raise SandtrackError(f"{source}: missing column(s) {', '.join(missing)} "
                              f"(expected {', '.join(POINT_COLUMNS)})")
     out = df[POINT_COLUMNS].apply(pd.to_numeric, errors="coerce")
-    out = out[np.isfinite(out.to_numpy(dtype=float)).all(axis=1)].reset_index(drop=True)
+    values = out.to_numpy(dtype=float)
+    ok = np.isfinite(values).all(axis=1) & (np.abs(values[:, 0]) < 2**53)
+    out = out[ok].reset_index(drop=True)
     if len(out) == 0:
         raise SandtrackError(f"{source}: no complete rows")
     frame = out["frame"].to_numpy(dtype=float)
