@@ -57,7 +57,8 @@ class ColourModel:
         """Soft marker membership for centroids (≈ coverage of the pixel by the marker)."""
         lo = min(0.5 * self.threshold, 0.15)
         w = (score - lo) * (1.0 / (1.0 - lo))
-        np.clip(w, 0.0, 1.0, out=w)
+        np.maximum(w, 0.0, out=w)  # (np.clip's wrapper costs more than the clipping here)
+        np.minimum(w, 1.0, out=w)
         return w
 
 

@@ -66,10 +66,14 @@ class ConstantVelocityKF:
 
     def mahalanobis2(self, z) -> np.ndarray:
         """Squared Mahalanobis distance(s) of measurement(s) z (2,) or (N, 2) from the prediction."""
+        s00, s01, s11 = self.P[0, 0] + self.R[0, 0], self.P[0, 1] + self.R[0, 1], self.P[1, 1] + self.R[1, 1]
+        det = s00 * s11 - s01 * s01
+        if isinstance(z, tuple) and len(z) == 2:  # one point: plain floats (per track and frame)
+            dx, dy = float(z[0]) - self.x[0], float(z[1]) - self.x[1]
+            return np.array([(s11 * dx * dx - 2 * s01 * dx * dy + s00 * dy * dy) / det])
         z = np.atleast_2d(np.asarray(z, dtype=np.float64))
         d = z - self.x[:2]
-        Si = self.innovation_inv()
-        return Si[0, 0] * d[:, 0] ** 2 + 2 * Si[0, 1] * d[:, 0] * d[:, 1] + Si[1, 1] * d[:, 1] ** 2
+        return (s11 * d[:, 0] ** 2 - 2 * s01 * d[:, 0] * d[:, 1] + s00 * d[:, 1] ** 2) / det
 
     def gate_halfsize(self, d2: float = GATE_D2) -> tuple[float, float]:
         """Half extents (x, y) of the box enclosing the gate ellipse."""

@@ -196,10 +196,11 @@ def _d2(S_inv: np.ndarray, dx: float, dy: float) -> float:
 
 
 def _parabola(a: float, b: float, c: float) -> float:
+    a, b, c = float(a), float(b), float(c)
     den = a - 2 * b + c
     if den >= 0:
         return 0.0
-    return float(np.clip(0.5 * (a - c) / den, -0.5, 0.5))
+    return min(max(0.5 * (a - c) / den, -0.5), 0.5)
 
 
 def _psr(res: np.ndarray, r: int, c: int, excl: int) -> float:

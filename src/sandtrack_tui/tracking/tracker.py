@@ -135,8 +135,11 @@ class MarkerTrack:
         match to luma centre + the last intra frame's offset (see luma.py)."""
         if self.intra is None or not self.params.luma_carry or not m.used_centroid:
             return
+        intra = self._is_intra(frame_index)
+        if not intra and self._offset is None:
+            return  # nothing to carry until the next intra frame
         m.luma = edge_centre(frame_bgr, m.x, m.y, self.model.radius)
-        if m.luma is None or self._is_intra(frame_index) or self._offset is None:
+        if m.luma is None or intra:
             return
         lx, ly = m.luma
         ax, ay = self._anchor_luma
