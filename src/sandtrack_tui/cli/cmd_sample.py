@@ -21,7 +21,7 @@ def register(sub) -> None:
     p.add_argument("out_dir", help="output folder (created if missing; files in it are overwritten)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--preset", choices=["small", "full", "tiny"], default="small",
-                   help="small: 8.8 s experiment + 6 s calibration (the bundled sample_data); "
+                   help="small: 8.8 s experiment + 8 s calibration (the bundled sample_data); "
                         "full: same experiment + 42 s calibration (>= 44,130 two-view corner observations); "
                         "tiny: a few frames, for tests")
     p.add_argument("--workers", type=int, default=2, help="worker processes (default 2)")

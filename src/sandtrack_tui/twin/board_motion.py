@@ -23,7 +23,7 @@ R_REF = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 REF_ORIGIN = np.array([150.0, SAND_Y + PLATE_THICKNESS_MM, 520.0])
 FLAT_UNTIL_S = 1.6
 LIFT_S = 1.0
-SHUTTER_S = 1.0 / 120.0
+SHUTTER_S = 1.0 / 200.0
 
 
 def _rx(a):
@@ -53,15 +53,24 @@ class BoardMotion:
             return [(a, rng.uniform(f_lo, f_hi), rng.uniform(0, 2 * np.pi)) for a in amps]
 
         self.params = {
-            "x": comp([75, 35, 12], 0.04, 0.22),
-            "y": comp([45, 20, 6], 0.05, 0.25),
-            "z": comp([95, 40, 10], 0.04, 0.22),
+            "x": comp([85, 40, 12], 0.04, 0.22),
+            "y": comp([40, 18, 6], 0.05, 0.25),
+            "z": comp([110, 45, 10], 0.04, 0.22),
             "ax": comp([np.radians(24), np.radians(10)], 0.05, 0.3),
             "az": comp([np.radians(26), np.radians(10)], 0.05, 0.3),
             "yaw": comp([np.radians(35), np.radians(15)], 0.03, 0.2),
         }
-        self.mean = {"x": 250.0, "y": 350.0, "z": 610.0, "ax": np.radians(20), "az": np.radians(16), "yaw": 0.0}
-        self.flicks = [(rng.uniform(3.0, 200.0), rng.uniform(0.25, 0.5)) for _ in range(40)]  # quick jerks
+        self.mean = {"x": 250.0, "y": 315.0, "z": 610.0, "ax": np.radians(24), "az": np.radians(10), "yaw": 0.0}
+        # quick jerks of the hand (motion blur), some far enough to leave a camera's view partly
+        # the first ones are fixed so that even short sessions move partly out of each camera's view
+        self.flicks = [(3.0, 1.3, np.array([-20.0, -10.0, -240.0])), (4.9, 1.5, np.array([30.0, 20.0, 175.0])),
+                       (6.7, 1.0, np.array([110.0, 0.0, -90.0]))]
+        self.tilts = [(4.0, 1.4, np.radians(30), 0.0), (6.0, 1.2, 0.0, np.radians(22)),
+                      (7.4, 0.6, np.radians(-20), np.radians(-20))]
+        for _ in range(int(200 / 2.5)):
+            ang = rng.uniform(0, 2 * np.pi)
+            self.flicks.append((rng.uniform(8.0, 200.0), rng.uniform(0.6, 1.2), rng.uniform(30, 130) *
+                                np.array([np.cos(ang), 0.3 * rng.standard_normal(), np.sin(ang)])))
 
     def _value(self, key, t):
         v = self.mean[key]
@@ -75,13 +84,20 @@ class BoardMotion:
         w = w * w * (3 - 2 * w)
         if w <= 0:
             return R_REF.copy(), REF_ORIGIN.copy()
-        jerk = 0.0
-        for t0, dur in self.flicks:
+        jerk = np.zeros(3)
+        for t0, dur, amp in self.flicks:
             if t0 <= t <= t0 + dur:
-                jerk += np.sin(np.pi * (t - t0) / dur) ** 2
+                jerk += amp * np.sin(np.pi * (t - t0) / dur) ** 2
         v = {k: self._value(k, t) for k in self.params}
-        center = np.array([v["x"] + 30 * jerk, v["y"], v["z"] + 40 * jerk])
+        center = np.array([v["x"], v["y"], v["z"]]) + jerk
+        # the plate (half-diagonal ~135 mm) stays inside the box, clear of the walls
+        center[0] = np.clip(center[0], 150.0, 350.0)
+        center[2] = np.clip(center[2], 200.0, 1300.0)
         ax, az = v["ax"], v["az"]
+        for t0, dur, dax, daz in self.tilts:
+            if t0 <= t <= t0 + dur:
+                bump = np.sin(np.pi * (t - t0) / dur) ** 2
+                ax, az = ax + dax * bump, az + daz * bump
         tilt = np.hypot(ax, az)
         lim = np.radians(62)
         if tilt > lim:

@@ -46,7 +46,7 @@ ray-cast through the true camera models (distortion included), so every figure b
   ChArUco id; XYZ in the world frame). Visible = inside the image and on the printed side, less than 80 deg off.
 - `ground_truth/calibration_board_poses.csv`: per camera and calibration frame:
   `camera, frame, time_s, scene_time_s, rx, ry, rz` (Rodrigues) and `tx_mm, ty_mm, tz_mm` of world_from_board
-  (X_world = R X_board + t), `blur_samples` (poses averaged within the 1/120 s exposure), `blur_px` (largest
+  (X_world = R X_board + t), `blur_samples` (poses averaged within the 1/200 s exposure), `blur_px` (largest
   corner motion during the exposure).
 - `ground_truth/scene.json`: box, camera centres, tool, marker radius, visibility rule.
 - `dem/particles.csv`: "model" trajectories in the DEM exchange format `particle_id, time_s, x, y, z` (mm, world

@@ -23,7 +23,6 @@ Y_MARCH_BOT = SAND_Y - 25.0
 MARKER_BGR = np.array([0.70, 0.33, 0.09], np.float32)  # blue paint on wood
 STEEL_BGR = np.array([0.42, 0.43, 0.44], np.float32)
 SHADOW_TOP_Y = 800.0  # the lamp's light reaches the sand past the shank's parts below this height
-LIGHT_JITTER = np.array([[0.0, 0.0, 0.0], [0.05, 0.0, 0.03], [-0.05, 0.0, -0.03]])  # area lamp: soft shadows
 
 
 def _norm(v):
@@ -141,7 +140,9 @@ class CameraView:
             gx, gz, D = g3[..., 0], g3[..., 1], g3[..., 2]
             inv = 1.0 / np.sqrt(gx * gx + gz * gz + 1.0)
         lamb = np.clip((LIGHT_DIR[1] - gx * LIGHT_DIR[0] - gz * LIGHT_DIR[2]) * inv + s4[..., 3] * (1 - 0.6 * D), 0, 1)
-        shade = (AMBIENT * c3[..., 1] + DIFFUSE * lamb * c3[..., 2]) * c3[..., 0] * (1.0 - 0.10 * D)
+        shade = (AMBIENT * c3[..., 1] + DIFFUSE * lamb * c3[..., 2]) * c3[..., 0] * (1.0 - 0.06 * D)
+        # less light reaches down into the furrow
+        shade = shade * (1.0 - 0.22 * np.clip((SAND_Y - P[..., 1]) / 20.0, 0.0, 1.0))
         return s4[..., :3] * shade[..., None]
 
     # -- surface update -----------------------------------------------------------------------
@@ -207,8 +208,8 @@ class CameraView:
         ta = (Y_MARCH_TOP - C[1]) / dy
         tb = (Y_MARCH_BOT - C[1]) / dy
         # coarse pass on every other pixel, then a short bracketed search per pixel
-        n = int(np.ceil((Y_MARCH_TOP - Y_MARCH_BOT) / 2.5))
-        th, _ = self._march(d[::2, ::2], C, surf.H, ta[::2, ::2], tb[::2, ::2], n, 5)
+        n = int(np.ceil((Y_MARCH_TOP - Y_MARCH_BOT) / 3.0))
+        th, _ = self._march(d[::2, ::2], C, surf.H, ta[::2, ::2], tb[::2, ::2], n, 4)
         k = np.ones((3, 3), np.uint8)
         tmin = cv2.resize(cv2.erode(th, k), None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST)[: y1 - y0, : x1 - x0]
         tmax = cv2.resize(cv2.dilate(th, k), None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST)[: y1 - y0, : x1 - x0]
@@ -242,11 +243,10 @@ class CameraView:
         lit = np.zeros(len(Pn))
         shadow_box = box.copy()
         shadow_box[1, 1] = top
-        for j in LIGHT_JITTER:
-            t, _ = ray_box(Pn, np.broadcast_to(_norm(L + j), Pn.shape), shadow_box)
-            lit += np.isinf(t)
-        lit = (lit / len(LIGHT_JITTER)).reshape(zz.shape).astype(np.float32)
-        lit = cv2.GaussianBlur(lit, (0, 0), 1.0)
+        t, _ = ray_box(Pn, np.broadcast_to(L, Pn.shape), shadow_box)
+        lit += np.isinf(t)
+        # the lamp is not a point: soft shadow edges (penumbra of a few mm)
+        lit = cv2.GaussianBlur(lit.reshape(zz.shape).astype(np.float32), (0, 0), 2.5)
         bb = self.image_bbox(np.array([xa.min(), SAND_Y - 25, za.min()]), np.array([xa.max(), SAND_Y + 21, za.max()]))
         if bb is not None:
             y0, y1, x0, x1 = bb
@@ -286,7 +286,7 @@ class CameraView:
                 nrm[np.arange(len(d)), axis] = -np.sign(d[np.arange(len(d)), axis])
                 lamb = np.clip(nrm @ L, 0, 1)
                 Q = self.C + t[:, None] * d
-                streak = 1.0 + 0.04 * np.sin(Q[:, 1] * 0.7 + np.sin(Q[:, 0] * 0.3 + Q[:, 2] * 0.2) * 2.0)
+                streak = 1.0 + 0.025 * np.sin(Q[:, 0] * 2.1 + Q[:, 2] * 1.7 + 0.004 * Q[:, 1])  # brushed steel
                 dusty = np.exp(-np.maximum(Q[:, 1] - SAND_Y, 0) / 30.0)[:, None]
                 base = STEEL_BGR * (1 - dusty) + np.array([0.42, 0.55, 0.64]) * dusty
                 col = base * ((0.45 + 0.7 * lamb) * streak)[:, None] * self.vignette[ys, xs][iy, ix][:, None] * 255.0
@@ -356,8 +356,8 @@ class CameraView:
             nrm = (Q - P) / MARKER_RADIUS
             lamb = np.clip(nrm @ L, 0, 1)
             hvec = _norm(L - dd)
-            spec = np.clip(np.sum(nrm * hvec, axis=1), 0, 1) ** 24 * 0.22
-            col = MARKER_BGR * (0.32 + 0.78 * lamb)[:, None] + spec[:, None]
+            spec = np.clip(np.sum(nrm * hvec, axis=1), 0, 1) ** 30 * 0.10
+            col = MARKER_BGR * (0.55 + 0.5 * lamb)[:, None] + spec[:, None]  # matte paint, diffuse lab light
             col = col * 255.0
             frac = hit.reshape(y1c - y0c, x1c - x0c, ss * ss)
             colr = (col * hit[:, None]).reshape(y1c - y0c, x1c - x0c, ss * ss, 3).sum(2)

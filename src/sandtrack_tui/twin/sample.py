@@ -16,7 +16,9 @@ Each video is rendered by its own worker process (two at a time); the result onl
 from __future__ import annotations
 
 import json
+import multiprocessing
 import os
+import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
@@ -71,7 +73,7 @@ class Preset:
 
 
 PRESETS = {
-    "small": Preset("small", exp_frames=440, exp_start_s=0.0, cal_frames=300),
+    "small": Preset("small", exp_frames=440, exp_start_s=0.0, cal_frames=400),
     "full": Preset("full", exp_frames=440, exp_start_s=0.0, cal_frames=2100),
     # for tests: a few frames around the tool meeting the markers
     "tiny": Preset("tiny", exp_frames=4, exp_start_s=5.3, cal_frames=4),
@@ -193,8 +195,11 @@ def render_sample(out_dir: str | Path, seed: int = 0, preset: str = "small", wor
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise SandtrackError(f"{out} exists and is not a folder")
-    for sub in ("calibration", "experiment", "ground_truth", "dem"):
-        (out / sub).mkdir(parents=True, exist_ok=True)
+    try:
+        for sub in ("calibration", "experiment", "ground_truth", "dem"):
+            (out / sub).mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SandtrackError(f"cannot create {out}: {exc.strerror or exc}") from None
     t0 = time.perf_counter()
     jobs = [(cam, seed, preset, str(out / "calibration" / f"{cam}.mp4"), str(out / "experiment" / f"{cam}.mp4"))
             for cam in ("side", "front")]
@@ -202,7 +207,10 @@ def render_sample(out_dir: str | Path, seed: int = 0, preset: str = "small", wor
     if workers <= 1:
         results = [_camera_worker(a) for a in jobs]
     else:
-        with ProcessPoolExecutor(max_workers=min(workers, len(jobs))) as ex:
+        # fork only from a single-threaded process (a caller like the TUI runs threads, which fork does not copy
+        # safely); spawn needs the caller's main module to be import-safe
+        ctx = multiprocessing.get_context("fork" if threading.active_count() == 1 else "spawn")
+        with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=ctx) as ex:
             futs = [ex.submit(_camera_worker, a) for a in jobs]
             results = []
             for f in futs:
@@ -227,6 +235,21 @@ def render_sample(out_dir: str | Path, seed: int = 0, preset: str = "small", wor
         "total_bytes": int(sum(sizes.values())),
         "files": sizes,
     }
+
+
+def two_view_observations(preset: str, seed: int = 0) -> int:
+    """Corners seen by both cameras at the same instant over a preset's calibration session (from the
+    geometry alone, without rendering)."""
+    pr = PRESETS[preset]
+    cams = world_cameras()
+    motion = BoardMotion(BOARD, seed)
+    total = 0
+    for i in range(CAL_OFFSET_FRAMES, pr.cal_frames):  # side frame i and front frame i - offset
+        R, t = motion.pose(i / FPS)
+        ids_s = corner_truth(BOARD, cams["side"], R, t)[0]
+        ids_f = corner_truth(BOARD, cams["front"], R, t)[0]
+        total += len(np.intersect1d(ids_s, ids_f))
+    return total
 
 
 def _two_view_count(cal) -> int:
