@@ -70,6 +70,14 @@ def run(epochs: int | None = None) -> dict:
 SAMPLE = Path(__file__).resolve().parents[1] / "sample_data" / "ground_truth"
 
 
+def _twin_folder() -> Path:
+    """The full preset's ground truth when `sandtrack demo` has rendered it, else the bundled sample."""
+    from sandtrack_tui.demo import cache_dir
+
+    full = cache_dir() / "sample-full-seed0"
+    return full / "ground_truth" if (full / ".complete").is_file() else SAMPLE
+
+
 def twin_points(folder: Path = SAMPLE, noise_px: float = 0.3, seed: int = 0):
     """points.csv rows from the digital twin's true calibration corners (side frame i pairs with
     front frame i - offset_frames), with Gaussian detection noise; None if the twin is absent."""
@@ -97,15 +105,17 @@ def _twin(epochs: int | None) -> dict:
 
     from sandtrack_tui.regression import hull_distance
 
-    points = twin_points()
+    folder = _twin_folder()
+    points = twin_points(folder)
     if points is None:
         return {}
-    cal = Calibration.load(SAMPLE / "cameras.toml")
+    cal = Calibration.load(folder / "cameras.toml")
     model = train(points, TrainConfig() if epochs is None else TrainConfig(epochs=epochs), calibration=cal)
     m = model.metrics
     out = {f"twin_{k}": round(m[k], 3) for k in ("points", "train_seconds", "mlp_mean_error_mm", "mlp_sd_mm",
                                                  "triangulation_mean_error_mm", "residual_mean_error_mm")}
-    traj = pd.read_csv(SAMPLE / "trajectories.csv")
+    out["twin_preset"] = "full" if folder != SAMPLE else "small"
+    traj = pd.read_csv(folder / "trajectories.csv")
     seen = traj[(traj["visible_side"] == 1) & (traj["visible_front"] == 1)][["X_mm", "Y_mm", "Z_mm"]].to_numpy()
     if len(seen):
         out["twin_markers_outside_board_volume_pct"] = round(100 * float((hull_distance(model, seen) > 5).mean()), 1)
