@@ -72,9 +72,12 @@ SAMPLE = Path(__file__).resolve().parents[1] / "sample_data" / "ground_truth"
 
 def _twin_folder() -> Path:
     """The full preset's ground truth when `sandtrack demo` has rendered it, else the bundled sample."""
-    from sandtrack_tui.demo import cache_dir
+    from sandtrack_tui import demo
 
-    full = cache_dir() / "sample-full-seed0"
+    name = "sample-full-seed0"
+    if hasattr(demo, "renderer_version"):
+        name += f"-{demo.renderer_version()}"
+    full = demo.cache_dir() / name
     return full / "ground_truth" if (full / ".complete").is_file() else SAMPLE
 
 
