@@ -41,11 +41,17 @@ def _paths():
     return paths
 
 
-def _track(video, clip, tmp_path, carry: bool):
-    with Project.create(tmp_path / f"carry{carry}.sandtrack", {"side": video}) as proj:
+def _run(video, clip, tmp_path, **params):
+    name = "_".join(f"{k}{v}" for k, v in params.items())
+    with Project.create(tmp_path / f"{name}.sandtrack", {"side": video}) as proj:
         accept_seeds(proj, clip.seeds.rename(columns={"x": "x_px", "y": "y_px"}).assign(camera="side"))
-        track_project(proj, params=TrackParams(luma_carry=carry))
+        summary = track_project(proj, params=TrackParams(**params))
         p = proj.points().merge(clip.truth, on=["frame", "marker"], suffixes=("", "_t"))
+    return p, summary
+
+
+def _track(video, clip, tmp_path, carry: bool):
+    p, _ = _run(video, clip, tmp_path, luma_carry=carry)
     p = p[(p.status == "tracked") & p.visible]
     return np.hypot(p.x_px - p.x_px_t, p.y_px - p.y_px_t).to_numpy()
 
@@ -75,3 +81,23 @@ def test_edge_centre_finds_a_dark_disc_and_refuses_flat_sand():
     x, y = edge_centre(img, cx + 0.7, cy - 0.5, r)
     assert np.hypot(x - cx, y - cy) < 0.1
     assert edge_centre(np.full((60, 60, 3), 128, np.uint8), 30, 30, r) is None
+
+
+def test_markers_at_rest_keep_their_measurement_and_moving_ones_are_measured(tmp_path):
+    t = np.arange(N, dtype=float)
+    paths = [synthetic.MarkerPath(1, np.stack([120.3 + 0 * t, 100.6 + 0 * t], 1)),  # still
+             synthetic.MarkerPath(2, np.stack([60 + 0.5 * t, 250 + 0.2 * t], 1)),  # drifting
+             synthetic.MarkerPath(3, np.stack([330 + 0.05 * t, 180 - 0.03 * t], 1))]  # creeping
+    clip = synthetic.render(paths, N, seed=5)
+    video = tmp_path / "side.mp4"
+    _encode(clip.frames, video)
+    full, _ = _run(video, clip, tmp_path, rest_check=False)
+    fast, summary = _run(video, clip, tmp_path, rest_check=True)
+    at_rest = {int(m): d["side"]["at_rest"] for m, d in summary["per_marker"].items()}
+    assert at_rest[1] > N // 2 and at_rest[2] == 0
+    both = full.merge(fast, on=["frame", "marker"], suffixes=("_full", "_fast"))
+    assert (both.status_full == both.status_fast).all()
+    shift = np.hypot(both.x_px_full - both.x_px_fast, both.y_px_full - both.y_px_fast)
+    assert shift.max() < 0.1
+    err = np.hypot(fast.x_px - fast.x_px_t, fast.y_px - fast.y_px_t)
+    assert err[fast.status == "tracked"].max() < 1.0

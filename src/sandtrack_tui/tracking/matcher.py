@@ -29,6 +29,7 @@ class Match:
     d2: float = float("nan")  # Mahalanobis distance² from the prediction (set by the caller)
     used_centroid: bool = True
     luma: tuple | None = None  # centre of the marker's brightness edge (luma.py), when measured
+    rest: bool = False  # repeated from the last full measurement: the marker's pixels had not changed
 
 
 class TemplateMatcher:

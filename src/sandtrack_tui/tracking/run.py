@@ -345,7 +345,7 @@ def track_project(project, markers=None, start: int | None = None, stop: int | N
         for (m, c), t in engine.tracks.items():
             per.setdefault(str(m), {})[c] = {
                 "tracked": t.counts[TRACKED], "occluded": t.counts[OCCLUDED], "lost": t.counts[LOST],
-                "reacquired": t.reacquisitions, "last_status": t.status}
+                "reacquired": t.reacquisitions, "at_rest": t.rest_frames, "last_status": t.status}
         never = [f"marker {m} {c}" for (m, c), t in engine.tracks.items()
                  if t.counts[TRACKED] == 0 and (t.counts[OCCLUDED] + t.counts[LOST]) > 0]
         summary.update(

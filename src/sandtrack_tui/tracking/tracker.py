@@ -10,7 +10,7 @@ A track never invents a match: when in doubt it coasts and says so.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -19,6 +19,7 @@ from .colour import ColourModel, learn
 from .kalman import GATE_D2, ConstantVelocityKF
 from .luma import edge_centre
 from .matcher import Match, TemplateMatcher
+from .rest import RestReference
 
 TRACKED, OCCLUDED, LOST, MANUAL, INTERPOLATED = "tracked", "occluded", "lost", "manual", "interpolated"
 DEFAULT_BOX_PX = 16
@@ -41,6 +42,13 @@ class TrackParams:
     # last intra frame (luma.py), while the marker stays within this distance of where it was then.
     luma_carry: bool = True
     luma_carry_max_px: float = 5.0
+    # A marker whose brightness window has not shifted by more than rest_shift_px, nor changed
+    # otherwise by more than max(rest_residual, rest_residual_frac x its contrast) rms, since its
+    # last full measurement keeps that measurement (rest.py); intra frames are always measured.
+    rest_check: bool = True
+    rest_shift_px: float = 0.03
+    rest_residual: float = 3.0
+    rest_residual_frac: float = 0.03
     # Re-interpolate 4:2:0 chroma at this sample position (x, y) within its 2 x 2 block (chroma.py);
     # None = use the decoder's replicated chroma. The position depends on the camera/encoder chain.
     chroma_siting: tuple | None = None
@@ -98,6 +106,8 @@ class MarkerTrack:
         self.intra: np.ndarray | None = None  # per frame of this camera: intra-coded (set by the caller)
         self._offset: tuple | None = None  # colour centre - luma centre at the last intra frame
         self._anchor_luma: tuple | None = None
+        self._rest: RestReference | None = None
+        self.rest_frames = 0
 
     # -- per frame -----------------------------------------------------------------------------
     @property
@@ -114,6 +124,10 @@ class MarkerTrack:
 
     def propose(self, frame_bgr: np.ndarray, frame_index: int | None = None) -> Match | None:
         """Best acceptable match inside the gate (after predict), or None."""
+        r, p = self._rest, self.params
+        if r is not None and self.status == TRACKED and not self._is_intra(frame_index) and \
+                r.still(frame_bgr, p.rest_shift_px, max(p.rest_residual, p.rest_residual_frac * r.contrast)):
+            return replace(r.match, d2=float(self.kf.mahalanobis2((r.match.x, r.match.y))[0]), rest=True)
         px, py = self.kf.position
         hx, hy = self.search_halfsize()
         S_inv = self.kf.innovation_inv()
@@ -180,14 +194,20 @@ class MarkerTrack:
                 self.reacquisitions += 1
             else:
                 self.kf.update((m.x, m.y), None if m.used_centroid else 1.0)
-            self._since_update += 1
-            if (frame_bgr is not None and self._since_update >= p.template_every and m.score >= p.confident_score
-                    and m.colour_frac >= p.confident_colour and m.used_centroid):
-                self.matcher.update_template(frame_bgr, m.x, m.y, p.template_alpha)
-                self._since_update = 0
+            if m.rest:
+                self.rest_frames += 1
+            else:
+                self._since_update += 1
+                clean = m.score >= p.confident_score and m.colour_frac >= p.confident_colour and m.used_centroid
+                if frame_bgr is not None and self._since_update >= p.template_every and clean:
+                    self.matcher.update_template(frame_bgr, m.x, m.y, p.template_alpha)
+                    self._since_update = 0
+                self._rest = RestReference(frame_bgr, m.x, m.y, self.model.radius, m) \
+                    if (p.rest_check and clean and frame_bgr is not None and not reattach) else None
             self.status, self.misses = TRACKED, 0
             obs = Observation(frame_index, self.camera, self.marker, m.x, m.y, TRACKED, m.score, m.psr, m.colour_frac)
         else:
+            self._rest = None
             self.kf.coast()
             self.misses += 1
             if self.misses > p.lost_after:
@@ -203,6 +223,7 @@ class MarkerTrack:
     def set_manual(self, frame_index: int, frame_bgr: np.ndarray | None, x: float, y: float) -> Observation:
         """An operator's point met along the way: trust it, keep tracking from it."""
         self._offset = self._anchor_luma = None
+        self._rest = None
         if self.misses > 2:
             self.kf.reset(x, y)
         else:

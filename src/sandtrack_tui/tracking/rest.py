@@ -1,0 +1,61 @@
+"""Markers at rest: most markers lie still most of the time (before the tool reaches them, after
+it has passed). When the pixels around a marker are those of its last full measurement, that
+measurement still holds, and the matching, centroid and edge fits need not run again.
+
+"The same pixels" is tested with one Lucas-Kanade step on brightness: the displacement d that
+best explains the change since the reference, d = G^-1 sum(grad I * (I_ref - I)), whose noise is
+far below a pixel (all the window's edge pixels vote), plus the residual change that no shift
+explains (a shadow, the tool, sand arriving). Only when both are small is the marker at rest;
+a marker creeping 0.02 px/frame leaves rest within a few frames, since the test always compares
+with the last full measurement, not with the previous frame.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from .chroma import LUMA_BGR
+
+_LUMA_ROW = LUMA_BGR.reshape(1, 3)
+
+
+def _luma(frame_bgr, x0: int, y0: int, n: int) -> np.ndarray:
+    return cv2.transform(np.asarray(frame_bgr[y0:y0 + n, x0:x0 + n], dtype=np.float32), _LUMA_ROW)
+
+
+class RestReference:
+    """Brightness window of a marker at its last full measurement, ready for the shift test."""
+
+    def __init__(self, frame_bgr, x: float, y: float, radius: float, match):
+        self.n = 2 * int(np.ceil(radius + 3)) + 1
+        self.x0, self.y0 = int(round(x)) - self.n // 2, int(round(y)) - self.n // 2
+        self.match = match
+        H, W = frame_bgr.shape[:2]
+        self.ok = self.x0 >= 0 and self.y0 >= 0 and self.x0 + self.n <= W and self.y0 + self.n <= H
+        if not self.ok:
+            return
+        ref = _luma(frame_bgr, self.x0, self.y0, self.n)
+        gx = cv2.Sobel(ref, cv2.CV_32F, 1, 0, ksize=3, scale=0.125)
+        gy = cv2.Sobel(ref, cv2.CV_32F, 0, 1, ksize=3, scale=0.125)
+        a, b, c = float((gx * gx).sum()), float((gx * gy).sum()), float((gy * gy).sum())
+        det = a * c - b * b
+        self.contrast = float(ref.max() - ref.min())
+        self.ok = det > 1e-6 and self.contrast > 10.0
+        if self.ok:
+            self.ref, self.gx, self.gy = ref, gx, gy
+            self.ginv = (c / det, -b / det, a / det)
+
+    def still(self, frame_bgr, max_shift_px: float, max_residual: float) -> bool:
+        """True when the window shows the same marker within `max_shift_px` and nothing else changed
+        by more than `max_residual` (rms, luma levels)."""
+        if not self.ok:
+            return False
+        diff = self.ref - _luma(frame_bgr, self.x0, self.y0, self.n)
+        bx, by = float((self.gx * diff).sum()), float((self.gy * diff).sum())
+        i00, i01, i11 = self.ginv
+        dx, dy = i00 * bx + i01 * by, i01 * bx + i11 * by
+        if dx * dx + dy * dy > max_shift_px * max_shift_px:
+            return False
+        resid = diff - self.gx * dx - self.gy * dy
+        return float(np.sqrt(np.mean(resid * resid))) <= max_residual
