@@ -105,6 +105,7 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, App):
         self._xyz_project: Project | None = None
         self._table_busy = False
         self._table_want = 0
+        self._table_after_frames = False
         self.feeder: FrameFeeder | None = None
         self._compute_frame_maps()
 
@@ -273,9 +274,13 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, App):
             return
         v.pixels, v.pixels_key, v.tf = r.pixels, r.request.key, r.request.tf
         self.update_overlays(cam)
-        if self._step_t0 is not None and self.views_ready():
-            self.step_latencies_ms.append((time.perf_counter() - self._step_t0) * 1000)
-            self._step_t0 = None
+        if self.views_ready():
+            if self._step_t0 is not None:
+                self.step_latencies_ms.append((time.perf_counter() - self._step_t0) * 1000)
+                self._step_t0 = None
+            if self._table_after_frames:
+                self._table_after_frames = False
+                self.call_after_refresh(self.update_table)
 
     def views_ready(self) -> bool:
         return all(self.view(c).pixels_key == self._wanted.get(c) and c in self._wanted for c in self.cameras)
@@ -346,8 +351,12 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, App):
     def refresh_all(self) -> None:
         self.request_frames()
         self.update_status()
-        self.update_table()
         self._w['timeline'].set_position(self.frame, self.selected, (self.range_in, self.range_out))
+        # The table (XYZ for this frame) waits for the frames: on a step the picture comes first.
+        if self.views_ready():
+            self.update_table()
+        else:
+            self._table_after_frames = True
 
     def update_status(self) -> None:
         t = float(self.sources["side"].times_s[self.frame])

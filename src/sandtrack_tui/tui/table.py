@@ -81,6 +81,7 @@ class MarkerTable(DataTable):
     def __init__(self, id: str | None = None) -> None:
         super().__init__(id=id, cursor_type="row", zebra_stripes=True, show_cursor=True)
         self._shape: tuple = ()
+        self._shown: dict[int, list] = {}
 
     def on_mount(self) -> None:
         for label, width in COLUMNS:
@@ -88,15 +89,19 @@ class MarkerTable(DataTable):
 
     def set_rows(self, rows: list[MarkerRow], selected: int | None) -> None:
         keys = tuple(r.marker for r in rows)
+        formatted = {r.marker: format_row(r) for r in rows}
         if keys != self._shape:
             self.clear()
             for r in rows:
-                self.add_row(*format_row(r), key=str(r.marker))
+                self.add_row(*formatted[r.marker], key=str(r.marker))
             self._shape = keys
         else:
-            for r in rows:
-                for col, value in zip(self.columns, format_row(r), strict=True):
-                    self.update_cell(str(r.marker), col, value)
+            for r in rows:  # only the cells that changed: each update re-renders the table
+                old = self._shown.get(r.marker, [])
+                for i, (col, value) in enumerate(zip(self.columns, formatted[r.marker], strict=True)):
+                    if i >= len(old) or old[i] != value:
+                        self.update_cell(str(r.marker), col, value)
+        self._shown = formatted
         if selected is not None and selected in keys:
             idx = keys.index(selected)
             if self.cursor_row != idx:
