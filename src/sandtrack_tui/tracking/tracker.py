@@ -157,8 +157,15 @@ class MarkerTrack:
             return
         lx, ly = m.luma
         ax, ay = self._anchor_luma
-        if np.hypot(lx - ax, ly - ay) <= self.params.luma_carry_max_px:
-            m.x, m.y = lx + self._offset[0], ly + self._offset[1]
+        dx, dy = lx - ax, ly - ay
+        dist = float(np.hypot(dx, dy))
+        if 1e-3 < dist <= self.params.luma_carry_max_px:
+            # Stale colour can only hold the centre back towards where the marker was at the intra
+            # frame: move it forward along that motion, by at most the distance moved since.
+            ux, uy = dx / dist, dy / dist
+            along = (lx + self._offset[0] - m.x) * ux + (ly + self._offset[1] - m.y) * uy
+            along = min(max(along, 0.0), dist)
+            m.x, m.y = m.x + along * ux, m.y + along * uy
 
     def _update_offset(self, frame_index: int, m: Match | None, reattach: bool) -> None:
         if m is not None and m.luma is not None and self._is_intra(frame_index):
