@@ -9,6 +9,7 @@ from rich.color import Color as RichColor
 from rich.segment import Segment
 from rich.style import Style
 from textual import events
+from textual.geometry import Region
 from textual.message import Message
 from textual.strip import Strip
 from textual.widget import Widget
@@ -88,15 +89,24 @@ class Timeline(Widget):
         self.selected: int | None = None
         self.range: tuple[int | None, int | None] = (None, None)
         self._styles: dict[tuple, Style] = {}
+        self._rows: dict[tuple, Strip] = {}  # marker rows, by (row, width, selected)
 
     def set_data(self, markers: list[tuple[int, str]], codes: dict, n_frames: int, cameras: list[str]) -> None:
         self.markers, self.codes, self.n_frames, self.cameras = markers, codes, max(n_frames, 1), cameras
+        self._rows.clear()
         self.styles.height = 2 + max(len(markers), 1)  # ruler + rows + top border
         self.refresh(layout=True)
 
     def set_position(self, frame: int, selected: int | None, rng: tuple[int | None, int | None]) -> None:
+        only_ruler = selected == self.selected and rng == self.range
         self.frame, self.selected, self.range = frame, selected, rng
-        self.refresh()
+        if only_ruler:  # a step moves the ruler's ▼ only: the marker rows stay as they are
+            self.refresh(Region(0, 0, self.content_size.width, 1))
+        else:
+            self.refresh()
+
+    def on_resize(self) -> None:
+        self._rows.clear()
 
     def _style(self, top, bot) -> Style:
         key = (top, bot)
@@ -135,6 +145,9 @@ class Timeline(Widget):
             return Strip.blank(width)
         mid, label = self.markers[k]
         sel = mid == self.selected
+        cached = self._rows.get((k, width, sel))
+        if cached is not None:
+            return cached
         segs = [Segment(f"{label[:LABEL_WIDTH - 1]:>{LABEL_WIDTH - 1}} ",
                         Style(reverse=sel, bold=sel))]
         per_cam = []
@@ -155,7 +168,8 @@ class Timeline(Widget):
         cuts = np.flatnonzero(keys[1:] != keys[:-1]) + 1
         for a, b in zip([0, *cuts.tolist()], [*cuts.tolist(), cols], strict=True):
             segs.append(Segment("▀" * (b - a), self._style(CODE_RGB[int(top[a])], CODE_RGB[int(bot[a])])))
-        return Strip(segs, width)
+        strip = self._rows[(k, width, sel)] = Strip(segs, width)
+        return strip
 
     def on_click(self, event: events.Click) -> None:
         off = event.get_content_offset(self)
