@@ -8,7 +8,10 @@ up to ~0.4 px, building up from each intra-coded frame to the next (measured on 
 far more finely, and does not trail. Its edge, though, is biased by shading and by the contact
 shadow (0.1-0.5 px, mostly towards the shadow), but that bias changes slowly. So the tracker
 measures the marker's luma centre too; at intra-coded frames it records the offset between the
-colour centre and the luma centre, and in the frames between reports luma centre + offset.
+colour centre and the luma centre; in the frames between, luma centre + offset tells how far the
+stale colour held the centre back, and the colour centre is moved forward by that much, along the
+motion since the intra frame and by at most its length (a lag can do nothing else: this keeps a
+shadow sliding over the sand, which shifts the luma edge sideways, from moving the marker).
 
 The luma centre is a circle fitted to the marker's silhouette edge: along rays from the estimate,
 the strongest rise of brightness from the (darker) marker to the sand, located to sub-pixel, then
