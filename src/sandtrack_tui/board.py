@@ -41,13 +41,17 @@ class BoardSpec:
     def __post_init__(self) -> None:
         if self.type not in ("charuco", "chessboard"):
             raise SandtrackError(f"board type must be 'charuco' or 'chessboard', not {self.type!r}")
+        if not all(isinstance(n, (int, np.integer)) and not isinstance(n, bool) for n in (self.columns, self.rows)):
+            raise SandtrackError(f"board columns and rows must be whole numbers, not {self.columns!r}, {self.rows!r}")
         if self.columns < 3 or self.rows < 3:
             raise SandtrackError("a board needs at least 3 columns and 3 rows of squares")
-        if not self.square_mm > 0:
-            raise SandtrackError("board square size must be positive (mm)")
+        if not 0.01 <= self.square_mm <= 1e5:
+            raise SandtrackError("board square size must be between 0.01 and 100000 mm")
         if self.type == "charuco" and not hasattr(cv2.aruco, self.dictionary):
             raise SandtrackError(f"unknown ArUco dictionary {self.dictionary!r}")
-        if self.marker_mm is not None and not 0 < self.marker_mm < self.square_mm:
+        # OpenCV builds the board in float32: the sizes must differ there too
+        if self.marker_mm is not None and not (isinstance(self.marker_mm, (int, float, np.floating))
+                                               and 0.01 <= np.float32(self.marker_mm) < np.float32(self.square_mm)):
             raise SandtrackError("marker size must be positive and smaller than the square")
 
     @property
@@ -123,6 +127,8 @@ class BoardSpec:
 def board_from_dict(d: dict, source: str = "board") -> BoardSpec:
     """Our format, or Caliscope's charuco.toml (detected by its `square_size_override_cm` /
     `aruco_scale` keys)."""
+    if not isinstance(d, dict):
+        raise SandtrackError(f"{source}: malformed board (a table of settings was expected)")
     if "charuco" in d and isinstance(d["charuco"], dict):
         d = d["charuco"]
     try:
@@ -145,7 +151,7 @@ def board_from_dict(d: dict, source: str = "board") -> BoardSpec:
         if unknown:
             raise SandtrackError(f"{source}: unknown board keys {sorted(unknown)}")
         return BoardSpec(**{k: d[k] for k in known if k in d})
-    except (KeyError, TypeError, ValueError) as exc:
+    except (KeyError, TypeError, ValueError, OverflowError) as exc:
         raise SandtrackError(f"{source}: malformed board ({exc})") from None
 
 

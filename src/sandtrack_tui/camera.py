@@ -95,7 +95,7 @@ class Camera:
     def from_dict(cls, name: str, d: dict) -> Camera:
         try:
             w, h = d["size"]
-            return cls(
+            cam = cls(
                 name=name,
                 width=int(w),
                 height=int(h),
@@ -104,10 +104,25 @@ class Camera:
                 rvec=np.array(d.get("rotation", [0, 0, 0]), dtype=float),
                 tvec=np.array(d.get("translation_mm", [0, 0, 0]), dtype=float),
                 model=d.get("model", "pinhole"),
-                rmse_px=d.get("rmse_px"),
+                rmse_px=None if d.get("rmse_px") is None else float(d["rmse_px"]),
             )
-        except (KeyError, TypeError, ValueError) as exc:
+        except (KeyError, TypeError, ValueError, OverflowError) as exc:
             raise SandtrackError(f"camera {name}: malformed entry ({exc})") from None
+        cam.check()
+        return cam
+
+    def check(self) -> None:
+        """Raise SandtrackError unless the size is positive and every number finite (file readers)."""
+        if not (self.width > 0 and self.height > 0):
+            raise SandtrackError(f"camera {self.name}: image size must be positive, not {self.width}x{self.height}")
+        for what, a in (("matrix", self.matrix), ("distortion", self.distortion), ("rotation", self.rvec),
+                        ("translation", self.tvec)):
+            if not np.isfinite(a).all():
+                raise SandtrackError(f"camera {self.name}: {what} has a value that is not a finite number")
+        ok = {"pinhole": (0, 4, 5, 8, 12, 14), "fisheye": (4,)}[self.model]
+        if len(self.distortion) not in ok:
+            raise SandtrackError(f"camera {self.name}: {len(self.distortion)} distortion coefficients for the "
+                                 f"{self.model} model (expected {' or '.join(map(str, ok))})")
 
 
 def euler_angles_deg(R: np.ndarray) -> tuple[float, float, float]:
@@ -179,11 +194,14 @@ class Calibration:
         if not isinstance(cams, dict) or not cams:
             raise SandtrackError(f"{source}: no [cameras.NAME] tables found")
         cameras = {name: Camera.from_dict(name, d) for name, d in cams.items()}
-        world = doc.get("world", {}).get("world_from_rig", np.eye(4).tolist())
+        world = doc.get("world", {})
+        world = world.get("world_from_rig", np.eye(4).tolist()) if isinstance(world, dict) else None
         try:
             world = np.array(world, dtype=float).reshape(4, 4)
-        except ValueError:
+        except (ValueError, TypeError):
             raise SandtrackError(f"{source}: world_from_rig must be a 4x4 matrix") from None
+        if not np.isfinite(world).all():
+            raise SandtrackError(f"{source}: world_from_rig has a value that is not a finite number")
         return cls(cameras=cameras, world_from_rig=world, report=doc.get("report", {}))
 
     @classmethod
@@ -191,7 +209,11 @@ class Calibration:
         p = Path(path)
         if not p.is_file():
             raise SandtrackError(f"calibration file not found: {p}")
-        return cls.from_toml(p.read_text(), source=str(p))
+        try:
+            text = p.read_text()
+        except UnicodeDecodeError as exc:
+            raise SandtrackError(f"{p}: not a valid TOML file ({exc})") from None
+        return cls.from_toml(text, source=str(p))
 
 
 def _plain(obj):

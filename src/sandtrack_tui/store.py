@@ -175,6 +175,9 @@ class Project:
         if version is None:
             conn.close()
             raise SandtrackError(f"{p}: not a sandtrack project (no schema version)")
+        if version < 1:
+            conn.close()
+            raise SandtrackError(f"{p}: project file is damaged (schema version {version})")
         if version > SCHEMA_VERSION:
             conn.close()
             raise SandtrackError(
@@ -238,14 +241,12 @@ class Project:
                 return fn()
         except sqlite3.IntegrityError:
             raise
-        except (sqlite3.DatabaseError, json.JSONDecodeError) as exc:
+        except sqlite3.DatabaseError as exc:
             msg = str(exc)
             if "readonly" in msg:
                 msg = "the project file is read-only"
             elif "full" in msg:
                 msg = "the disk is full"
-            elif isinstance(exc, json.JSONDecodeError):
-                msg = "the edit log is damaged"
             raise SandtrackError(f"{self.path}: cannot save ({msg}); nothing was changed") from None
 
     @contextmanager
@@ -274,6 +275,9 @@ class Project:
         with self._reading():
             rows = self.conn.execute(
                 "SELECT camera, path, fingerprint, width, height, fps, frames FROM videos ORDER BY rowid").fetchall()
+        for r in rows:
+            if not (all(isinstance(v, str) for v in r[:3]) and all(isinstance(v, (int, float)) for v in r[3:])):
+                raise SandtrackError(f"{self.path}: cannot read the project file, its list of videos is damaged")
         return {r[0]: VideoRef(*r) for r in rows}
 
     def cameras(self) -> list[str]:
@@ -305,6 +309,8 @@ class Project:
     def get(self, key: str, default=None):
         with self._reading():
             row = self.conn.execute("SELECT value FROM settings WHERE key=?", (key,)).fetchone()
+            if row is not None and not isinstance(row[0], str):
+                raise SandtrackError(f"{self.path}: setting {key!r} is damaged")
             return json.loads(row[0]) if row else default
 
     def set(self, key: str, value, description: str | None = None) -> None:
@@ -428,7 +434,7 @@ class Project:
     def _log_point_deletions(self, eid: int, where: str, args: tuple, seq: int) -> int:
         rows = self.conn.execute(f"SELECT {', '.join(POINT_COLUMNS)} FROM points WHERE {where}", args).fetchall()
         for r in rows:
-            self._log_row(eid, seq, "points", json.dumps(list(r[:3])), json.dumps(list(r[3:])), None)
+            self._log_row(eid, seq, "points", json.dumps(list(r[:3])), _dumps_row(r[3:]), None)
             seq += 1
         return seq
 
@@ -465,7 +471,7 @@ class Project:
             return None
 
         def fn():
-            self._apply(row[0], "before")
+            self._apply_checked(row[0], "before")
             self.conn.execute("UPDATE edits SET undone=1 WHERE id=?", (row[0],))
 
         self._write(fn)
@@ -479,11 +485,17 @@ class Project:
             return None
 
         def fn():
-            self._apply(row[0], "after")
+            self._apply_checked(row[0], "after")
             self.conn.execute("UPDATE edits SET undone=0 WHERE id=?", (row[0],))
 
         self._write(fn)
         return row[1]
+
+    def _apply_checked(self, eid: int, side: str) -> None:
+        try:
+            self._apply(eid, side)
+        except (ValueError, TypeError, sqlite3.IntegrityError, sqlite3.ProgrammingError):  # a tampered log
+            raise SandtrackError(f"{self.path}: edit {eid} of the edit log is damaged; nothing was changed") from None
 
     def _apply(self, eid: int, side: str) -> None:
         order = "DESC" if side == "before" else "ASC"
@@ -541,7 +553,7 @@ class _Edit:
                     f"SELECT {', '.join(_POINT_VALUES)} FROM points WHERE frame=? AND camera=? AND marker=?",
                     rec[:3]).fetchone()
                 self.project._log_row(self.edit_id, self.seq, "points", key,
-                                      json.dumps(list(old)) if old else None, after)
+                                      _dumps_row(old) if old else None, after)
                 self.seq += 1
             conn.executemany(f"INSERT OR REPLACE INTO points ({', '.join(POINT_COLUMNS)}) "
                              f"VALUES (?,?,?,?,?,?,?,?,?)", records)
@@ -578,7 +590,7 @@ class _Edit:
                         key).fetchone()
                     if old is None:
                         continue
-                    self.project._log_row(self.edit_id, self.seq, "points", jkey, json.dumps(list(old)), None)
+                    self.project._log_row(self.edit_id, self.seq, "points", jkey, _dumps_row(old), None)
                     self.seq += 1
                 conn.execute("DELETE FROM points WHERE frame=? AND camera=? AND marker=?", key)
 
@@ -601,6 +613,11 @@ def _as_point_tuples(rows) -> Iterable[tuple]:
         if status not in STATUSES:
             raise SandtrackError(f"unknown point status {status!r} (one of {', '.join(STATUSES)})")
         yield (int(r[0]), str(r[1]), int(r[2]), *(_num(v) for v in r[3:5]), status, *(_num(v) for v in r[6:9]))
+
+
+def _dumps_row(values) -> str:
+    """A row's values for the edit log (a value of a foreign type, e.g. a BLOB, is kept as its text)."""
+    return json.dumps(list(values), default=str)
 
 
 def _num(v):

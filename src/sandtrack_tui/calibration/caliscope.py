@@ -21,7 +21,12 @@ from .geometry import inv_T, to_T
 def _rotation(value, source: str) -> np.ndarray:
     r = np.asarray(value, dtype=float)
     if r.size == 9:
-        return r.reshape(3, 3)
+        r = r.reshape(3, 3)
+        with np.errstate(over="ignore", invalid="ignore"):
+            ok = np.isfinite(r).all() and np.allclose(r @ r.T, np.eye(3), atol=1e-4) and np.linalg.det(r) > 0
+        if not ok:
+            raise SandtrackError(f"{source}: a 3x3 rotation is not a rotation matrix")
+        return r
     if r.size == 3:
         return cv2.Rodrigues(r.reshape(3, 1))[0]
     raise SandtrackError(f"{source}: rotation must be a 3x3 matrix or a 3-vector")
@@ -69,7 +74,6 @@ def import_caliscope(path: str | Path, names: list[str] | None = None) -> Calibr
                                 rmse_px=float(d["error"]) if d.get("error") is not None else None)
         except (KeyError, TypeError, ValueError, IndexError, OverflowError) as exc:
             raise SandtrackError(f"{p}: camera {cid} is malformed ({exc})") from None
-        cams[name].check()
         if not np.isfinite(T).all():
             raise SandtrackError(f"{p}: camera {cid} has a pose value that is not a finite number")
         T_cw[name] = T
@@ -79,6 +83,9 @@ def import_caliscope(path: str | Path, names: list[str] | None = None) -> Calibr
         T_c_rig = T_cw[n] @ world_from_rig
         cam.rvec = cv2.Rodrigues(np.ascontiguousarray(T_c_rig[:3, :3]))[0].ravel()
         cam.tvec = T_c_rig[:3, 3].copy()
+        cam.check()
+    if not np.isfinite(world_from_rig).all():
+        raise SandtrackError(f"{p}: camera poses too large to use")
     return Calibration(cameras=cams, world_from_rig=world_from_rig,
                        report={"source": f"imported from Caliscope {p.name}"})
 
