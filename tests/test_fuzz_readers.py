@@ -29,6 +29,7 @@ from sandtrack_tui.board import BoardSpec, board_from_dict, load_board
 from sandtrack_tui.calibration.caliscope import export_caliscope, import_caliscope
 from sandtrack_tui.calibration.from_points import calibrate_from_points, read_points_table
 from sandtrack_tui.camera import Calibration
+from sandtrack_tui.cli import main
 from sandtrack_tui.errors import SandtrackError
 from sandtrack_tui.regression.dataset import POINT_COLUMNS, check_points, load_points
 from sandtrack_tui.regression.synthetic import calibration_points, study_rig
@@ -442,3 +443,59 @@ def test_fuzz_wrong_schema_and_garbage_rows(scratch, changes):
     conn.commit()
     conn.close()
     use_project(path)
+
+
+# -- the same bad files through the CLI ----------------------------------------------------------
+def _bad_files(folder: Path) -> dict[str, Path]:
+    files = {
+        "board.toml": "columns = inf\nrows = 5\nsquare_size_override_cm = 2.5\n",
+        "camera_array.toml": '[cameras."²"]\nrotation = [[1e300, 0, 0], [0, 1, 0], [0, 0, 1]]\n'
+                             'translation = [0, 0, 0]\nmatrix = [[900, 0, 960], [0, 900, 540], [0, 0, 1]]\n'
+                             'size = [1920, 1080]\n',
+        "calibration.toml": '[cameras."a\\nb"]\nsize = [1920, 1080]\nmatrix = [[nan, 0, 1], [0, 1, 1], [0, 0, 1]]\n',
+        "known.csv": "xs,ys,xf,yf,X_mm,Y_mm,Z_mm\n" + "1,2,3,4,5,6,7\n" * 20,
+        "points.csv": ",".join(POINT_COLUMNS) + "\n" + "1.5,1,1,1,1,1,1,1,1\n",
+    }
+    out = {}
+    for name, text in files.items():
+        out[name] = folder / name
+        out[name].write_text(text)
+    damaged = folder / "damaged.sandtrack"
+    damaged.write_bytes(project_bytes()[: len(project_bytes()) // 2])
+    out["damaged.sandtrack"] = damaged
+    return out
+
+
+CLI_CASES = [
+    (["calibrate", "--import-caliscope", "{camera_array.toml}", "-o", "{out}"], "out"),
+    (["calibrate", "--from-points", "{known.csv}", "-o", "{out}"], "out"),
+    (["calibrate", "--calibration", "{calibration.toml}", "-o", "{out}"], "out"),
+    (["train", "{points.csv}", "-o", "{out}"], "out"),
+    (["track", "{damaged.sandtrack}", "--auto-seed"], None),
+    (["xyz", "{damaged.sandtrack}", "-o", "{out}"], "out"),
+    (["export", "{damaged.sandtrack}", "-o", "{out}"], "out"),
+]
+
+
+@pytest.mark.parametrize(("argv", "output"), CLI_CASES, ids=[" ".join(c[0][:2]) for c in CLI_CASES])
+def test_cli_bad_files_one_line_and_nothing_written(tmp_path, capsys, argv, output):
+    files = {k: str(v) for k, v in _bad_files(tmp_path).items()}
+    files["out"] = str(tmp_path / "out.file")
+    args = [files[a[1:-1]] if a.startswith("{") else a for a in argv]
+    assert main(args) == 1
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert "Traceback" not in err and len([ln for ln in lines if "error:" in ln]) == 1, err
+    if output:
+        assert not (tmp_path / "out.file").exists()
+
+
+def test_new_with_bad_board_writes_no_project(tmp_path, capsys):
+    from conftest import write_clip
+
+    clip = write_clip(tmp_path / "side.mp4", n_frames=3)
+    files = _bad_files(tmp_path)
+    assert main(["new", str(tmp_path / "e.sandtrack"), "--side", str(clip), "--board", str(files["board.toml"])]) == 1
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1 and "board" in err
+    assert not (tmp_path / "e.sandtrack").exists()
