@@ -14,7 +14,7 @@ from sandtrack_tui.calibration.detect import BoardView
 from sandtrack_tui.calibration.from_points import calibrate_from_points, decompose_projection, dlt_projection
 from sandtrack_tui.calibration.geometry import distort_project, inv_T, kabsch, radial_is_monotonic, rodrigues, to_T
 from sandtrack_tui.calibration.report import relative_pose_errors
-from sandtrack_tui.calibration.rig import make_observations
+from sandtrack_tui.calibration.rig import _drop_blurred, make_observations
 from sandtrack_tui.calibration.synthetic import board_poses, stereo_rig
 from sandtrack_tui.calibration.world import world_from_board_pose, world_from_known_points
 from sandtrack_tui.errors import SandtrackError
@@ -230,3 +230,21 @@ def test_fisheye_rig_from_exact_views():
     assert rr.calibration.cameras["front"].model == "fisheye"
     assert err["focal_rel_err"] < 1e-4 and err["translation_err_mm"] < 0.01
     assert rr.bundle["rmse_px"] < 1e-3
+
+
+def test_blurred_views_dropped_only_when_views_are_plentiful():
+    def view(f, sharpness):
+        return BoardView(frame=f, source_frame=f, ids=np.arange(6), corners=np.zeros((6, 2)), sharpness=sharpness)
+
+    # 100 views: every third one blurred (a tenth of the sharpness)
+    many = {f: view(f, 10.0 if f % 3 else 1.0) for f in range(100)}
+    few = {f: many[f] for f in range(40)}
+    kept, dropped = _drop_blurred({"a": many, "b": few}, fraction=0.8, min_keep=60)
+    assert set(kept["a"]) == {f for f in range(100) if f % 3}  # 66 sharp views left, all blurred ones gone
+    assert dropped == 34
+    assert kept["b"] == few  # too few views to spare any
+    # never fewer than min_keep: the sharpest are kept
+    graded = {f: view(f, float(f)) for f in range(100)}
+    kept, _ = _drop_blurred({"a": graded}, fraction=1.5, min_keep=60)  # 25 pass the cut
+    assert set(kept["a"]) == set(range(40, 100))
+    assert _drop_blurred({"a": many}, fraction=0.0, min_keep=60)[0]["a"] == many

@@ -79,7 +79,7 @@ def _shared_count(views, names) -> int:
 def calibrate_videos(videos: dict[str, str | Path], board: BoardSpec, *, offsets_s: dict[str, float] | None = None,
                      reference_frame: int | None = None, origin_mm=(0.0, 0.0, 0.0),
                      known_points: pd.DataFrame | None = None, with_points: bool = False,
-                     models: dict[str, str] | None = None, detect_budget: int = 60, max_bundle_frames: int = 200,
+                     models: dict[str, str] | None = None, detect_budget: int = 400, max_bundle_frames: int = 200,
                      progress: ProgressFn | None = None, workers: int = 2) -> CalibrationResult:
     """Calibrate the cameras of `videos` ({name: path}, first = reference/rig camera).
 
@@ -178,6 +178,7 @@ def calibrate_videos(videos: dict[str, str | Path], board: BoardSpec, *, offsets
         "frames_detected": len(detected),
         "frames_with_board": len(all_frames),
         "near_duplicates_skipped": rig.skipped_duplicates,
+        "blurred_views_skipped": rig.skipped_blurred,
         "bundle": rig.bundle,
         "board": board.to_json_dict(),
         "sync": sync_info,

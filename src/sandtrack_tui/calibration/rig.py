@@ -28,6 +28,7 @@ class RigResult:
     obs: Observations
     bundle: dict = field(default_factory=dict)
     skipped_duplicates: int = 0
+    skipped_blurred: int = 0  # camera views left out of the calibration as blurred
     warnings: list[str] = field(default_factory=list)
 
     def frame_pose(self, frame: int) -> np.ndarray | None:
@@ -54,6 +55,26 @@ def make_observations(views: Views, names: list[str], frames: list[int], board: 
         return Observations(np.zeros(0, int), np.zeros(0, int), np.zeros(0, int), np.zeros((0, 3)), np.zeros((0, 2)))
     cid = np.concatenate(cid)
     return Observations(np.concatenate(cam), np.concatenate(frm), cid, pts[cid], np.concatenate(uv))
+
+
+def _drop_blurred(views: Views, fraction: float, min_keep: int) -> tuple[Views, int]:
+    """Per camera with more than `min_keep` views, drop those less sharp than `fraction` of its median
+    sharpness, keeping at least the `min_keep` sharpest. Motion blur shifts detected corners along the
+    motion: a bias that more views do not average out and that the bundle absorbs into the principal
+    point and tangential distortion. With few views every view counts, so they are all kept."""
+    out: Views = {}
+    dropped = 0
+    for n, vs in views.items():
+        sharp = np.array([v.sharpness for v in vs.values()], dtype=float)
+        if fraction <= 0 or len(vs) <= min_keep or not np.isfinite(sharp).all():
+            out[n] = vs
+            continue
+        order = np.argsort(-sharp)
+        n_keep = max(min_keep, int(np.sum(sharp >= fraction * float(np.median(sharp)))))
+        frames = list(vs)
+        out[n] = {frames[i]: vs[frames[i]] for i in sorted(order[:n_keep])}
+        dropped += len(vs) - n_keep
+    return out, dropped
 
 
 def _drop_near_duplicates(views: Views, frames: list[int], names: list[str], min_move_px: float) -> list[int]:
@@ -104,6 +125,7 @@ def _relative_pose(poses_a: dict[int, np.ndarray], poses_b: dict[int, np.ndarray
 def calibrate_rig(views: Views, board: BoardSpec, sizes: dict[str, tuple[int, int]],
                   models: dict[str, str] | None = None, fixed_intrinsics: dict[str, Camera] | None = None,
                   max_frames: int = 200, max_intrinsic_views: int = 30, min_move_px: float = 1.5,
+                  min_sharpness: float = 0.8, min_sharp_views: int = 100,
                   progress: Callable[[str, int, int], None] | None = None) -> RigResult:
     names = list(views)
     models = models or {}
@@ -114,6 +136,7 @@ def calibrate_rig(views: Views, board: BoardSpec, sizes: dict[str, tuple[int, in
             raise SandtrackError(
                 f"no board found in camera {n}: check the board file (columns, rows, dictionary, inverted) matches "
                 "the printed board, and record it sharp, well lit and filling a good part of the image")
+    views, blurred = _drop_blurred(views, min_sharpness, min_sharp_views)
     # 1. intrinsics
     intr: dict[str, IntrinsicsResult] = {}
     for k, n in enumerate(names):
@@ -220,7 +243,8 @@ def calibrate_rig(views: Views, board: BoardSpec, sizes: dict[str, tuple[int, in
                             rmse_px=float(np.sqrt(np.mean(err[m] ** 2))) if m.any() else None)
     warnings = [w for n in names for w in intr[n].warnings]
     return RigResult(calibration=Calibration(cameras=cameras), intrinsics=intr, state=state, frames=frames, obs=obs,
-                     bundle=info, skipped_duplicates=skipped, warnings=warnings)
+                     bundle=info, skipped_duplicates=skipped, skipped_blurred=blurred,
+                     warnings=warnings)
 
 
 def fit_frame_poses(calibration: Calibration, views: Views, board: BoardSpec, frames: list[int],

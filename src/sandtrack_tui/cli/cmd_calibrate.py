@@ -36,7 +36,7 @@ def register(sub) -> None:
                    "default: measured from the audio (or the video) as `sandtrack sync` does")
     p.add_argument("--fisheye", action="append", default=[], metavar="NAME",
                    help="use the fisheye lens model for this camera (repeatable)")
-    p.add_argument("--budget", type=int, default=60, help="frames per camera searched first (default 60)")
+    p.add_argument("--budget", type=int, default=400, help="frames per camera searched first (default 400)")
     p.add_argument("--project", help="store the calibration and board in this project")
     p.add_argument("--from-points", help="fit the cameras to known correspondences (CSV: pixel columns + X/Y/Z_mm)")
     p.add_argument("--import-caliscope", help="read a Caliscope camera_array.toml or config.toml")
