@@ -18,7 +18,6 @@ from __future__ import annotations
 import json
 import multiprocessing
 import os
-import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
@@ -207,9 +206,9 @@ def render_sample(out_dir: str | Path, seed: int = 0, preset: str = "small", wor
     if workers <= 1:
         results = [_camera_worker(a) for a in jobs]
     else:
-        # fork only from a single-threaded process (a caller like the TUI runs threads, which fork does not copy
-        # safely); spawn needs the caller's main module to be import-safe
-        ctx = multiprocessing.get_context("fork" if threading.active_count() == 1 else "spawn")
+        # spawn, never fork: native thread pools (torch, OpenCV, FFmpeg) are invisible to threading.active_count()
+        # and a forked child can hang on a lock one of them held
+        ctx = multiprocessing.get_context("spawn")
         with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=ctx) as ex:
             futs = [ex.submit(_camera_worker, a) for a in jobs]
             results = []
