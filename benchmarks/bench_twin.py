@@ -22,32 +22,14 @@ def _cpu_s() -> float:
 
 
 def _detection(out: Path, camera: str, step: int = 3) -> dict:
-    import cv2
     import numpy as np
-    import pandas as pd
 
-    from sandtrack_tui.board import load_board
-    from sandtrack_tui.video import FrameSource
+    from sandtrack_tui.groundtruth import board_detection
 
-    board = load_board(out / "board.toml")
-    det = cv2.aruco.CharucoDetector(board.cv_board())
-    truth = pd.read_csv(out / "ground_truth" / f"calibration_corners_{camera}.csv")
-    src = FrameSource(out / "calibration" / f"{camera}.mp4")
-    n = found = 0
-    errs = []
-    for i, img in src.iter_frames(0, len(src), step):
-        n += 1
-        cc, ids, _, _ = det.detectBoard(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
-        if ids is None or len(ids) < 4:
-            continue
-        found += 1
-        t = truth[truth["frame"] == i].set_index("corner_id")
-        for cid, p in zip(ids.ravel(), cc.reshape(-1, 2), strict=True):
-            if cid in t.index:
-                errs.append(float(np.hypot(*(p - t.loc[cid, ["x_px", "y_px"]].to_numpy(float)))))
-    return {f"{camera}_detect_rate": round(found / max(n, 1), 3),
-            f"{camera}_corner_err_median_px": round(float(np.median(errs)), 3) if errs else None,
-            f"{camera}_corner_err_p95_px": round(float(np.percentile(errs, 95)), 3) if errs else None}
+    rate, errs = board_detection(out, camera, step)
+    return {f"{camera}_detect_rate": round(rate, 3),
+            f"{camera}_corner_err_median_px": round(float(np.median(errs)), 3) if len(errs) else None,
+            f"{camera}_corner_err_p95_px": round(float(np.percentile(errs, 95)), 3) if len(errs) else None}
 
 
 def run(preset: str = "small") -> dict:

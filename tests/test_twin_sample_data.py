@@ -12,6 +12,7 @@ import pytest
 
 from sandtrack_tui.board import load_board
 from sandtrack_tui.camera import Calibration
+from sandtrack_tui.groundtruth import board_detection
 from sandtrack_tui.video import FrameSource
 
 SAMPLE = Path(os.environ.get("SANDTRACK_SAMPLE_DIR") or Path(__file__).resolve().parents[1] / "sample_data")
@@ -102,23 +103,8 @@ def test_some_markers_are_hidden_for_a_while_and_reappear():
 
 @pytest.mark.parametrize("camera", ["side", "front"])
 def test_charuco_detected_in_most_calibration_frames(camera):
-    board = load_board(SAMPLE / "board.toml")
-    det = cv2.aruco.CharucoDetector(board.cv_board())
-    src = FrameSource(SAMPLE / "calibration" / f"{camera}.mp4")
-    truth = pd.read_csv(SAMPLE / "ground_truth" / f"calibration_corners_{camera}.csv")
-    found, errs, n = 0, [], 0
-    for i, img in src.iter_frames(0, len(src), 7):
-        n += 1
-        cc, ids, _, _ = det.detectBoard(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
-        if ids is None or len(ids) < 4:
-            continue
-        found += 1
-        t = truth[truth["frame"] == i].set_index("corner_id")
-        for cid, p in zip(ids.ravel(), cc.reshape(-1, 2), strict=True):
-            if cid in t.index:
-                errs.append(np.hypot(*(p - t.loc[cid, ["x_px", "y_px"]].to_numpy(float))))
-    assert found / n >= 0.8, (found, n)
-    errs = np.array(errs)
+    rate, errs = board_detection(SAMPLE, camera, step=7)
+    assert rate >= 0.8, rate
     assert np.median(errs) < 0.3, np.median(errs)
 
 

@@ -16,7 +16,6 @@ Caliscope's `charuco.toml` is read as well (see `load_board`).
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -25,6 +24,7 @@ import numpy as np
 import tomli_w
 
 from .errors import SandtrackError
+from .tomlfile import read_toml
 
 
 @dataclass(frozen=True)
@@ -156,11 +156,4 @@ def board_from_dict(d: dict, source: str = "board") -> BoardSpec:
 
 
 def load_board(path: str | Path) -> BoardSpec:
-    p = Path(path)
-    if not p.is_file():
-        raise SandtrackError(f"board file not found: {p}")
-    try:
-        d = tomllib.loads(p.read_text())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise SandtrackError(f"{p}: not a valid TOML board file ({exc})") from None
-    return board_from_dict(d, source=str(p))
+    return board_from_dict(read_toml(path, "board"), source=str(path))

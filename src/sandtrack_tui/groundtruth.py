@@ -164,3 +164,31 @@ def true_points_xyz(points: pd.DataFrame, truth: SampleTruth) -> np.ndarray:
     t = truth.corners["side"][["frame", "corner_id", "X_mm", "Y_mm", "Z_mm"]]
     m = points[["frame", "corner_id"]].merge(t, on=["frame", "corner_id"], how="left")
     return m[["X_mm", "Y_mm", "Z_mm"]].to_numpy(float)
+
+
+# -- calibration board detection -----------------------------------------------------------------
+def board_detection(sample_dir: str | Path, camera: str, step: int = 1) -> tuple[float, np.ndarray]:
+    """OpenCV's ChArUco detector on a rendered calibration video: the fraction of frames (every
+    `step`-th) where the board is found, and the pixel error of every detected corner against its
+    true pixel."""
+    import cv2
+
+    from .board import load_board
+    from .video import FrameSource
+
+    root = Path(sample_dir)
+    detector = cv2.aruco.CharucoDetector(load_board(root / "board.toml").cv_board())
+    truth = pd.read_csv(root / "ground_truth" / f"calibration_corners_{camera}.csv").set_index(["frame", "corner_id"])
+    n = found = 0
+    errors = []
+    with FrameSource(root / "calibration" / f"{camera}.mp4", cache_mb=16) as src:
+        for i, img in src.iter_frames(0, len(src), step):
+            n += 1
+            corners, ids, _, _ = detector.detectBoard(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
+            if ids is None or len(ids) < 4:
+                continue
+            found += 1
+            for cid, p in zip(ids.ravel(), corners.reshape(-1, 2), strict=True):
+                if (i, int(cid)) in truth.index:
+                    errors.append(float(np.hypot(*(p - truth.loc[(i, int(cid)), ["x_px", "y_px"]].to_numpy(float)))))
+    return found / max(n, 1), np.array(errors)

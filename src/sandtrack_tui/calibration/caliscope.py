@@ -6,7 +6,6 @@ project's world frame; the rig frame is the first camera's.
 
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 
 import cv2
@@ -15,6 +14,7 @@ import tomli_w
 
 from ..camera import Calibration, Camera
 from ..errors import SandtrackError
+from ..tomlfile import read_toml
 from .geometry import inv_T, to_T
 
 
@@ -44,12 +44,7 @@ def import_caliscope(path: str | Path, names: list[str] | None = None) -> Calibr
     """Read camera_array.toml or config.toml. `names` renames the cameras in id order
     (default cam_<id>); cameras marked `ignore = true` or without extrinsics are skipped."""
     p = Path(path)
-    if not p.is_file():
-        raise SandtrackError(f"Caliscope file not found: {p}")
-    try:
-        doc = tomllib.loads(p.read_text())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise SandtrackError(f"{p}: not a valid TOML file ({exc})") from None
+    doc = read_toml(p, "Caliscope")
     tables = [(k, v) for k, v in _tables(doc) if not v.get("ignore", False)
               and v.get("rotation") is not None and v.get("translation") is not None]
     if len(tables) < 1:

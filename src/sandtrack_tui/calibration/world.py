@@ -12,13 +12,13 @@ Either way one 4x4 `world_from_rig` is stored, with its three angles (R = Rz Ry 
 
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 
 import numpy as np
 
 from ..camera import euler_angles_deg
 from ..errors import SandtrackError
+from ..tomlfile import read_toml
 from .geometry import inv_T, kabsch
 
 # columns: board x, y, z axes expressed in world coordinates
@@ -56,13 +56,11 @@ def describe(world_from_rig: np.ndarray) -> dict:
 def load_reference(path: str | Path) -> tuple[int, tuple[float, float, float]]:
     """A reference.toml: `frame = N` and optional `origin_mm = [X, Y, Z]`."""
     p = Path(path)
-    if not p.is_file():
-        raise SandtrackError(f"reference file not found: {p}")
+    d = read_toml(p, "reference")
     try:
-        d = tomllib.loads(p.read_text())
         frame = int(d["frame"])
         origin = tuple(float(v) for v in d.get("origin_mm", (0.0, 0.0, 0.0)))
-    except (tomllib.TOMLDecodeError, KeyError, TypeError, ValueError) as exc:
+    except (KeyError, TypeError, ValueError) as exc:
         raise SandtrackError(f"{p}: needs `frame = N` and optionally `origin_mm = [X, Y, Z]` ({exc})") from None
     if len(origin) != 3:
         raise SandtrackError(f"{p}: origin_mm needs three values")

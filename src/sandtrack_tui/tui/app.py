@@ -432,40 +432,23 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, App):
         return rows
 
     def _fill_xyz(self, rows: list[MarkerRow], frame: int, project: Project) -> None:
-        by_id = {r.marker: r for r in rows}
-        xyz = None
-        if rows and (self._calibration is not None or project.get("model")):
-            try:
-                xyz = core("xyz", "xyz_at_frame").xyz_at_frame(project, frame)
-            except SandtrackError:  # incl. not available yet: the fallback below still shows triangulation
-                xyz = None
-        if xyz is not None and len(xyz):
-            for rec in xyz.itertuples(index=False):
-                r = by_id.get(int(rec.marker))
-                if r is None:
-                    continue
-                method = str(getattr(rec, "method", "triangulation")).lower()
-                val = (rec.X_mm, rec.Y_mm, rec.Z_mm)
-                if method.startswith(("tri", "dlt")):
-                    r.xyz_tri = val
-                    r.residual_px = getattr(rec, "residual_px", None)
-                else:
-                    r.xyz_net = val
-            return
-        if self._calibration is None:
-            return
-        from ..triangulation import triangulate
-
-        seen = [r for r in rows if r.side_px is not None and r.front_px is not None]
-        if not seen:
+        if not rows or (self._calibration is None and not project.get("model")):
             return
         try:
-            pts, res = triangulate(self._calibration, {"side": np.array([r.side_px for r in seen], float),
-                                                       "front": np.array([r.front_px for r in seen], float)})
-        except (ValueError, KeyError):
+            xyz = core("xyz", "xyz_at_frame").xyz_at_frame(project, frame)
+        except SandtrackError:  # e.g. a model file that moved: the table shows no XYZ
             return
-        for r, p, e in zip(seen, pts, res, strict=True):
-            r.xyz_tri, r.residual_px = tuple(float(v) for v in p), float(e)
+        by_id = {r.marker: r for r in rows}
+        for rec in xyz.itertuples(index=False):
+            r = by_id.get(int(rec.marker))
+            if r is None:
+                continue
+            val = (rec.X_mm, rec.Y_mm, rec.Z_mm)
+            if str(rec.method).lower().startswith("tri"):
+                r.xyz_tri = val
+                r.residual_px = rec.residual_px
+            else:
+                r.xyz_net = val
 
     # -- navigation --------------------------------------------------------------------------
     def go_to(self, frame: int) -> None:
