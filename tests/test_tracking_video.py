@@ -83,7 +83,7 @@ def test_edge_centre_finds_a_dark_disc_and_refuses_flat_sand():
     assert edge_centre(np.full((60, 60, 3), 128, np.uint8), 30, 30, r) is None
 
 
-def test_markers_at_rest_keep_their_measurement_and_moving_ones_are_measured(tmp_path):
+def test_markers_at_rest_or_creeping_follow_their_measurement_and_moving_ones_are_measured(tmp_path):
     t = np.arange(N, dtype=float)
     paths = [synthetic.MarkerPath(1, np.stack([120.3 + 0 * t, 100.6 + 0 * t], 1)),  # still
              synthetic.MarkerPath(2, np.stack([60 + 0.5 * t, 250 + 0.2 * t], 1)),  # drifting

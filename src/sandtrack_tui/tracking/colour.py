@@ -136,7 +136,11 @@ def learn(frame_bgr: np.ndarray, cx: float, cy: float, w: float, h: float) -> Co
     if separation < 0.2:
         raise SandtrackError("no marker found in the seed box: its colour is not distinct from the sand")
     threshold = float(np.clip(max(0.45, sand_hi + 0.1), 0.3, 0.7))
-    area = float(np.clip(s_disc, 0, 1).sum() + np.clip(patch[inner][p_in < t] @ wv + b, 0, 1).sum())
+    # Soft marker area: the box's clipped scores, less what the sand among them scores on its own
+    # (its noise clipped at 0 is positive on average), so the area does not grow with the box.
+    rest = patch[inner][p_in < t] @ wv + b
+    area = float(np.clip(s_disc, 0, 1).sum() + np.clip(rest, 0, 1).sum()
+                 - len(rest) * np.clip(s_sand, 0, 1).mean())
     area = max(area, 3.0)
     return ColourModel(w=wv, b=b, threshold=threshold, disc_area=area, radius=float(np.sqrt(area / np.pi)),
                        sand_spread=float(np.std(s_sand)))

@@ -9,6 +9,7 @@ is tracked); then every track commits its status for the frame.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -81,10 +82,12 @@ class Engine:
             self._resolve_conflicts(live[cam], props, forced)
         if self.stereo is not None:
             self._stereo_check(frames, props, forced, only_reattached=False)
+        reattached = 0
         for cam, (_j, img, _rem) in frames.items():
-            self._reacquire(cam, img, live[cam], props, forced, frames)
-            self._resolve_conflicts(live[cam], props, forced)
-        if self.stereo is not None:
+            if self._reacquire(cam, img, live[cam], props, forced, frames):
+                reattached += 1
+                self._resolve_conflicts(live[cam], props, forced)  # (a pass leaves no clash behind)
+        if self.stereo is not None and reattached:
             self._stereo_check(frames, props, forced, only_reattached=True)
         for cam, (j, img, _rem) in frames.items():
             for t in live[cam]:
@@ -128,17 +131,20 @@ class Engine:
         keyed = [(t, props[(t.marker, t.camera)]) for t in tracks if (t.marker, t.camera) in props]
         if len(keyed) < 2:
             return
-        xy = np.array([(p.match.x, p.match.y) for _, p in keyed])
-        r = np.array([t.model.radius for t, _ in keyed])
-        d = np.hypot(xy[:, None, 0] - xy[None, :, 0], xy[:, None, 1] - xy[None, :, 1])
-        clash = np.triu(d < 1.2 * np.maximum(r[:, None], r[None, :]), 1)
-        for i, k in zip(*np.nonzero(clash), strict=True):
-            (ta, pa), (tb, pb) = keyed[i], keyed[k]
-            ka, kb = (ta.marker, ta.camera), (tb.marker, tb.camera)
-            if ka not in props or kb not in props:
-                continue
-            better_a = (pa.match.score - 0.05 * pa.match.d2) >= (pb.match.score - 0.05 * pb.match.d2)
-            del props[kb if better_a else ka]
+        # Plain floats: a handful of tracks per camera, where numpy's per-call cost would dominate.
+        pts = [(p.match.x, p.match.y, t.model.radius) for t, p in keyed]
+        for i in range(len(keyed)):
+            xi, yi, ri = pts[i]
+            for k in range(i + 1, len(keyed)):
+                xk, yk, rk = pts[k]
+                if math.hypot(xi - xk, yi - yk) >= 1.2 * max(ri, rk):
+                    continue
+                (ta, pa), (tb, pb) = keyed[i], keyed[k]
+                ka, kb = (ta.marker, ta.camera), (tb.marker, tb.camera)
+                if ka not in props or kb not in props:
+                    continue
+                better_a = (pa.match.score - 0.05 * pa.match.d2) >= (pb.match.score - 0.05 * pb.match.d2)
+                del props[kb if better_a else ka]
 
     def _point_at(self, key, frames, props, forced):
         """Position of a marker in one camera at the step's wanted time, or None."""
@@ -187,7 +193,10 @@ class Engine:
                 self.stereo_flags.append({"marker": m, "camera": suspect[1], "frame": int(frames[suspect[1]][0]),
                                           "epipolar_px": round(float(d), 2)})
 
-    def _reacquire(self, cam, img, tracks, props, forced, frames) -> None:
+    def _reacquire(self, cam, img, tracks, props, forced, frames) -> int:
+        """Re-attach coasting tracks of `cam` to unexplained blobs; returns how many were."""
+        if all((t.marker, cam) in props for t in tracks):
+            return 0
         explained = [(p.match.x, p.match.y) for k, p in props.items() if k[1] == cam]
         explained += [xy for k, xy in forced.items() if k[1] == cam]
         cands: dict[tuple, list] = {}  # track key -> [(d2, blob id, blob)]
@@ -219,10 +228,13 @@ class Engine:
                 keep = d2 <= t.params.gate_d2
             cands[key] = [(float(d), self._blob_id(seen, b, t.model.radius), b)
                           for d, b, k in zip(d2, blobs, keep, strict=True) if k]
+        n = 0
         for key, blob in self._assign(cam, int(frames[cam][0]), cands).items():
             m = self.tracks[key].verify_at(img, blob.x, blob.y)
             if m is not None:
                 props[key] = _Proposal(m, reattach=True)
+                n += 1
+        return n
 
     @staticmethod
     def _blob_id(seen: list, b, radius: float) -> int:

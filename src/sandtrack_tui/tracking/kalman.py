@@ -24,6 +24,7 @@ class ConstantVelocityKF:
         self.x = np.array([x, y, 0.0, 0.0])
         self.P = np.diag([meas_px**2, meas_px**2, init_speed_px**2, init_speed_px**2])
         q = accel_px**2
+        self._q = q
         # Discrete white-noise acceleration over one frame.
         self.Q = q * np.array([[0.25, 0, 0.5, 0], [0, 0.25, 0, 0.5], [0.5, 0, 1, 0], [0, 0.5, 0, 1]])
         self.R = np.eye(2) * meas_px**2
@@ -54,8 +55,18 @@ class ConstantVelocityKF:
             return self.position
         if self._coasting:
             self.x[2:] *= self.coast_damping
-        self.x = _F @ self.x
-        self.P = _F @ self.P @ _F.T + self.Q
+        # x = F x, P = F P F' + Q, written out (a 4 x 4 per track and frame: numpy's call overhead
+        # would cost more than the arithmetic).
+        x0, x1, x2, x3 = self.x.tolist()
+        (p00, p01, p02, p03), (_, p11, p12, p13), (_, _, p22, p23), (_, _, _, p33) = self.P.tolist()
+        q = self._q
+        a02, a03, a12, a13 = p02 + p22, p03 + p23, p12 + p23, p13 + p33
+        self.x = np.array([x0 + x2, x1 + x3, x2, x3])
+        n00, n01, n11 = p00 + 2 * p02 + p22, p01 + p03 + p12 + p23, p11 + 2 * p13 + p33
+        self.P = np.array([[n00 + 0.25 * q, n01, a02 + 0.5 * q, a03],
+                           [n01, n11 + 0.25 * q, a12, a13 + 0.5 * q],
+                           [a02 + 0.5 * q, a12, p22 + q, p23],
+                           [a03, a13 + 0.5 * q, p23, p33 + q]])
         return self.position
 
     def innovation_cov(self) -> np.ndarray:
@@ -81,13 +92,22 @@ class ConstantVelocityKF:
         return float(np.sqrt(d2 * S[0, 0])), float(np.sqrt(d2 * S[1, 1]))
 
     def update(self, z, meas_px: float | None = None) -> None:
-        z = np.asarray(z, dtype=np.float64)
-        R = self.R if meas_px is None else np.eye(2) * meas_px**2
-        S = self.P[:2, :2] + R
-        K = self.P[:, :2] @ _inv2(S)
-        self.x = self.x + K @ (z - self.x[:2])
-        self.P = (np.eye(4) - K @ _H) @ self.P
-        self.P = 0.5 * (self.P + self.P.T)
+        r = self.R[0, 0] if meas_px is None else meas_px**2
+        zx, zy = float(z[0]), float(z[1])
+        x0, x1, x2, x3 = self.x.tolist()
+        P = self.P.tolist()
+        s00, s01, s11 = P[0][0] + r, P[0][1], P[1][1] + r
+        det = s00 * s11 - s01 * s01
+        i00, i01, i11 = s11 / det, -s01 / det, s00 / det
+        # K = P[:, :2] S^-1 (4 x 2); x += K (z - Hx); P -= K P[:2, :] (then symmetrised)
+        K = [(row[0] * i00 + row[1] * i01, row[0] * i01 + row[1] * i11) for row in P]
+        ex, ey = zx - x0, zy - x1
+        self.x = np.array([x0 + K[0][0] * ex + K[0][1] * ey, x1 + K[1][0] * ex + K[1][1] * ey,
+                           x2 + K[2][0] * ex + K[2][1] * ey, x3 + K[3][0] * ex + K[3][1] * ey])
+        P0, P1 = P[0], P[1]
+        N = [[P[i][j] - K[i][0] * P0[j] - K[i][1] * P1[j] for j in range(4)] for i in range(4)]
+        Pn = np.array(N)
+        self.P = 0.5 * (Pn + Pn.T)
         self._coasting = False
         self.coast_frames = 0
 

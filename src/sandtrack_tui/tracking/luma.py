@@ -49,15 +49,16 @@ def edge_centre(frame_bgr, x: float, y: float, radius: float, iterations: int = 
         py = _SIN_S[n] + np.float32(cy)
         prof = cv2.remap(luma, px, py, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)
         g = prof[:, 2:] - prof[:, :-2]  # outward rise of brightness (central difference)
-        k = np.minimum(np.maximum(np.argmax(g, axis=1), 1), n - 4)
-        a, b, c = g[_ROWS, k - 1], g[_ROWS, k], g[_ROWS, k + 1]
+        k = np.argmax(g, axis=1)
+        np.clip(k, 1, n - 4, out=k)
+        a, b, c = np.take(g, (_ROWS * (n - 2) + k)[:, None] + _ABC).T  # g[ray, k - 1 .. k + 1]
         den = a - 2 * b + c
         ok = (b > MIN_RISE) & (den < 0)
-        if ok.sum() < N_RAYS // 2:
+        if np.count_nonzero(ok) < N_RAYS // 2:
             return None
-        den = np.where(ok, den, -1.0)
-        d = steps[k + 1] + np.minimum(np.maximum(0.5 * (a - c) / den, -0.5), 0.5) * STEP
-        sol = _robust_circle(_COS[ok] * d[ok], _SIN[ok] * d[ok])
+        a, c, den, k = a[ok], c[ok], den[ok], k[ok]
+        d = steps[k + 1] + np.clip(0.5 * (a - c) / den, -0.5, 0.5) * STEP
+        sol = _robust_circle(_COS[ok] * d, _SIN[ok] * d)
         if sol is None:
             return None
         ox, oy, r = sol
@@ -71,6 +72,7 @@ def edge_centre(frame_bgr, x: float, y: float, radius: float, iterations: int = 
 
 _LUMA_ROW = LUMA_BGR.reshape(1, 3)
 _ROWS = np.arange(N_RAYS)
+_ABC = np.array([-1, 0, 1])
 _STEPS: dict = {}
 _COS_S: dict = {}
 _SIN_S: dict = {}
@@ -97,7 +99,7 @@ def _robust_circle(x: np.ndarray, y: np.ndarray, rounds: int = 2):
     x = x.astype(np.float64)
     y = y.astype(np.float64)
     z = x * x + y * y
-    F = np.stack([np.ones_like(x), x, y, z, x * x, x * y, y * y, x * z, y * z])
+    F = np.array([np.ones_like(x), x, y, z, x * x, x * y, y * y, x * z, y * z])
     w = np.ones(len(x))
     a1 = a2 = r = 0.0
     for _ in range(rounds):

@@ -210,8 +210,13 @@ def _psr(res: np.ndarray, r: int, c: int, excl: int) -> float:
     n = res.size - win.size
     if n < 16:
         return float("nan")
-    s1 = float(res.sum(dtype=np.float64)) - float(win.sum(dtype=np.float64))
-    s2 = float(np.square(res, dtype=np.float64).sum()) - float(np.square(win, dtype=np.float64).sum())
-    mean = s1 / n
-    sd = max(s2 / n - mean * mean, 0.0) ** 0.5
+    s1, s2 = _sums(res)
+    w1, w2 = _sums(win)
+    mean = (s1 - w1) / n
+    sd = max((s2 - w2) / n - mean * mean, 0.0) ** 0.5
     return float((res[r, c] - mean) / max(sd, 1e-3))
+
+
+def _sums(a: np.ndarray) -> tuple[float, float]:
+    """Sum and sum of squares, in float64 (cv2.sumElems/cv2.norm accumulate in double)."""
+    return cv2.sumElems(a)[0], cv2.norm(a, cv2.NORM_L2SQR)

@@ -1,13 +1,16 @@
-"""Markers at rest: most markers lie still most of the time (before the tool reaches them, after
-it has passed). When the pixels around a marker are those of its last full measurement, that
-measurement still holds, and the matching, centroid and edge fits need not run again.
+"""Markers at rest or creeping: most markers lie still most of the time (before the tool reaches
+them, after it has passed), and many creep a few hundredths of a pixel per frame, pushed by the
+sand heap. While the pixels around a marker are those of its last full measurement moved by a
+small shift, that measurement moved by the shift holds, and the matching, centroid and edge fits
+need not run again.
 
-"The same pixels" is tested with one Lucas-Kanade step on brightness: the displacement d that
-best explains the change since the reference, d = G^-1 sum(grad I * (I_ref - I)), whose noise is
-far below a pixel (all the window's edge pixels vote), plus the residual change that no shift
-explains (a shadow, the tool, sand arriving). Only when both are small is the marker at rest;
-a marker creeping 0.02 px/frame leaves rest within a few frames, since the test always compares
-with the last full measurement, not with the previous frame.
+The shift is one Lucas-Kanade step on brightness: the displacement d that best explains the change
+since the reference, d = G^-1 sum(grad I * (I_ref - I)), whose noise is far below a pixel (all the
+window's edge pixels vote), plus the residual change that no shift explains (a shadow, the tool,
+sand arriving). Only when the shift is small (the step is linear within a fraction of a pixel) and
+the residual too is the reference followed; otherwise the marker is measured in full, which
+becomes the new reference. Brightness is coded at full resolution and does not trail the motion
+in predicted frames as the half-resolution colour does (luma.py), so following it is no loss.
 """
 
 from __future__ import annotations
@@ -49,13 +52,20 @@ class RestReference:
     def still(self, frame_bgr, max_shift_px: float, max_residual: float) -> bool:
         """True when the window shows the same marker within `max_shift_px` and nothing else changed
         by more than `max_residual` (rms, luma levels)."""
+        return self.shift(frame_bgr, max_shift_px, max_residual) is not None
+
+    def shift(self, frame_bgr, max_shift_px: float, max_residual: float) -> tuple[float, float] | None:
+        """The window's brightness shift (dx, dy) px since the reference when it is at most
+        `max_shift_px` and explains the change within `max_residual` rms; else None."""
         if not self.ok:
-            return False
+            return None
         diff = self.ref - _luma(frame_bgr, self.x0, self.y0, self.n)
         bx, by = float((self.gx * diff).sum()), float((self.gy * diff).sum())
         i00, i01, i11 = self.ginv
         dx, dy = i00 * bx + i01 * by, i01 * bx + i11 * by
         if dx * dx + dy * dy > max_shift_px * max_shift_px:
-            return False
+            return None
         resid = diff - self.gx * dx - self.gy * dy
-        return float(np.sqrt(np.mean(resid * resid))) <= max_residual
+        if float(np.sqrt(np.mean(resid * resid))) > max_residual:
+            return None
+        return dx, dy

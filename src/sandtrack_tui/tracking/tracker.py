@@ -42,11 +42,11 @@ class TrackParams:
     # last intra frame (luma.py), while the marker stays within this distance of where it was then.
     luma_carry: bool = True
     luma_carry_max_px: float = 5.0
-    # A marker whose brightness window has not shifted by more than rest_shift_px, nor changed
-    # otherwise by more than max(rest_residual, rest_residual_frac x its contrast) rms, since its
-    # last full measurement keeps that measurement (rest.py); intra frames are always measured.
+    # A marker whose brightness window has shifted by at most rest_shift_px, and changed otherwise
+    # by at most max(rest_residual, rest_residual_frac x its contrast) rms, since its last full
+    # measurement is that measurement moved by the shift (rest.py); intra frames are always measured.
     rest_check: bool = True
-    rest_shift_px: float = 0.03
+    rest_shift_px: float = 0.2
     rest_residual: float = 3.0
     rest_residual_frac: float = 0.03
     # Re-interpolate 4:2:0 chroma at this sample position (x, y) within its 2 x 2 block (chroma.py);
@@ -125,9 +125,13 @@ class MarkerTrack:
     def propose(self, frame_bgr: np.ndarray, frame_index: int | None = None) -> Match | None:
         """Best acceptable match inside the gate (after predict), or None."""
         r, p = self._rest, self.params
-        if r is not None and self.status == TRACKED and not self._is_intra(frame_index) and \
-                r.still(frame_bgr, p.rest_shift_px, max(p.rest_residual, p.rest_residual_frac * r.contrast)):
-            return replace(r.match, d2=float(self.kf.mahalanobis2((r.match.x, r.match.y))[0]), rest=True)
+        if r is not None and self.status == TRACKED and not self._is_intra(frame_index):
+            d = r.shift(frame_bgr, p.rest_shift_px, max(p.rest_residual, p.rest_residual_frac * r.contrast))
+            if d is not None:
+                x, y = r.match.x + d[0], r.match.y + d[1]
+                lu = r.match.luma
+                return replace(r.match, x=x, y=y, d2=float(self.kf.mahalanobis2((x, y))[0]), rest=True,
+                               luma=None if lu is None else (lu[0] + d[0], lu[1] + d[1]))
         px, py = self.kf.position
         hx, hy = self.search_halfsize()
         S_inv = self.kf.innovation_inv()
@@ -210,7 +214,7 @@ class MarkerTrack:
                     self.matcher.update_template(frame_bgr, m.x, m.y, p.template_alpha)
                     self._since_update = 0
                 self._rest = RestReference(frame_bgr, m.x, m.y, self.model.radius, m) \
-                    if (p.rest_check and clean and frame_bgr is not None and not reattach) else None
+                    if (p.rest_check and frame_bgr is not None and not reattach) else None
             self.status, self.misses = TRACKED, 0
             obs = Observation(frame_index, self.camera, self.marker, m.x, m.y, TRACKED, m.score, m.psr, m.colour_frac)
         else:
