@@ -2,8 +2,22 @@
 
 On sample_data/ (the rendered digital twin: experiment/side.mp4, front.mp4, ground_truth/...) when it
 exists, else on a synthetic 1080p stereo clip encoded to H.264. Seeds: each marker's first visible
-frame in each camera, the true centre as an operator would click it (snapped). Speed: decoding only
-(the same prefetching decoder threads) and decoding + tracking are timed in the same run, alternately.
+frame in each camera, the true centre as an operator would click it (snapped).
+
+Speed, timed in the same run, alternately, twice each (medians):
+- decode only: every frame of both videos through `FrameSource` (PyAV, FFmpeg's own threads,
+  4:2:0 -> full-frame BGR24, as the tool shows and tracks them) by the same prefetching decoder
+  threads the tracker uses (tracking/decoding.py); the main thread only takes the frames.
+- decode + track: `track_project` on the same files: decoding as above, tracking every marker in
+  both cameras, stereo checks, re-acquisition, and writing every point to the project store;
+  set-up (colour models, key-frame list) included.
+Rates count video frames of both cameras (a step of the side camera and its paired front frame
+are two frames): `decode_and_track_vs_decode_only` = (frames decoded by track_project / its wall
+time) / (frames decoded / wall time of decode only); `cpu_rate_ratio` = (decode-only process CPU
+per frame) / (decode + track process CPU per frame), CPU of all threads (user + sys). On a machine
+shared with other work the wall ratio moves with the load; the CPU ratio is the steadier figure.
+`track_ms_per_marker_frame` / `track_cpu_ms_per_marker_frame`: time inside the tracking step
+only (no decoding, no store), per marker and camera frame.
 """
 
 from __future__ import annotations

@@ -102,6 +102,7 @@ class FrameSource:
         self.fps = float(fps)
         self.times_s = np.arange(len(self._files)) / self.fps
         self._pts = None
+        self.keyframes = None
         self.is_folder = True
         self.truncated = False
 
@@ -130,6 +131,8 @@ class FrameSource:
                 raise SandtrackError(f"{self.path}: video holds no frames")
             self._pts = np.array(sorted(pts), dtype=np.int64)
             self._trim_undecodable_tail(container, stream, max(key_pts) if key_pts else int(self._pts[0]))
+            # Per frame: True where the packet is a key (intra-coded) frame, as listed by the demuxer.
+            self.keyframes = np.isin(self._pts, np.array(key_pts, dtype=np.int64))
             self.width = stream.codec_context.width
             self.height = stream.codec_context.height
             rate = stream.average_rate or stream.guessed_rate

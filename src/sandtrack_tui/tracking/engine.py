@@ -103,14 +103,12 @@ class Engine:
         """For each track, the other tracks whose predictions touch it: id(track) -> [(track, xy)]."""
         if len(tracks) < 2:
             return {}
-        P = np.array([t.kf.x[:2] for t in tracks])
-        r = np.array([t.model.radius for t in tracks])
-        d = np.hypot(P[:, None, 0] - P[None, :, 0], P[:, None, 1] - P[None, :, 1])
-        close = d < self.crowd_factor * (r[:, None] + r[None, :])
-        np.fill_diagonal(close, False)
+        pts = [(t, t.kf.position, *t.kf.x[:2].tolist(), t.model.radius) for t in tracks]
         out = {}
-        for i, k in zip(*np.nonzero(close), strict=True):
-            out.setdefault(id(tracks[i]), []).append((tracks[k], P[k]))
+        for ti, _p, xi, yi, ri in pts:  # plain floats: a handful of tracks per camera
+            for tk, pk, xk, yk, rk in pts:
+                if tk is not ti and math.hypot(xi - xk, yi - yk) < self.crowd_factor * (ri + rk):
+                    out.setdefault(id(ti), []).append((tk, pk))
         return out
 
     def _crowded_reject(self, t: MarkerTrack, m: Match, neighbours) -> bool:
@@ -157,6 +155,8 @@ class Engine:
         if p is None:
             return None
         rem = frames[t.camera][2]
+        if not rem:
+            return np.array([p.match.x, p.match.y])
         v = t.kf.velocity * self.direction
         return np.array([p.match.x, p.match.y]) + v * rem
 

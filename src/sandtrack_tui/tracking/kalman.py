@@ -105,9 +105,13 @@ class ConstantVelocityKF:
         self.x = np.array([x0 + K[0][0] * ex + K[0][1] * ey, x1 + K[1][0] * ex + K[1][1] * ey,
                            x2 + K[2][0] * ex + K[2][1] * ey, x3 + K[3][0] * ex + K[3][1] * ey])
         P0, P1 = P[0], P[1]
-        N = [[P[i][j] - K[i][0] * P0[j] - K[i][1] * P1[j] for j in range(4)] for i in range(4)]
-        Pn = np.array(N)
-        self.P = 0.5 * (Pn + Pn.T)
+        n = {}
+        for i in range(4):  # the upper triangle; the result is symmetric
+            ki0, ki1, Pi = K[i][0], K[i][1], P[i]
+            for j in range(i, 4):
+                n[i, j] = Pi[j] - ki0 * P0[j] - ki1 * P1[j]
+        self.P = np.array([[n[0, 0], n[0, 1], n[0, 2], n[0, 3]], [n[0, 1], n[1, 1], n[1, 2], n[1, 3]],
+                           [n[0, 2], n[1, 2], n[2, 2], n[2, 3]], [n[0, 3], n[1, 3], n[2, 3], n[3, 3]]])
         self._coasting = False
         self.coast_frames = 0
 

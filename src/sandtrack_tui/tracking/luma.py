@@ -131,6 +131,9 @@ def intra_frames(source) -> np.ndarray | None:
     times = getattr(source, "times_s", None)
     if path is None or times is None or getattr(source, "is_folder", True):
         return None
+    known = getattr(source, "keyframes", None)  # FrameSource lists them when it opens the file
+    if known is not None and len(known) == len(times):
+        return np.asarray(known, dtype=bool)
     import av
 
     try:

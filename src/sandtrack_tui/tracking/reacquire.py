@@ -37,7 +37,6 @@ def find_blobs(frame_bgr: np.ndarray, model: ColourModel, cx: float, cy: float, 
     n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     if n <= 1:
         return []
-    wts = model.weights(score)
     out = []
     for k in range(1, n):
         bx, by, bw, bh, cnt = stats[k]
@@ -46,16 +45,19 @@ def find_blobs(frame_bgr: np.ndarray, model: ColourModel, cx: float, cy: float, 
         # Soft area and centroid over the component grown by one pixel (its anti-aliased rim).
         xa, ya = max(bx - 1, 0), max(by - 1, 0)
         xb, yb = min(bx + bw + 1, score.shape[1]), min(by + bh + 1, score.shape[0])
-        comp = cv2.dilate((labels[ya:yb, xa:xb] == k).astype(np.uint8), np.ones((3, 3), np.uint8))
-        ww = wts[ya:yb, xa:xb] * comp
-        area = float(ww.sum())
+        comp = cv2.dilate((labels[ya:yb, xa:xb] == k).astype(np.uint8), _KERNEL)
+        ww = model.weights(score[ya:yb, xa:xb]) * comp
+        mom = cv2.moments(ww)
+        area = mom["m00"]
         if not (min_frac * model.disc_area <= area <= max_frac * model.disc_area):
             continue
-        yy, xx = np.mgrid[ya:yb, xa:xb]
-        bx_c, by_c = float((ww * xx).sum() / area) + x0, float((ww * yy).sum() / area) + y0
+        bx_c, by_c = mom["m10"] / area + xa + x0, mom["m01"] / area + ya + y0
         if abs(bx_c - cx) <= hx and abs(by_c - cy) <= hy:
             out.append(Blob(bx_c, by_c, area))
     return out
+
+
+_KERNEL = np.ones((3, 3), np.uint8)
 
 
 def unexplained(blobs: list[Blob], explained_xy: np.ndarray, radius: float) -> list[Blob]:
