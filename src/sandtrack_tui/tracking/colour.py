@@ -53,6 +53,18 @@ class ColourModel:
             self._m = m
         return m
 
+    def mask(self, bgr: np.ndarray) -> np.ndarray:
+        """uint8 0/1: score >= threshold. For 8-bit pixels (B + G + R + EPS > 0) the test is linear,
+        (w + b - t) . bgr + (b - t) EPS >= 0, one transform instead of a ratio."""
+        if bgr.dtype != np.uint8 or not bgr.size:
+            return (self.score(bgr) >= self.threshold).astype(np.uint8)
+        m = getattr(self, "_mask_m", None)
+        if m is None:
+            c = self.b - self.threshold
+            m = np.array([[self.w[0] + c, self.w[1] + c, self.w[2] + c, c * EPS]], dtype=np.float32)
+            self._mask_m = m
+        return (cv2.transform(bgr.astype(np.float32), m) >= 0).view(np.uint8)
+
     def weights(self, score: np.ndarray) -> np.ndarray:
         """Soft marker membership for centroids (≈ coverage of the pixel by the marker)."""
         lo = min(0.5 * self.threshold, 0.15)

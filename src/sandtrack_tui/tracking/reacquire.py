@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.ndimage import find_objects
 
 from .colour import ColourModel
 
@@ -32,21 +33,22 @@ def find_blobs(frame_bgr: np.ndarray, model: ColourModel, cx: float, cy: float, 
     y0, y1 = max(int(np.floor(cy - hy)) - pad, 0), min(int(np.ceil(cy + hy)) + pad + 1, H)
     if x1 - x0 < 3 or y1 - y0 < 3:
         return []
-    score = model.score(frame_bgr[y0:y1, x0:x1])
-    mask = (score >= model.threshold).astype(np.uint8)
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    win = frame_bgr[y0:y1, x0:x1]
+    mask = model.mask(win)
+    # (connectedComponentsWithStats took ~5x as long as the labelling alone on these windows)
+    n, labels = cv2.connectedComponents(mask, connectivity=8)
     if n <= 1:
         return []
+    counts = np.bincount(labels.ravel(), minlength=n)
     out = []
-    for k in range(1, n):
-        bx, by, bw, bh, cnt = stats[k]
-        if cnt < 2:
+    for k, sl in enumerate(find_objects(labels), start=1):
+        if sl is None or counts[k] < 2:
             continue
         # Soft area and centroid over the component grown by one pixel (its anti-aliased rim).
-        xa, ya = max(bx - 1, 0), max(by - 1, 0)
-        xb, yb = min(bx + bw + 1, score.shape[1]), min(by + bh + 1, score.shape[0])
+        xa, ya = max(sl[1].start - 1, 0), max(sl[0].start - 1, 0)
+        xb, yb = min(sl[1].stop + 1, mask.shape[1]), min(sl[0].stop + 1, mask.shape[0])
         comp = cv2.dilate((labels[ya:yb, xa:xb] == k).astype(np.uint8), _KERNEL)
-        ww = model.weights(score[ya:yb, xa:xb]) * comp
+        ww = model.weights(model.score(win[ya:yb, xa:xb])) * comp
         mom = cv2.moments(ww)
         area = mom["m00"]
         if not (min_frac * model.disc_area <= area <= max_frac * model.disc_area):
