@@ -118,9 +118,9 @@ class Engine:
         if not neighbours:
             return False
         p = t.kf.x[:2]
-        own = np.hypot(m.x - p[0], m.y - p[1])
+        own = math.hypot(m.x - p[0], m.y - p[1])
         for _o, q in neighbours:
-            if np.hypot(m.x - q[0], m.y - q[1]) < own:
+            if math.hypot(m.x - q[0], m.y - q[1]) < own:
                 return True
         return m.score < self.crowded_min_score or m.colour_frac > self.crowded_max_colour
 

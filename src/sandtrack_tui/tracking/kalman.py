@@ -9,6 +9,8 @@ A constant-acceleration model made the gate jumpy when the tool hits a marker, h
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 GATE_D2 = 9.21  # chi-square, 2 dof, 99 %
@@ -88,8 +90,8 @@ class ConstantVelocityKF:
 
     def gate_halfsize(self, d2: float = GATE_D2) -> tuple[float, float]:
         """Half extents (x, y) of the box enclosing the gate ellipse."""
-        S = self.innovation_cov()
-        return float(np.sqrt(d2 * S[0, 0])), float(np.sqrt(d2 * S[1, 1]))
+        P, R = self.P, self.R
+        return math.sqrt(d2 * (P[0, 0] + R[0, 0])), math.sqrt(d2 * (P[1, 1] + R[1, 1]))
 
     def update(self, z, meas_px: float | None = None) -> None:
         r = self.R[0, 0] if meas_px is None else meas_px**2

@@ -11,6 +11,7 @@ the clipped score is the pixel's marker coverage, so the centroid of coverage is
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -29,7 +30,7 @@ class Match:
     d2: float = float("nan")  # Mahalanobis distance² from the prediction (set by the caller)
     used_centroid: bool = True
     luma: tuple | None = None  # centre of the marker's brightness edge (luma.py), when measured
-    rest: bool = False  # repeated from the last full measurement: the marker's pixels had not changed
+    rest: bool = False  # the last full measurement moved by the brightness shift since (rest.py)
 
 
 class TemplateMatcher:
@@ -70,10 +71,10 @@ class TemplateMatcher:
         """Best match whose centre lies within (hx, hy) of the prediction (px, py) and, given the
         inverse innovation covariance S_inv, inside the gate ellipse. None if nothing to match."""
         H, W = frame_bgr.shape[:2]
-        if not (np.isfinite(px) and np.isfinite(py)):
+        if not (math.isfinite(px) and math.isfinite(py)):
             return None
         r_min = self.model.radius + 4  # room for sidelobes, so the PSR means something
-        ex, ey = int(np.ceil(max(hx, r_min))), int(np.ceil(max(hy, r_min)))
+        ex, ey = math.ceil(max(hx, r_min)), math.ceil(max(hy, r_min))
         cx0, cy0 = int(round(px)), int(round(py))
         x0, y0 = max(cx0 - ex - self.half, 0), max(cy0 - ey - self.half, 0)
         x1, y1 = min(cx0 + ex + self.half + 1, W), min(cy0 + ey + self.half + 1, H)
@@ -89,8 +90,8 @@ class TemplateMatcher:
             res = np.maximum(res, res2)
         # The search box (hx, hy around the prediction) in result-grid indices.
         ox, oy = x0 + self.half - px, y0 + self.half - py  # grid index 0 -> offset from prediction
-        c_lo, c_hi = max(int(np.ceil(-hx - 0.5 - ox)), 0), min(int(np.floor(hx + 0.5 - ox)), res.shape[1] - 1)
-        r_lo, r_hi = max(int(np.ceil(-hy - 0.5 - oy)), 0), min(int(np.floor(hy + 0.5 - oy)), res.shape[0] - 1)
+        c_lo, c_hi = max(math.ceil(-hx - 0.5 - ox), 0), min(math.floor(hx + 0.5 - ox), res.shape[1] - 1)
+        r_lo, r_hi = max(math.ceil(-hy - 0.5 - oy), 0), min(math.floor(hy + 0.5 - oy), res.shape[0] - 1)
         if c_hi < c_lo or r_hi < r_lo:
             return None
         box = res[r_lo:r_hi + 1, c_lo:c_hi + 1]
@@ -111,11 +112,11 @@ class TemplateMatcher:
         peak = float(res[r, c])
         sx = _parabola(res[r, c - 1], peak, res[r, c + 1]) if 0 < c < res.shape[1] - 1 else 0.0
         sy = _parabola(res[r - 1, c], peak, res[r + 1, c]) if 0 < r < res.shape[0] - 1 else 0.0
-        psr = _psr(res, r, c, int(np.ceil(self.model.radius)) + 1)
+        psr = _psr(res, r, c, math.ceil(self.model.radius) + 1)
         # Peak centre in ROI (score image) coordinates.
         ncc_x, ncc_y = c + self.half + sx, r + self.half + sy
         cxr, cyr, frac = self.centroid(score, ncc_x, ncc_y)
-        used = frac >= 0.75 and np.hypot(cxr - ncc_x, cyr - ncc_y) <= 0.5 * self.model.radius
+        used = frac >= 0.75 and math.hypot(cxr - ncc_x, cyr - ncc_y) <= 0.5 * self.model.radius
         if used:
             mx, my = cxr, cyr
         else:

@@ -41,12 +41,13 @@ class RestReference:
         ref = _luma(frame_bgr, self.x0, self.y0, self.n)
         gx = cv2.Sobel(ref, cv2.CV_32F, 1, 0, ksize=3, scale=0.125)
         gy = cv2.Sobel(ref, cv2.CV_32F, 0, 1, ksize=3, scale=0.125)
-        a, b, c = float((gx * gx).sum()), float((gx * gy).sum()), float((gy * gy).sum())
+        gx, gy = gx.ravel(), gy.ravel()
+        a, b, c = float(np.dot(gx, gx)), float(np.dot(gx, gy)), float(np.dot(gy, gy))
         det = a * c - b * b
         self.contrast = float(ref.max() - ref.min())
         self.ok = det > 1e-6 and self.contrast > 10.0
         if self.ok:
-            self.ref, self.gx, self.gy = ref, gx, gy
+            self.ref, self.gx, self.gy = ref.ravel(), gx, gy
             self.ginv = (c / det, -b / det, a / det)
 
     def still(self, frame_bgr, max_shift_px: float, max_residual: float) -> bool:
@@ -59,13 +60,14 @@ class RestReference:
         `max_shift_px` and explains the change within `max_residual` rms; else None."""
         if not self.ok:
             return None
-        diff = self.ref - _luma(frame_bgr, self.x0, self.y0, self.n)
-        bx, by = float((self.gx * diff).sum()), float((self.gy * diff).sum())
+        diff = self.ref - _luma(frame_bgr, self.x0, self.y0, self.n).ravel()
+        bx, by = float(np.dot(self.gx, diff)), float(np.dot(self.gy, diff))
         i00, i01, i11 = self.ginv
         dx, dy = i00 * bx + i01 * by, i01 * bx + i11 * by
         if dx * dx + dy * dy > max_shift_px * max_shift_px:
             return None
-        resid = diff - self.gx * dx - self.gy * dy
-        if float(np.sqrt(np.mean(resid * resid))) > max_residual:
+        # Residual of the least-squares shift: |diff - J d|^2 = |diff|^2 - d . J'diff.
+        r2 = float(np.dot(diff, diff)) - dx * bx - dy * by
+        if r2 > max_residual * max_residual * diff.size:
             return None
         return dx, dy

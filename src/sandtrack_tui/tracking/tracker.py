@@ -10,7 +10,7 @@ A track never invents a match: when in doubt it coasts and says so.
 
 from __future__ import annotations
 
-from copy import copy
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -129,12 +129,11 @@ class MarkerTrack:
         if r is not None and self.status == TRACKED and not self._is_intra(frame_index):
             d = r.shift(frame_bgr, p.rest_shift_px, max(p.rest_residual, p.rest_residual_frac * r.contrast))
             if d is not None:
-                m = copy(r.match)  # (dataclasses.replace costs more than the rest of this path)
-                m.x, m.y, m.rest = r.match.x + d[0], r.match.y + d[1], True
-                m.d2 = float(self.kf.mahalanobis2((m.x, m.y))[0])
-                if m.luma is not None:
-                    m.luma = (m.luma[0] + d[0], m.luma[1] + d[1])
-                return m
+                o = r.match
+                x, y = o.x + d[0], o.y + d[1]
+                return Match(x, y, o.score, o.psr, o.colour_frac, float(self.kf.mahalanobis2((x, y))[0]),
+                             o.used_centroid, None if o.luma is None else (o.luma[0] + d[0], o.luma[1] + d[1]),
+                             rest=True)
         px, py = self.kf.position
         hx, hy = self.search_halfsize()
         S_inv = self.kf.innovation_inv()
@@ -165,7 +164,7 @@ class MarkerTrack:
         lx, ly = m.luma
         ax, ay = self._anchor_luma
         dx, dy = lx - ax, ly - ay
-        dist = float(np.hypot(dx, dy))
+        dist = math.hypot(dx, dy)
         if 1e-3 < dist <= self.params.luma_carry_max_px:
             # Stale colour can only hold the centre back towards where the marker was at the intra
             # frame: move it forward along that motion, by at most the distance moved since.
@@ -179,13 +178,13 @@ class MarkerTrack:
             self._offset = (m.x - m.luma[0], m.y - m.luma[1])
             self._anchor_luma = m.luma
         elif m is None or m.luma is None or reattach or self._anchor_luma is None or \
-                np.hypot(m.luma[0] - self._anchor_luma[0], m.luma[1] - self._anchor_luma[1]) \
+                math.hypot(m.luma[0] - self._anchor_luma[0], m.luma[1] - self._anchor_luma[1]) \
                 > self.params.luma_carry_max_px:
             self._offset = self._anchor_luma = None  # the chain from the intra frame is broken
 
     def acceptable(self, m: Match, relax: float = 1.0) -> bool:
         p = self.params
-        psr_ok = not np.isfinite(m.psr) or m.psr >= p.min_psr * relax
+        psr_ok = not math.isfinite(m.psr) or m.psr >= p.min_psr * relax
         return m.score >= p.min_score * relax and m.colour_frac >= p.min_colour and psr_ok
 
     def verify_at(self, frame_bgr: np.ndarray, x: float, y: float) -> Match | None:
