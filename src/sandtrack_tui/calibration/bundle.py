@@ -149,6 +149,42 @@ def residuals(s: BundleState, obs: Observations) -> np.ndarray:
     return project_all(s, obs) - obs.uv
 
 
+def view_weights(res: np.ndarray, obs: Observations, clip_sigmas: float = 3.0) -> np.ndarray:
+    """(M,) weight of each observation: the inverse of its view's noise variance (one view = one
+    camera in one frame), relative to the median view.
+
+    Corners of one view share their noise level (motion blur, focus, distance, light), so each view's
+    variance is estimated from its own residuals: sum of squares over the residual degrees of freedom
+    (2 per corner, less the 6 pose parameters shared by the cameras that see the frame). A view's
+    estimate is itself noisy (a chi-square with those degrees of freedom), so it is shrunk towards the
+    median in proportion: log-variances are modelled as the median plus a spread between views, whose
+    size is estimated from the data (variance of the log-variances less their sampling variance
+    2/dof). When the views differ no more than their sampling noise explains, every weight is 1.
+    A corner beyond `clip_sigmas` times its view's typical error (from the view's median) counts only
+    up to that: outliers are the robust loss's business."""
+    e2 = np.sum(np.asarray(res, dtype=float) ** 2, axis=1)
+    if len(e2) == 0:
+        return np.ones(0)
+    n_frames = int(obs.frame.max()) + 1
+    view = obs.cam.astype(np.int64) * n_frames + obs.frame
+    keys, inv = np.unique(view, return_inverse=True)
+    order = np.argsort(inv, kind="stable")
+    starts = np.searchsorted(inv[order], np.arange(len(keys)))
+    median_e2 = np.array([np.median(part) for part in np.split(e2[order], starts[1:])])
+    # |r|^2 ~ 2 sigma^2 chi2(2)/2: its median is 2 ln2 sigma^2
+    e2 = np.minimum(e2, (clip_sigmas ** 2) * 2 * median_e2[inv] / (2 * np.log(2)))
+    ss = np.bincount(inv, weights=e2)
+    n = np.bincount(inv).astype(float)
+    cams_per_frame = np.bincount(np.unique(np.stack([obs.frame, obs.cam], 1), axis=0)[:, 0], minlength=n_frames)
+    dof = np.maximum(2 * n - 6.0 / cams_per_frame[keys % n_frames], 1.0)
+    log_var = np.log(np.maximum(ss / dof, 1e-300))
+    sampling = 2.0 / dof
+    centre = float(np.median(log_var))
+    between = max(float(np.var(log_var)) - float(np.mean(sampling)), 0.0)
+    shrunk = centre + between / (between + sampling) * (log_var - centre)
+    return np.exp(centre - shrunk)[inv]
+
+
 def _jacobian(fun, x: np.ndarray, r0: np.ndarray, S: csc_matrix, groups: list[np.ndarray]) -> csc_matrix:
     """Forward-difference Jacobian with the known sparsity: columns that share no residual row are
     perturbed together, so the cost is one evaluation per group, not per parameter."""
@@ -232,8 +268,13 @@ def _spd_solve(M: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def bundle_adjust(state: BundleState, obs: Observations, free_intrinsics: bool = True, free_cameras: bool = True,
                   free_frames: bool = True, loss: str = "soft_l1", f_scale: float = 2.0,
-                  max_iter: int = 60, tol: float = 1e-10) -> tuple[BundleState, dict]:
+                  max_iter: int = 60, tol: float = 1e-10,
+                  weights: np.ndarray | None = None) -> tuple[BundleState, dict]:
     """Levenberg-Marquardt with iteratively reweighted robust loss on the sparse problem.
+
+    weights: optional (M,) inverse noise variance of each observation relative to a typical one
+    (see `view_weights`); each residual is scaled by its square root, so the robust loss still
+    speaks pixels of a typical view.
 
     Uses the Jacobian sparsity (the same pattern `scipy.optimize.least_squares(jac_sparsity=...)`
     takes) for grouped finite differences, and a Schur complement on the board poses, so a step
@@ -241,8 +282,11 @@ def bundle_adjust(state: BundleState, obs: Observations, free_intrinsics: bool =
     layout = _Layout(state, free_intrinsics, free_cameras, free_frames)
     x = layout.pack(state)
 
+    scale = None if weights is None else np.repeat(np.sqrt(np.asarray(weights, dtype=float)), 2)
+
     def fun(xv):
-        return residuals(layout.unpack(xv, state), obs).ravel()
+        r = residuals(layout.unpack(xv, state), obs).ravel()
+        return r if scale is None else r * scale
 
     S = layout.sparsity(obs).tocsc()
     S.sort_indices()
@@ -287,6 +331,8 @@ def bundle_adjust(state: BundleState, obs: Observations, free_intrinsics: bool =
         if rel < tol or np.max(np.abs(dx) / np.maximum(np.abs(x), 1.0)) < 1e-12:
             break
     out = layout.unpack(x, state)
+    if scale is not None:  # report plain pixels
+        r0, r = r0 / scale, r / scale
     info = {
         "initial_rmse_px": float(np.sqrt(np.mean(r0.reshape(-1, 2) ** 2) * 2)),
         "rmse_px": float(np.sqrt(np.mean(r.reshape(-1, 2) ** 2) * 2)),

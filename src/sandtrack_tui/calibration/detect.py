@@ -71,60 +71,92 @@ class BoardDetector:
         large = max(gray.shape) > LARGE_PX
         if hint is not None and len(hint) and large:
             box = _box(hint.corners, gray.shape, grow=0.6)
-            near = self._detect_in(gray, box)
-            # keep the window's answer only when it lost nothing: no fewer corners than before, none near its edge
-            if near is not None and len(near) >= len(hint) and not _touches(near.corners, box, 20, gray.shape):
+            near = self._detect_in(gray, box, hint.mirrored)
+            # keep the window's answer unless the board may reach past the window: a corner within
+            # about a square of its edge (the markers there may have been cut off)
+            self._local.hint_hit = near is not None and self._whole_board_in(near, box, gray.shape)
+            if self._local.hint_hit:
                 return near
         found = None
         if self.board.type == "charuco" and large:
-            box = self._locate(gray)
-            if box is not None:
-                found = self._detect_in(gray, box)
+            located = self._locate(gray)
+            if located is not None:
+                box, mirrored = located
+                found = self._detect_in(gray, box, mirrored)
+                if found is not None and not self._whole_board_in(found, box, gray.shape):
+                    found = None  # the window may have cut part of the board off
         if found is None or (near is not None and len(found) < len(near)):
             found = self._detect_full(gray)
         if near is not None and (found is None or len(near) > len(found)):
             return near
         return found
 
-    def _detect_in(self, gray: np.ndarray, box) -> BoardView | None:
+    def _whole_board_in(self, view: BoardView, box, shape, margin: float = 10.0) -> bool:
+        """True when the whole board, extrapolated from the corners found through the board-to-image
+        homography, lies inside the window (sides on the image edge excepted): then the window cannot
+        have cut anything off."""
+        obj = self.board.corner_points_mm()[view.ids, :2]
+        try:
+            H, _ = cv2.findHomography(obj, view.corners)
+        except cv2.error:
+            H = None
+        if H is None:
+            return False
+        g = self._grid[view.ids]
+        if len(np.unique(g[:, 0])) < 3 or len(np.unique(g[:, 1])) < 3:
+            return False  # a strip of corners: too little to extrapolate the board from
+        w, h = self.board.size_mm
+        outline = cv2.perspectiveTransform(np.array([[[0, 0], [w, 0], [w, h], [0, h]]], np.float64), H)[0]
+        if not np.isfinite(outline).all():
+            return False
+        outline = np.clip(outline, 0, [shape[1] - 1, shape[0] - 1])
+        return not _touches(outline, box, margin, shape)
+
+    def hint_hit(self) -> bool:
+        """Whether this thread's last search with a hint was settled inside the hint's window."""
+        return bool(getattr(self._local, "hint_hit", False))
+
+    def _detect_in(self, gray: np.ndarray, box, mirrored: bool | None = None) -> BoardView | None:
         x0, y0, x1, y1 = box
-        view = self._detect_full(np.ascontiguousarray(gray[y0:y1, x0:x1]))
+        view = self._detect_full(np.ascontiguousarray(gray[y0:y1, x0:x1]), mirrored)
         if view is None:
             return None
         view.corners = view.corners + [x0, y0]
         return view
 
     def _locate(self, gray: np.ndarray):
-        """Bounding box (x0, y0, x1, y1) of the ArUco markers found at half size, or None."""
+        """(bounding box (x0, y0, x1, y1), mirrored) of the ArUco markers found at half size, or None."""
         small = cv2.resize(gray, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
         det = getattr(self._local, "aruco", None)
         if det is None:
             params = cv2.aruco.DetectorParameters()
             params.detectInvertedMarker = bool(self.board.inverted)
             det = self._local.aruco = cv2.aruco.ArucoDetector(self.board.aruco_dictionary(), params)
-        pts = []
         for img, flip in ((small, False), (np.ascontiguousarray(small[:, ::-1]), True)):
             corners, ids, _ = det.detectMarkers(img)
             if ids is not None and len(ids):
                 c = np.concatenate([m.reshape(-1, 2) for m in corners]) * 2.0
                 if flip:
                     c[:, 0] = gray.shape[1] - 1 - c[:, 0]
-                pts.append(c)
-                break
+                return _box(c, gray.shape, grow=0.5), flip
             if not self.mirror_search:
                 break
-        if not pts:
-            return None
-        return _box(pts[0], gray.shape, grow=0.5)
+        return None
 
-    def _detect_full(self, gray: np.ndarray) -> BoardView | None:
+    def _detect_full(self, gray: np.ndarray, mirrored: bool | None = None) -> BoardView | None:
+        """mirrored: None = plain image, then (mirror search) the flipped one; True/False = that one only."""
         if self.board.type == "chessboard":
             found = self._detect_chessboard(gray)
             mirrored = False
+        elif mirrored and self.mirror_search:
+            found = self._detect_charuco(np.ascontiguousarray(gray[:, ::-1]))
+            if found is not None:
+                found[1][:, 0] = gray.shape[1] - 1 - found[1][:, 0]
         else:
             found = self._detect_charuco(gray)
+            tried_flip = mirrored is not None
             mirrored = False
-            if found is None and self.mirror_search:
+            if found is None and self.mirror_search and not tried_flip:
                 found = self._detect_charuco(np.ascontiguousarray(gray[:, ::-1]))
                 if found is not None:
                     found[1][:, 0] = gray.shape[1] - 1 - found[1][:, 0]
@@ -298,9 +330,13 @@ def detect_in_sources(sources: dict[str, FrameSource], board: BoardSpec, ref_fra
         need = needs[name]
         found: dict[int, BoardView] = {}
         last: tuple[int, BoardView] | None = None
+        skip_hints = 0  # after a hint missed (the board jumped), search a few frames without one
         for j, gray in _gray_frames(sources[name], list(need)):
-            hint = last[1] if last is not None and j - last[0] <= max_gap else None
+            hint = last[1] if last is not None and j - last[0] <= max_gap and skip_hints == 0 else None
+            skip_hints = max(0, skip_hints - 1)
             view = detector.detect(gray, hint)
+            if hint is not None and not detector.hint_hit():
+                skip_hints = 3
             if view is not None:
                 last = (j, view)
                 found[j] = view

@@ -11,7 +11,7 @@ import numpy as np
 from ..board import BoardSpec
 from ..camera import Calibration, Camera
 from ..errors import SandtrackError
-from .bundle import BundleState, Observations, bundle_adjust, residuals
+from .bundle import BundleState, Observations, bundle_adjust, residuals, view_weights
 from .detect import BoardView
 from .geometry import from_T, inv_T, mean_rotation, rotation_angle_deg, to_T
 from .intrinsics import IntrinsicsResult, board_pose, calibrate_intrinsics
@@ -125,7 +125,7 @@ def _relative_pose(poses_a: dict[int, np.ndarray], poses_b: dict[int, np.ndarray
 def calibrate_rig(views: Views, board: BoardSpec, sizes: dict[str, tuple[int, int]],
                   models: dict[str, str] | None = None, fixed_intrinsics: dict[str, Camera] | None = None,
                   max_frames: int = 200, max_intrinsic_views: int = 30, min_move_px: float = 1.5,
-                  min_sharpness: float = 0.8, min_sharp_views: int = 100,
+                  min_sharpness: float = 0.8, min_sharp_views: int = 100, reweight_rounds: int = 2,
                   progress: Callable[[str, int, int], None] | None = None) -> RigResult:
     names = list(views)
     models = models or {}
@@ -136,6 +136,7 @@ def calibrate_rig(views: Views, board: BoardSpec, sizes: dict[str, tuple[int, in
             raise SandtrackError(
                 f"no board found in camera {n}: check the board file (columns, rows, dictionary, inverted) matches "
                 "the printed board, and record it sharp, well lit and filling a good part of the image")
+    many = np.array([len(views[n]) > min_sharp_views for n in names])  # before blurred views are dropped
     views, blurred = _drop_blurred(views, min_sharpness, min_sharp_views)
     # 1. intrinsics
     intr: dict[str, IntrinsicsResult] = {}
@@ -225,11 +226,13 @@ def calibrate_rig(views: Views, board: BoardSpec, sizes: dict[str, tuple[int, in
     state, info1 = bundle_adjust(state, obs, free_intrinsics=False)
     if progress:
         progress("bundle", 1, 2)
-    if free_intr:
-        state, info = bundle_adjust(state, obs, free_intrinsics=True)
-        info["initial_rmse_px"] = info1["initial_rmse_px"]
-    else:
-        info = info1
+    state, info = bundle_adjust(state, obs, free_intrinsics=free_intr) if free_intr else (state, info1)
+    # Views differ in noise (motion blur, focus, distance): in cameras with many views (the long sessions
+    # where blur is common), weight each view by its estimated inverse noise variance.
+    for _ in range(reweight_rounds if many.any() else 0):
+        weights = np.where(many[obs.cam], view_weights(residuals(state, obs), obs), 1.0)
+        state, info = bundle_adjust(state, obs, free_intrinsics=free_intr, weights=weights)
+    info["initial_rmse_px"] = info1["initial_rmse_px"]
     if progress:
         progress("bundle", 2, 2)
     res = residuals(state, obs)
