@@ -104,11 +104,19 @@ class Engine:
         if len(tracks) < 2:
             return {}
         pts = [(t, t.kf.position, *t.kf.x[:2].tolist(), t.model.radius) for t in tracks]
+        pairs = []
+        for i, (_, _, xi, yi, ri) in enumerate(pts):  # plain floats: a handful of tracks per camera
+            for k in range(i + 1, len(pts)):
+                _, _, xk, yk, rk = pts[k]
+                lim = self.crowd_factor * (ri + rk)
+                if abs(xi - xk) < lim and abs(yi - yk) < lim and math.hypot(xi - xk, yi - yk) < lim:
+                    pairs.append((i, k))
         out = {}
-        for ti, _p, xi, yi, ri in pts:  # plain floats: a handful of tracks per camera
-            for tk, pk, xk, yk, rk in pts:
-                if tk is not ti and math.hypot(xi - xk, yi - yk) < self.crowd_factor * (ri + rk):
-                    out.setdefault(id(ti), []).append((tk, pk))
+        for i in range(len(pts)):  # in the order of the tracks, as each track's list was built before
+            for a, b in pairs:
+                if i in (a, b):
+                    o = pts[b if a == i else a]
+                    out.setdefault(id(pts[i][0]), []).append((o[0], o[1]))
         return out
 
     def _crowded_reject(self, t: MarkerTrack, m: Match, neighbours) -> bool:
@@ -135,7 +143,8 @@ class Engine:
             xi, yi, ri = pts[i]
             for k in range(i + 1, len(keyed)):
                 xk, yk, rk = pts[k]
-                if math.hypot(xi - xk, yi - yk) >= 1.2 * max(ri, rk):
+                lim = 1.2 * max(ri, rk)
+                if abs(xi - xk) >= lim or abs(yi - yk) >= lim or math.hypot(xi - xk, yi - yk) >= lim:
                     continue
                 (ta, pa), (tb, pb) = keyed[i], keyed[k]
                 ka, kb = (ta.marker, ta.camera), (tb.marker, tb.camera)

@@ -102,7 +102,7 @@ def _robust_circle(x: np.ndarray, y: np.ndarray, rounds: int = 2):
     F = np.array([np.ones_like(x), x, y, z, x * x, x * y, y * y, x * z, y * z])
     w = np.ones(len(x))
     a1 = a2 = r = 0.0
-    for _ in range(rounds):
+    for k in range(rounds):
         s1, sx, sy, sz, sxx, sxy, syy, sxz, syz = (F @ w).tolist()
         # Normal equations of x^2 + y^2 = 2 a x + 2 b y + c (symmetric 3 x 3), by the adjugate.
         c00, c01, c02 = syy * s1 - sy * sy, sy * sx - sxy * s1, sxy * sy - syy * sx
@@ -118,6 +118,8 @@ def _robust_circle(x: np.ndarray, y: np.ndarray, rounds: int = 2):
         if not r2 > 0:
             return None
         r = r2 ** 0.5
+        if k == rounds - 1:
+            break  # (the weights below would serve a next round only)
         res = np.hypot(x - a1, y - a2) - r
         scale = 1.4826 * float(np.sort(np.abs(res))[len(res) // 2]) + 0.05  # (np.median: 40 us)
         w = 1.0 / (1.0 + np.square(res / (2 * scale)))
