@@ -268,7 +268,7 @@ def _spd_solve(M: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def bundle_adjust(state: BundleState, obs: Observations, free_intrinsics: bool = True, free_cameras: bool = True,
                   free_frames: bool = True, loss: str = "soft_l1", f_scale: float = 2.0,
-                  max_iter: int = 60, tol: float = 1e-10,
+                  max_iter: int = 60, tol: float = 1e-6,
                   weights: np.ndarray | None = None) -> tuple[BundleState, dict]:
     """Levenberg-Marquardt with iteratively reweighted robust loss on the sparse problem.
 

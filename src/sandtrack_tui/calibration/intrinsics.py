@@ -87,21 +87,27 @@ def select_views(views: dict[int, BoardView], size: tuple[int, int], max_views: 
     return sorted(chosen)
 
 
-def _distinct(views: dict[int, BoardView], min_move_px: float = 3.0) -> dict[int, BoardView]:
-    """Drop views where the board sits where it was in an earlier kept view (a board held still gives
-    the same view many times over, which adds nothing but weight)."""
+def _distinct(views: dict[int, BoardView], min_move_px: float = 3.0, lookback: int = 30) -> dict[int, BoardView]:
+    """Drop views where the board sits where it was in one of the last `lookback` kept views (a board held
+    still gives the same view many times over, which adds nothing but weight)."""
+    if not views:
+        return {}
+    n_ids = 1 + max(int(v.ids.max()) for v in views.values() if len(v))
     kept: dict[int, BoardView] = {}
+    recent = np.full((0, n_ids, 2), np.nan)  # corners of the last kept views, by corner id (NaN: not seen)
     for f in sorted(views):
         v = views[f]
-        same = False
-        for k in list(kept)[-30:]:
-            common, ia, ib = np.intersect1d(v.ids, kept[k].ids, return_indices=True)
-            if len(common) >= 0.8 * len(v.ids) and \
-                    np.median(np.linalg.norm(v.corners[ia] - kept[k].corners[ib], axis=1)) < min_move_px:
-                same = True
-                break
-        if not same:
-            kept[f] = v
+        dense = np.full((n_ids, 2), np.nan)
+        dense[v.ids] = v.corners
+        if len(recent):
+            d = np.linalg.norm(recent - dense[None], axis=2)  # (kept, ids), NaN where either misses a corner
+            common = np.isfinite(d).sum(axis=1)
+            with np.errstate(all="ignore"):
+                med = np.nanmedian(np.where(common[:, None] > 0, d, 0.0), axis=1)
+            if np.any((common >= 0.8 * len(v.ids)) & (med < min_move_px)):
+                continue
+        kept[f] = v
+        recent = np.concatenate([recent, dense[None]])[-lookback:]
     return kept
 
 
