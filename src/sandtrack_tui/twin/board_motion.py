@@ -135,8 +135,10 @@ class BoardRenderer:
 
     def _hit(self, C, d, R, t):
         """Board-plane hits of rays: (distance, u, v, facing) arrays."""
-        ob = (C - t) @ R  # R^T (C - t) for row vectors
-        db = d @ R
+        return self._plane_hit(_times(C - t, R), _times(d, R))  # R^T (C - t), R^T d for row vectors
+
+    def _plane_hit(self, ob, db):
+        """As `_hit` from ray origins `ob` and directions `db` in board coordinates."""
         with np.errstate(divide="ignore", invalid="ignore"):
             lam = -ob[..., 2] / db[..., 2]
         u = ob[..., 0] + lam * db[..., 0]
@@ -146,7 +148,11 @@ class BoardRenderer:
         return np.where(inside, lam, np.inf), u, v, ob[..., 2] < 0
 
     def draw(self, view, img: np.ndarray, poses: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
-        """Draw the board into `img` (uint8 BGR, in place), averaged over `poses` (motion blur)."""
+        """Draw the board into `img` (uint8 BGR, in place), averaged over `poses` (motion blur).
+
+        A pose only changes the pixels of its plate and of the plate's shadow on the sand, so each pose is
+        computed only on the pixels around those two quadrilaterals; the others keep their value.
+        """
         pts = np.concatenate([self._corners_world(R, t) for R, t in poses])
         bb = view.image_bbox(pts.min(0) - 5, pts.max(0) + 5, pad=3)
         L = LIGHT_DIR
@@ -154,48 +160,130 @@ class BoardRenderer:
         bbs = view.image_bbox(np.minimum(feet.min(0), pts.min(0)) - 8, np.maximum(feet.max(0), pts.max(0)) + 8, pad=3)
         if bbs is None:
             return img
-        y0, y1, x0, x1 = bbs
-        ys, xs = slice(y0, y1), slice(x0, x1)
-        base = img[ys, xs].astype(np.float32)
-        acc = np.zeros_like(base)
-        d = view.d[ys, xs].astype(np.float64)
-        C = view.C
-        depth = view.depth[ys, xs]
-        P = view.P[ys, xs].astype(np.float64)
-        is_sand = np.isfinite(depth) & (P[..., 1] < SAND_Y + 40)
-        inb = np.zeros(depth.shape, bool)
-        if bb is not None:
-            by0, by1, bx0, bx1 = bb
-            inb[by0 - y0 : by1 - y0, bx0 - x0 : bx1 - x0] = True
+        # per pose: the pixel box of its shadow (within the window) and of its plate (within bb)
+        boxes = []
         for R, t in poses:
-            # shadow: does the ray from the sand point towards the lamp cross the plate?
-            lam_s, _, _, _ = self._hit(P, np.broadcast_to(L, P.shape), R, t)
-            shadow = is_sand & np.isfinite(lam_s)
-            out = np.where(shadow[..., None], base * 0.55, base)
+            corners = self._corners_world(R, t)
+            foot = corners - L * ((corners[:, 1] - SAND_Y) / L[1])[:, None]
+            shadow_box = _intersect(view.image_bbox(foot.min(0) - 3, foot.max(0) + 3, pad=3), bbs)
+            plate_box = None
             if bb is not None:
-                lam, u, v, facing = self._hit(C, d, R, t)
-                vis = inb & (lam < depth)
+                plate_box = _intersect(view.image_bbox(corners.min(0) - 3, corners.max(0) + 3, pad=3), bb)
+            boxes.append((corners, foot, shadow_box, plate_box))
+        union = _union([b for _, _, sb, pb in boxes for b in (sb, pb)])
+        if union is None:
+            return img
+        y0, y1, x0, x1 = union
+        base = img[y0:y1, x0:x1].astype(np.float32)
+        acc = np.zeros_like(base)
+        C = view.C
+        for (R, t), (corners, foot, shadow_box, plate_box) in zip(poses, boxes, strict=True):
+            area = _union([shadow_box, plate_box])
+            if area is None:
+                acc += base
+                continue
+            a = _local(area, union)
+            out = base[a].copy()
+            if shadow_box is not None:
+                # shadow: does the ray from the sand point towards the lamp cross the plate?
+                ys, xs = _slices(shadow_box)
+                near = _quad_mask(view, foot, shadow_box)
+                P = view.P[ys, xs][near].astype(np.float64)
+                is_sand = np.isfinite(view.depth[ys, xs][near]) & (P[:, 1] < SAND_Y + 40)
+                # the lamp's direction in board coordinates, computed as numpy computes it for a broadcast array
+                lam_s = self._plane_hit(_times(P - t, R), (np.broadcast_to(L, (2, 3)) @ R)[0])[0]
+                shadow = np.zeros(near.shape, bool)
+                shadow[near] = is_sand & np.isfinite(lam_s)
+                b = base[_local(shadow_box, union)]
+                np.copyto(out[_local(shadow_box, area)], b * 0.55, where=shadow[..., None])
+            if plate_box is not None:
+                ys, xs = _slices(plate_box)
+                near = _quad_mask(view, corners, plate_box)
+                lam, u, v, facing = self._hit(C, view.d[ys, xs][near].astype(np.float64), R, t)
+                vis = lam < view.depth[ys, xs][near]
                 if vis.any():
+                    iy, ix = np.nonzero(near)
+                    iy, ix = iy[vis], ix[vis]
                     n_face = -R[:, 2]  # printed face normal (world)
                     if facing:
-                        tu = ((u + PLATE_MARGIN_MM) * BOARD_PPM - 0.5).astype(np.float32)
-                        tv = ((v + PLATE_MARGIN_MM) * BOARD_PPM - 0.5).astype(np.float32)
-                        alb = cv2.remap(self.albedo, tu, tv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+                        tu = ((u[vis] + PLATE_MARGIN_MM) * BOARD_PPM - 0.5).astype(np.float32)
+                        tv = ((v[vis] + PLATE_MARGIN_MM) * BOARD_PPM - 0.5).astype(np.float32)
+                        alb = _remap_points(self.albedo, tu, tv)
                         shade = 0.42 + 0.62 * max(float(n_face @ L), 0.0)
-                        col = alb[..., None] * (shade * 255.0) * np.array([0.96, 0.98, 1.0], np.float32)
+                        col = alb[:, None] * (shade * 255.0) * np.array([0.96, 0.98, 1.0], np.float32)
                     else:
                         shade = 0.35 + 0.5 * max(float(-n_face @ L), 0.0)
-                        col = np.broadcast_to(np.array([0.50, 0.52, 0.55], np.float32) * shade * 255.0, out.shape)
-                    col = col * view.vignette[ys, xs, None]
-                    out = np.where(vis[..., None], col, out)
-            acc += out
-        img[ys, xs] = np.clip(acc / len(poses), 0, 255).astype(np.uint8)
+                        col = np.array([0.50, 0.52, 0.55], np.float32) * shade * 255.0
+                    out[_local(plate_box, area)][iy, ix] = col * view.vignette[ys, xs][iy, ix][:, None]
+            before = acc[a].copy()
+            acc += base
+            acc[a] = before + out
+        img[y0:y1, x0:x1] = np.clip(acc / len(poses), 0, 255).astype(np.uint8)
         return img
 
     def _corners_world(self, R, t):
         x0, x1, y0, y1 = self.extent
         c = np.array([[x0, y0, 0], [x1, y0, 0], [x1, y1, 0], [x0, y1, 0]], float)
         return c @ R.T + t
+
+
+def _intersect(box, within):
+    """Intersection of two pixel boxes (y0, y1, x0, x1), None if empty or either is None."""
+    if box is None or within is None:
+        return None
+    y0, y1 = max(box[0], within[0]), min(box[1], within[1])
+    x0, x1 = max(box[2], within[2]), min(box[3], within[3])
+    return (y0, y1, x0, x1) if y1 > y0 and x1 > x0 else None
+
+
+def _union(boxes):
+    """Smallest pixel box holding every given box (None entries ignored), None if there is none."""
+    boxes = [b for b in boxes if b is not None]
+    if not boxes:
+        return None
+    return (min(b[0] for b in boxes), max(b[1] for b in boxes), min(b[2] for b in boxes), max(b[3] for b in boxes))
+
+
+def _times(a: np.ndarray, m: np.ndarray, rows: int = 4096) -> np.ndarray:
+    """a @ m for row vectors a (..., 3), in blocks of rows: BLAS computes every element the same way, but on one
+    thread (a large product would wake BLAS threads that compete with the other render worker for the cores)."""
+    if a.ndim != 2 or len(a) <= rows:
+        return a @ m
+    return np.concatenate([a[i : i + rows] @ m for i in range(0, len(a), rows)])
+
+
+def _quad_mask(view, quad: np.ndarray, box, margin_px: int = 3) -> np.ndarray:
+    """Pixels of `box` within `margin_px` of the image of a planar world quadrilateral (4, 3): its edges are
+    projected piecewise (lens distortion bends them slightly)."""
+    s = np.linspace(0.0, 1.0, 8, endpoint=False)[:, None]
+    outline = np.concatenate([quad[k] + s * (quad[(k + 1) % 4] - quad[k]) for k in range(4)])
+    px = view.cam.project(outline) - np.array([box[2], box[0]])
+    mask = np.zeros((box[1] - box[0], box[3] - box[2]), np.uint8)
+    cv2.fillPoly(mask, [np.round(px * 16).astype(np.int32)], 1, lineType=cv2.LINE_8, shift=4)
+    mask = cv2.dilate(mask, np.ones((2 * margin_px + 1, 2 * margin_px + 1), np.uint8))
+    return mask.astype(bool)
+
+
+def _remap_points(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Bilinear lookups (cv2.remap, replicated border) at a list of points; same values as a remap of a map image."""
+    n = len(x)
+    width = 1024
+    rows = max(-(-n // width), 1)
+    mx = np.zeros(rows * width, np.float32)
+    my = np.zeros(rows * width, np.float32)
+    mx[:n], my[:n] = x, y
+    out = cv2.remap(image, mx.reshape(rows, width), my.reshape(rows, width), cv2.INTER_LINEAR,
+                    borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(rows * width, *image.shape[2:])[:n]
+
+
+def _slices(box):
+    return slice(box[0], box[1]), slice(box[2], box[3])
+
+
+def _local(box, frame):
+    """Slices of `box` inside an array covering the pixel box `frame`."""
+    return slice(box[0] - frame[0], box[1] - frame[0]), slice(box[2] - frame[2], box[3] - frame[2])
 
 
 def corner_truth(board: BoardSpec, cam, R_wb, t_wb, world_to_cam_ok=True):

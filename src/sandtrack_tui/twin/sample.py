@@ -15,11 +15,12 @@ Each video is rendered by its own worker process (two at a time); the result onl
 
 from __future__ import annotations
 
+import contextlib
 import json
 import multiprocessing
 import os
 import time
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -96,6 +97,7 @@ def _camera_worker(args) -> tuple[dict, dict]:
     view = _make_view(camera, seed)
     cal = _calibration_worker((camera, seed, preset, cal_path), view)
     exp = _experiment_worker((camera, seed, preset, exp_path), view)
+    exp["cpu_s"] = time.process_time()  # this worker process's CPU time (s), for the log
     return exp, cal
 
 
@@ -187,6 +189,22 @@ def _calibration_worker(args, view: CameraView | None = None) -> dict:
 
 # -- main ------------------------------------------------------------------------------------------
 
+@contextlib.contextmanager
+def _environment(**values: str):
+    """Environment variables set for the child processes started inside the block. One BLAS thread per render
+    worker: each worker already has a core, and BLAS threads waiting for work would spin on the other one."""
+    old = {k: os.environ.get(k) for k in values}
+    os.environ.update(values)
+    try:
+        yield
+    finally:
+        for k, v in old.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
 def render_sample(out_dir: str | Path, seed: int = 0, preset: str = "small", workers: int = 2,
                   log=lambda msg: None) -> dict:
     if preset not in PRESETS:
@@ -210,11 +228,13 @@ def render_sample(out_dir: str | Path, seed: int = 0, preset: str = "small", wor
         # and a forked child can hang on a lock one of them held
         ctx = multiprocessing.get_context("spawn")
         with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=ctx) as ex:
-            futs = [ex.submit(_camera_worker, a) for a in jobs]
+            with _environment(OPENBLAS_NUM_THREADS="1"):  # the workers start on submit and inherit it
+                futs = [ex.submit(_camera_worker, a) for a in jobs]
             results = []
-            for f in futs:
+            for f in as_completed(futs):
                 results.append(f.result())
-                log(f"  done: {len(results)}/{len(jobs)} cameras ({time.perf_counter() - t0:.0f} s)")
+                log(f"  done: {results[-1][0]['camera']} camera after {time.perf_counter() - t0:.0f} s "
+                    f"({results[-1][0]['cpu_s']:.0f} s CPU)")
     exp = {r[0]["camera"]: r[0] for r in results}
     cal = {r[1]["camera"]: r[1] for r in results}
     _write_ground_truth(out, seed, preset, exp, cal)

@@ -1,7 +1,13 @@
-"""MP4 writer: H.264 video (libx264, fixed thread count: deterministic) plus AAC mono audio (PyAV)."""
+"""MP4 writer: H.264 video (libx264, fixed thread count: deterministic) plus AAC mono audio (PyAV).
+
+Frames are converted and encoded on a background thread (PyAV releases the GIL while encoding), so
+encoding overlaps the rendering of the next frames; the encoder sees the same frames in the same order.
+"""
 
 from __future__ import annotations
 
+import queue
+import threading
 from fractions import Fraction
 from pathlib import Path
 
@@ -40,6 +46,10 @@ class Mp4Writer:
         self.audio_stream = aus
         self.n = 0
         self._write_audio(np.asarray(audio, np.float32), int(round(audio_start_s * AUDIO_RATE)))
+        self._queue: queue.Queue = queue.Queue(maxsize=4)
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._encode_loop, name="mp4-encode", daemon=True)
+        self._thread.start()
 
     def _write_audio(self, audio: np.ndarray, start: int) -> None:
         block = 1024
@@ -55,17 +65,36 @@ class Mp4Writer:
             self.container.mux(p)
 
     def write(self, bgr: np.ndarray) -> None:
-        frame = av.VideoFrame.from_ndarray(bgr, format="bgr24")
-        frame.pts = self.n
-        frame.time_base = self.video.codec_context.time_base
-        self.n += 1
-        for p in self.video.encode(frame):
-            self.container.mux(p)
+        """Queue one frame (the array must not be changed afterwards)."""
+        if self._error is not None:
+            raise self._error
+        self._queue.put(bgr)
+
+    def _encode_loop(self) -> None:
+        while (bgr := self._queue.get()) is not None:
+            if self._error is not None:
+                continue  # keep draining so that write() never blocks
+            try:
+                frame = av.VideoFrame.from_ndarray(bgr, format="bgr24")
+                frame.pts = self.n
+                frame.time_base = self.video.codec_context.time_base
+                self.n += 1
+                for p in self.video.encode(frame):
+                    self.container.mux(p)
+            except BaseException as exc:  # noqa: BLE001 - re-raised in the writing thread
+                self._error = exc
 
     def close(self) -> None:
-        for p in self.video.encode(None):
-            self.container.mux(p)
-        self.container.close()
+        if self._thread.is_alive():
+            self._queue.put(None)
+            self._thread.join()
+        try:
+            if self._error is not None:
+                raise self._error
+            for p in self.video.encode(None):
+                self.container.mux(p)
+        finally:
+            self.container.close()
 
     def __enter__(self):
         return self
