@@ -100,6 +100,40 @@ def test_colour_model_dusty_passes_sand_does_not():
     assert model.score(grey)[0, 0] < 1.0
 
 
+def _disc_on_sand(cx: float, cy: float, r: float, seed: int = 0, size: int = 80) -> np.ndarray:
+    img = synthetic.sand_texture(size, size, np.random.default_rng(seed))
+    (y0, y1, x0, x1), alpha, shade = synthetic._disc_alpha(size, size, cx, cy, r)
+    a = alpha[..., None]
+    img[y0:y1, x0:x1] = img[y0:y1, x0:x1] * (1 - a) + synthetic.MARKER_BGR * shade[..., None] * a
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+def test_colour_model_marker_size_does_not_grow_with_the_seed_box():
+    img = _disc_on_sand(40.3, 39.6, 4.5)
+    radii = [colour.learn(img, 40, 40, w, w).radius for w in (10, 14, 18, 22)]
+    assert max(radii) - min(radii) < 0.03  # (before: 0.056, the sand's clipped noise counted as marker)
+    assert abs(np.mean(radii) - 4.5) < 0.25
+
+
+def test_rest_shift_measures_a_subpixel_creep_and_refuses_other_changes():
+    from sandtrack_tui.tracking.matcher import Match
+    from sandtrack_tui.tracking.rest import RestReference
+
+    ref_img = _disc_on_sand(40.0, 40.0, 4.5, seed=1)
+    ref = RestReference(ref_img, 40.0, 40.0, 4.5, Match(40.0, 40.0, 1.0, 10.0, 1.0))
+    assert ref.ok
+    assert np.allclose(ref.shift(ref_img, 0.2, 3.0), (0.0, 0.0), atol=1e-3)
+    # The same sand with the disc moved by (0.12, -0.07) px: the shift is the disc's, within 0.03 px
+    # (the sand rim stays put, so the measured shift is the disc's diluted a little: never more).
+    moved = _disc_on_sand(40.12, 39.93, 4.5, seed=1)
+    dx, dy = ref.shift(moved, 0.2, 3.0)
+    assert abs(dx - 0.12) < 0.03 and abs(dy + 0.07) < 0.03
+    assert ref.shift(_disc_on_sand(40.5, 40.0, 4.5, seed=1), 0.2, 3.0) is None  # moved too far
+    shadow = ref_img.copy()
+    shadow[30:50, 28:40] = (shadow[30:50, 28:40] * 0.6).astype(np.uint8)  # the tool's shadow arrives
+    assert ref.shift(shadow, 0.2, 3.0) is None
+
+
 def test_bad_seed_boxes_raise_clear_errors():
     img = np.clip(synthetic.sand_texture(60, 60, np.random.default_rng(1)), 0, 255).astype(np.uint8)
     with pytest.raises(SandtrackError, match="outside"):

@@ -50,11 +50,6 @@ class RestReference:
             self.ref, self.gx, self.gy = ref.ravel(), gx, gy
             self.ginv = (c / det, -b / det, a / det)
 
-    def still(self, frame_bgr, max_shift_px: float, max_residual: float) -> bool:
-        """True when the window shows the same marker within `max_shift_px` and nothing else changed
-        by more than `max_residual` (rms, luma levels)."""
-        return self.shift(frame_bgr, max_shift_px, max_residual) is not None
-
     def shift(self, frame_bgr, max_shift_px: float, max_residual: float) -> tuple[float, float] | None:
         """The window's brightness shift (dx, dy) px since the reference when it is at most
         `max_shift_px` and explains the change within `max_residual` rms; else None."""
