@@ -7,6 +7,8 @@
 2. A rendered 1920x1080 session, 100 frames per camera (H.264 videos), through known cameras:
    focal / principal point / relative pose errors, and time (wall and CPU) including detection.
 3. sample_data/ (when present): errors against ground_truth/cameras.toml and the true corners.
+4. The full sample preset (when the demo has rendered it into its cache): the same figures on its
+   longer calibration session (2100 frames per camera, many of them motion-blurred).
 
 Run: `python benchmarks/bench_calibration.py` (prints JSON), or `run()` from benchmarks/run_all.py.
 """
@@ -108,40 +110,54 @@ def synthetic_speed() -> dict:
 
 def run() -> dict:
     return {"real_footage_caliscope_4cam": real_footage(), "synthetic_1080p_100_frames": synthetic_speed(),
-            "sample_data": sample_data_figures()}
+            "sample_data": sample_data_figures(), "full_preset": full_preset_figures()}
 
 
-def sample_data_figures() -> dict:
-    """Against the rendered sample preset's true cameras (skipped when sample_data/ is absent)."""
-    cal_dir = SAMPLE / "calibration"
-    truth_file = SAMPLE / "ground_truth" / "cameras.toml"
+def full_preset_figures() -> dict:
+    """The full preset's calibration session, when `sandtrack demo` has rendered it (else skipped)."""
+    from sandtrack_tui.demo import cache_dir
+
+    found = sorted(cache_dir().glob("sample-full-seed0-*/ground_truth/cameras.toml"))
+    if not found:
+        return {"skipped": "full preset not rendered (run `sandtrack demo` once)"}
+    return sample_data_figures(found[-1].parents[1], with_points=False)
+
+
+def sample_data_figures(folder: Path = SAMPLE, with_points: bool = True) -> dict:
+    """Against a rendered sample preset's true cameras (skipped when the folder is absent)."""
+    cal_dir = folder / "calibration"
+    truth_file = folder / "ground_truth" / "cameras.toml"
     if not (cal_dir / "side.mp4").exists() or not truth_file.exists():
-        return {"skipped": "sample_data/ absent"}
+        return {"skipped": f"{folder} absent"}
     from sandtrack_tui.calibration.world import load_reference
     from sandtrack_tui.camera import Calibration
 
-    board = load_board(SAMPLE / "board.toml")
+    board = load_board(folder / "board.toml")
     ref_frame, origin = (None, (0.0, 0.0, 0.0))
     if (cal_dir / "reference.toml").exists():
         ref_frame, origin = load_reference(cal_dir / "reference.toml")
     videos = {"side": str(cal_dir / "side.mp4"), "front": str(cal_dir / "front.mp4")}
     res, wall, cpu = _timed(lambda: calibrate_videos(videos, board, reference_frame=ref_frame, origin_mm=origin,
-                                                     with_points=True))
+                                                     with_points=with_points))
     truth = Calibration.load(truth_file)
     err = relative_pose_errors(res.calibration, truth)
+    tag = "with_points" if with_points else "without_points"
     out = {
-        "seconds_wall_with_points": wall, "seconds_cpu_with_points": cpu,
+        f"seconds_wall_{tag}": wall, f"seconds_cpu_{tag}": cpu,
         "seconds_detect_wall": res.report["seconds_detect"],
         "reprojection_rmse_px": res.report["reprojection_rmse_px"], "board_rmse_mm": res.report["board_rmse_mm"],
         "focal_rel_err": err["focal_rel_err"], "principal_point_err_px": err["principal_point_err_px"],
         "rotation_err_deg": err["rotation_err_deg"], "translation_err_mm": err["translation_err_mm"],
-        "points_rows": int(len(res.points)),
+        "frames_detected": res.report["frames_detected"], "views_used": res.report["views_used"],
+        "blurred_views_skipped": res.report["blurred_views_skipped"],
     }
-    out.update(_points_vs_truth(res, truth))
+    if res.points is not None:
+        out["points_rows"] = int(len(res.points))
+        out.update(_points_vs_truth(res, truth, folder))
     return out
 
 
-def _points_vs_truth(res, truth) -> dict:
+def _points_vs_truth(res, truth, folder: Path = SAMPLE) -> dict:
     """Mean distance of the points table's XYZ (and of triangulated pixels) from the true world
     corners, using the true cameras to place the truth when no corner table is available."""
     from sandtrack_tui.triangulation import triangulate
@@ -157,7 +173,7 @@ def _points_vs_truth(res, truth) -> dict:
         "triangulated_vs_true_cameras_mean_mm": float(np.nanmean(np.linalg.norm(xyz_est - xyz_true, axis=1))),
         "points_table_vs_true_cameras_mean_mm": float(np.nanmean(np.linalg.norm(table - xyz_true, axis=1))),
     }
-    corners_csv = SAMPLE / "ground_truth" / "calibration_corners_side.csv"
+    corners_csv = folder / "ground_truth" / "calibration_corners_side.csv"
     if corners_csv.exists():
         import pandas as pd
 
