@@ -26,7 +26,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import pandas as pd
 import tomli_w
 
 from ..board import BoardSpec
@@ -120,6 +119,7 @@ def _experiment_worker(args, view: CameraView | None = None) -> dict:
     audio = record(scene, start + a0, int(round((n / FPS - a0) * AUDIO_RATE)), seed, 0 if camera == "side" else 1)
     rows, traj, tool = [], [], []
     other = cams["front"] if camera == "side" else None
+    still = None  # (scene key, drawn frame before noise, visible fractions) of the last frame drawn
     with Mp4Writer(out_path, WIDTH, HEIGHT, FPS, audio, audio_start_s=a0, crf=pr.exp_crf) as w:
         for i in range(n):
             t_file = i / FPS
@@ -129,18 +129,25 @@ def _experiment_worker(args, view: CameraView | None = None) -> dict:
                 r, c = surf.set_tool(zt)
                 update_g3(surf, g3, r, c)
                 view.update_surface(surf, g3, r, c)
-            img = view.canvas.copy()
-            view.draw_tool(img, zt, surf)
             mk = script.positions(tau, surf)
-            view.draw_markers(img, mk, surf, zt)
+            key = (zt, *(mk[mid].tobytes() for mid in MARKER_IDS))
+            if still is None or still[0] != key:
+                img = view.canvas.copy()
+                view.draw_tool(img, zt, surf)
+                view.draw_markers(img, mk, surf, zt)
+                fracs = {mid: (visible_fraction(cam, mk[mid], zt, surf, mk.values()),
+                               None if other is None else visible_fraction(other, mk[mid], zt, surf, mk.values()))
+                         for mid in MARKER_IDS}
+                still = (key, img, fracs)
+            # else: the tool is parked and nothing moves: the same picture and visibility as the frame before
+            _, img, fracs = still
             w.write(view.add_noise(img, int(rng.integers(1 << 30))))
             for mid in MARKER_IDS:
                 P = mk[mid]
                 px = cam.project(P[None])[0]
-                frac = visible_fraction(cam, P, zt, surf, mk.values())
+                frac, frac_o = fracs[mid]
                 rows.append((i, t_file, tau, mid, *P, *px, int(frac >= VISIBLE_MIN_FRACTION), frac))
                 if other is not None:
-                    frac_o = visible_fraction(other, P, zt, surf, mk.values())
                     traj.append((i, t_file, mid, *P, int(frac >= VISIBLE_MIN_FRACTION),
                                  int(frac_o >= VISIBLE_MIN_FRACTION)))
             if camera == "side":
@@ -165,6 +172,7 @@ def _calibration_worker(args, view: CameraView | None = None) -> dict:
     audio = record(scene, start, int(round(n / FPS * AUDIO_RATE)), seed + 1000, 0 if camera == "side" else 1)
     corners, poses = [], []
     obj = BOARD.corner_points_mm()
+    still = None  # (poses key, drawn frame before noise) of the last frame drawn
     with Mp4Writer(out_path, WIDTH, HEIGHT, FPS, audio, crf=pr.cal_crf) as w:
         for i in range(n):
             t_file = i / FPS
@@ -176,9 +184,12 @@ def _calibration_worker(args, view: CameraView | None = None) -> dict:
             disp = np.abs(cam.project(obj @ Ra.T + ta) - cam.project(obj @ Rb.T + tb)).max()
             k = int(np.clip(np.ceil(disp / 1.5), 1, 7))
             sub = [motion.pose(tau + SHUTTER_S * (j / (k - 1) - 0.5)) for j in range(k)] if k > 1 else [(R, t)]
-            img = view.canvas.copy()
-            painter.draw(view, img, sub)
-            w.write(view.add_noise(img, int(rng.integers(1 << 30))))
+            key = b"".join(a.tobytes() for pose in sub for a in pose)
+            if still is None or still[0] != key:  # else the board has not moved (it lies on the sand at first)
+                img = view.canvas.copy()
+                painter.draw(view, img, sub)
+                still = (key, img)
+            w.write(view.add_noise(still[1], int(rng.integers(1 << 30))))
             ids, px, Xw = corner_truth(BOARD, cam, R, t)
             for cid, p, X in zip(ids, px, Xw, strict=True):
                 corners.append((i, int(cid), p[0], p[1], *X))
@@ -272,6 +283,7 @@ def two_view_observations(preset: str, seed: int = 0) -> int:
 
 
 def _two_view_count(cal) -> int:
+    import pandas as pd  # not needed by the render workers
     side = pd.DataFrame(cal["side"]["corners"], columns=["frame", "corner_id", "x", "y", "X", "Y", "Z"])
     front = pd.DataFrame(cal["front"]["corners"], columns=["frame", "corner_id", "x", "y", "X", "Y", "Z"])
     front = front.assign(frame=front["frame"] + CAL_OFFSET_FRAMES)  # same instant as that side frame
@@ -279,6 +291,7 @@ def _two_view_count(cal) -> int:
 
 
 def _write_ground_truth(out: Path, seed: int, preset: str, exp: dict, cal: dict) -> None:
+    import pandas as pd  # not needed by the render workers
     gt = out / "ground_truth"
     tl = Timeline()
     pr = PRESETS[preset]
@@ -373,6 +386,7 @@ def _write_readme(out: Path, seed: int, preset: str, exp: dict, cal: dict, two_v
 
 
 def _write_dem(out: Path, seed: int) -> None:
+    import pandas as pd  # not needed by the render workers
     tl = Timeline()
     script = MarkerScript(seed, tl)
     surf = SurfaceGrid(seed)
