@@ -93,3 +93,18 @@ def test_hint_window_search_never_loses_corners_when_the_board_moved():
     assert det.hint_hit()  # a small move is settled inside the window
     det.detect(images[2], hint)
     assert not det.hint_hit()
+
+
+def test_board_seen_from_behind_is_searched_on_that_side_first():
+    cam = stereo_rig(size=(960, 540), focal=(800.0, 800.0)).cameras["side"]
+    T = board_poses(1, BOARD, seed=2, spread_mm=(0.0, 0.0, 0.0), max_tilt_deg=10.0)[0]
+    img = np.ascontiguousarray(render(cam, BOARD, [T], noise=1.0)[0][:, ::-1])  # the board's mirror image
+    det = BoardDetector(BOARD)
+    first = det.detect(img)
+    assert first is not None and first.mirrored and len(first) == BOARD.n_corners
+    calls = []
+    search = det._detect_charuco
+    det._detect_charuco = lambda gray: calls.append(1) or search(gray)
+    again = det.detect(img, first)
+    assert again is not None and again.mirrored and len(calls) == 1  # no wasted search of the plain side
+    assert np.abs(again.corners - first.corners).max() < 1e-9

@@ -69,6 +69,7 @@ class BoardDetector:
         gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
         near = None
         large = max(gray.shape) > LARGE_PX
+        self._local.hint_hit = not large  # small images: only the hint's side (plain/mirrored) is used
         if hint is not None and len(hint) and large:
             box = _box(hint.corners, gray.shape, grow=0.6)
             near = self._detect_in(gray, box, hint.mirrored)
@@ -86,7 +87,8 @@ class BoardDetector:
                 if found is not None and not self._whole_board_in(found, box, gray.shape):
                     found = None  # the window may have cut part of the board off
         if found is None or (near is not None and len(found) < len(near)):
-            found = self._detect_full(gray)
+            # a camera that saw the board from behind most likely still does: try that side first
+            found = self._detect_full(gray, prefer_mirrored=bool(hint is not None and hint.mirrored))
         if near is not None and (found is None or len(near) > len(found)):
             return near
         return found
@@ -113,7 +115,8 @@ class BoardDetector:
         return not _touches(outline, box, margin, shape)
 
     def hint_hit(self) -> bool:
-        """Whether this thread's last search with a hint was settled inside the hint's window."""
+        """Whether this thread's last search with a hint was settled inside the hint's window (always
+        true for small images, which are searched whole)."""
         return bool(getattr(self._local, "hint_hit", False))
 
     def _detect_in(self, gray: np.ndarray, box, mirrored: bool | None = None) -> BoardView | None:
@@ -143,24 +146,24 @@ class BoardDetector:
                 break
         return None
 
-    def _detect_full(self, gray: np.ndarray, mirrored: bool | None = None) -> BoardView | None:
-        """mirrored: None = plain image, then (mirror search) the flipped one; True/False = that one only."""
+    def _detect_full(self, gray: np.ndarray, mirrored: bool | None = None,
+                     prefer_mirrored: bool = False) -> BoardView | None:
+        """mirrored: True/False = search that side only; None = both (mirror search), the side given by
+        `prefer_mirrored` first."""
+        found = None
         if self.board.type == "chessboard":
-            found = self._detect_chessboard(gray)
-            mirrored = False
-        elif mirrored and self.mirror_search:
-            found = self._detect_charuco(np.ascontiguousarray(gray[:, ::-1]))
-            if found is not None:
-                found[1][:, 0] = gray.shape[1] - 1 - found[1][:, 0]
+            found, mirrored = self._detect_chessboard(gray), False
         else:
-            found = self._detect_charuco(gray)
-            tried_flip = mirrored is not None
-            mirrored = False
-            if found is None and self.mirror_search and not tried_flip:
-                found = self._detect_charuco(np.ascontiguousarray(gray[:, ::-1]))
+            sides = [mirrored] if mirrored is not None else [prefer_mirrored, not prefer_mirrored]
+            for side in sides:
+                if side and not self.mirror_search:
+                    continue
+                found = self._detect_charuco(np.ascontiguousarray(gray[:, ::-1]) if side else gray)
                 if found is not None:
-                    found[1][:, 0] = gray.shape[1] - 1 - found[1][:, 0]
-                    mirrored = True
+                    if side:
+                        found[1][:, 0] = gray.shape[1] - 1 - found[1][:, 0]
+                    mirrored = side
+                    break
         if found is None:
             return None
         ids, corners = found
