@@ -229,10 +229,15 @@ def calibrate_rig(views: Views, board: BoardSpec, sizes: dict[str, tuple[int, in
     state, info = bundle_adjust(state, obs, free_intrinsics=free_intr) if free_intr else (state, info1)
     # Views differ in noise (motion blur, focus, distance): in cameras with many views (the long sessions
     # where blur is common), weight each view by its estimated inverse noise variance.
+    weights = None
     for _ in range(reweight_rounds if many.any() else 0):
         weights = np.where(many[obs.cam], view_weights(residuals(state, obs), obs), 1.0)
         state, info = bundle_adjust(state, obs, free_intrinsics=free_intr, weights=weights)
     info["initial_rmse_px"] = info1["initial_rmse_px"]
+    if weights is not None:
+        w = weights[many[obs.cam]]
+        info["view_weights"] = {"cameras": [n for n, m in zip(names, many, strict=True) if m],
+                                "min": float(w.min()), "median": float(np.median(w)), "max": float(w.max())}
     if progress:
         progress("bundle", 2, 2)
     res = residuals(state, obs)
