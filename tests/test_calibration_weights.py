@@ -108,3 +108,30 @@ def test_board_seen_from_behind_is_searched_on_that_side_first():
     again = det.detect(img, first)
     assert again is not None and again.mirrored and len(calls) == 1  # no wasted search of the plain side
     assert np.abs(again.corners - first.corners).max() < 1e-9
+
+
+def test_grey_frames_from_the_luma_plane_equal_ffmpeg_grey(tmp_path):
+    import av
+
+    from sandtrack_tui.calibration.detect import _gray_frames, _luma, open_source
+    from sandtrack_tui.calibration.synthetic import _write_mp4
+
+    rng = np.random.default_rng(0)
+    images = [cv2_blur(rng.integers(0, 256, (120, 162), dtype=np.uint8)) for _ in range(6)]  # odd width: padded rows
+    path = tmp_path / "clip.mp4"
+    _write_mp4(path, images, 25)
+    reference = []
+    with av.open(str(path)) as container:
+        for f in container.decode(video=0):
+            reference.append(f.to_ndarray(format="gray"))
+            assert np.array_equal(_luma(f), reference[-1])  # the fast path is taken, not only the fallback
+    got = dict(_gray_frames(open_source(path), range(6)))
+    assert sorted(got) == list(range(6))
+    for k, grey in got.items():
+        assert np.array_equal(grey, reference[k])
+
+
+def cv2_blur(img):
+    import cv2
+
+    return cv2.GaussianBlur(img, (0, 0), 1.5)
