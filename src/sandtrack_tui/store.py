@@ -20,6 +20,7 @@ Tables
 from __future__ import annotations
 
 import json
+import math
 import os
 import sqlite3
 import time
@@ -533,6 +534,9 @@ class _Edit:
         self.seq = 0
 
     def write(self, rows) -> int:
+        """Insert or replace point rows as part of this edit, in one committed transaction. The
+        edit log gets one row per point (its first "before" in this edit, its latest "after"),
+        written with a few batched statements rather than several per point."""
         records = list(_as_point_tuples(rows))
         if not records:
             return 0
@@ -541,25 +545,42 @@ class _Edit:
         def fn():
             if self.edit_id is None:
                 self.edit_id = self.project._new_edit(self.kind, self.description)
-            for rec in records:
-                key = json.dumps(list(rec[:3]))
-                after = json.dumps(list(rec[3:]))
-                prior = self._prior_seq(key)
-                if prior is not None:  # a row this edit already wrote keeps its first "before"
-                    conn.execute("UPDATE edit_rows SET after=? WHERE edit_id=? AND seq=?",
-                                 (after, self.edit_id, prior))
-                    continue
-                old = conn.execute(
-                    f"SELECT {', '.join(_POINT_VALUES)} FROM points WHERE frame=? AND camera=? AND marker=?",
-                    rec[:3]).fetchone()
-                self.project._log_row(self.edit_id, self.seq, "points", key,
-                                      _dumps_row(old) if old else None, after)
-                self.seq += 1
+            keys = _point_keys(records)
+            afters = _point_values_json(records)
+            prior = self._prior_seqs(set(keys)) if self.seq else {}
+            olds = _existing_values(conn, records)
+            new_rows: dict[str, list] = {}  # key -> its log row, first write of the key in this edit
+            updates: dict[int, str] = {}  # seq of a row logged by an earlier write -> latest after
+            for rec, key, after in zip(records, keys, afters, strict=True):
+                seq = prior.get(key)
+                if seq is not None:  # a row this edit already wrote keeps its first "before"
+                    updates[seq] = after
+                elif key in new_rows:
+                    new_rows[key][5] = after
+                else:
+                    old = olds.get(rec[:3])
+                    new_rows[key] = [self.edit_id, self.seq, "points", key,
+                                     _dumps_row(old) if old else None, after]
+                    self.seq += 1
+            if updates:
+                conn.executemany("UPDATE edit_rows SET after=? WHERE edit_id=? AND seq=?",
+                                 [(a, self.edit_id, q) for q, a in updates.items()])
+            conn.executemany("INSERT INTO edit_rows VALUES (?,?,?,?,?,?)", new_rows.values())
             conn.executemany(f"INSERT OR REPLACE INTO points ({', '.join(POINT_COLUMNS)}) "
                              f"VALUES (?,?,?,?,?,?,?,?,?)", records)
 
         self.project._write(fn)
         return len(records)
+
+    def _prior_seqs(self, keys: set) -> dict[str, int]:
+        """Log seq of each of `keys` this edit already wrote: key -> seq."""
+        out = {}
+        todo = list(keys)
+        for i in range(0, len(todo), _SQL_BATCH):
+            part = todo[i:i + _SQL_BATCH]
+            q = f"SELECT key, seq FROM edit_rows WHERE edit_id=? AND key IN ({','.join('?' * len(part))})"
+            out.update((k, int(s)) for k, s in self.project.conn.execute(q, (self.edit_id, *part)))
+        return out
 
     def _prior_seq(self, key: str) -> int | None:
         if not self.seq:
@@ -598,6 +619,49 @@ class _Edit:
         return len(keys)
 
 
+_SQL_BATCH = 500  # bound parameters per statement, well under SQLite's limit
+
+
+def _point_keys(records) -> list[str]:
+    """json.dumps([frame, camera, marker]) of each record (frame and marker are ints)."""
+    cams = {c: json.dumps(c) for c in {r[1] for r in records}}
+    return [f"[{r[0]}, {cams[r[1]]}, {r[2]}]" for r in records]
+
+
+def _point_values_json(records) -> list[str]:
+    """json.dumps(list(record[3:])) of each record: one encoding for the whole batch, split back
+    into rows (the values are finite floats, None and a status word, so '], [' only separates rows)."""
+    text = json.dumps([r[3:] for r in records])
+    parts = text[2:-2].split("], [")
+    if len(parts) != len(records):  # cannot happen with point values; kept exact anyway
+        return [json.dumps(list(r[3:])) for r in records]
+    return [f"[{p}]" for p in parts]
+
+
+def _existing_values(conn, records) -> dict:
+    """Stored values of the records' points: (frame, camera, marker) -> row of _POINT_VALUES.
+    One range query per (camera, marker) instead of one query per point."""
+    spans: dict[tuple, list] = {}
+    for r in records:
+        s = spans.get((r[1], r[2]))
+        if s is None:
+            spans[(r[1], r[2])] = [r[0], r[0]]
+        elif r[0] < s[0]:
+            s[0] = r[0]
+        elif r[0] > s[1]:
+            s[1] = r[0]
+    wanted = {r[:3] for r in records}
+    out = {}
+    sql = (f"SELECT frame, {', '.join(_POINT_VALUES)} FROM points "
+           f"WHERE marker=? AND camera=? AND frame BETWEEN ? AND ?")
+    for (c, m), (a, b) in spans.items():
+        for row in conn.execute(sql, (m, c, a, b)):
+            k = (row[0], c, m)
+            if k in wanted:
+                out[k] = row[1:]
+    return out
+
+
 def _as_point_tuples(rows) -> Iterable[tuple]:
     if isinstance(rows, pd.DataFrame):
         df = rows.copy()
@@ -608,11 +672,13 @@ def _as_point_tuples(rows) -> Iterable[tuple]:
     for r in rows:
         if isinstance(r, dict):
             r = tuple(r.get(c) for c in POINT_COLUMNS)
-        r = tuple(r) + (None,) * (len(POINT_COLUMNS) - len(r))
-        status = r[5]
+        if type(r) is not tuple or len(r) != 9:
+            r = tuple(r)
+            r = r[:9] + (None,) * (9 - len(r))
+        f, c, m, x, y, status, score, psr, colour = r
         if status not in STATUSES:
             raise SandtrackError(f"unknown point status {status!r} (one of {', '.join(STATUSES)})")
-        yield (int(r[0]), str(r[1]), int(r[2]), *(_num(v) for v in r[3:5]), status, *(_num(v) for v in r[6:9]))
+        yield (int(f), str(c), int(m), _num(x), _num(y), status, _num(score), _num(psr), _num(colour))
 
 
 def _dumps_row(values) -> str:
@@ -624,7 +690,7 @@ def _num(v):
     if v is None:
         return None
     v = float(v)
-    return v if np.isfinite(v) else None
+    return v if math.isfinite(v) else None
 
 
 def project_default_name(videos: Sequence[str]) -> str:
