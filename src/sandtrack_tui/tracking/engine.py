@@ -103,7 +103,7 @@ class Engine:
         """For each track, the other tracks whose predictions touch it: id(track) -> [(track, xy)]."""
         if len(tracks) < 2:
             return {}
-        pts = [(t, t.kf.position, *t.kf.x[:2].tolist(), t.model.radius) for t in tracks]
+        pts = [(t, xy, *xy, t.model.radius) for t in tracks for xy in (t.kf.xy,)]
         pairs = []
         for i, (_, _, xi, yi, ri) in enumerate(pts):  # plain floats: a handful of tracks per camera
             for k in range(i + 1, len(pts)):
@@ -125,8 +125,8 @@ class Engine:
         the neighbour's, a high score, not a merged blob. Otherwise the track coasts (honestly)."""
         if not neighbours:
             return False
-        p = t.kf.x[:2]
-        own = math.hypot(m.x - p[0], m.y - p[1])
+        px, py = t.kf.xy
+        own = math.hypot(m.x - px, m.y - py)
         for _o, q in neighbours:
             if math.hypot(m.x - q[0], m.y - q[1]) < own:
                 return True
@@ -214,7 +214,7 @@ class Engine:
             key = (t.marker, cam)
             if key in props:
                 continue
-            px, py = t.kf.position
+            px, py = t.kf.xy
             hx, hy = t.search_halfsize()
             band_from = None
             if self.stereo is not None and cam in self.stereo.cams:

@@ -131,16 +131,16 @@ class MarkerTrack:
             if d is not None:
                 o = r.match
                 x, y = o.x + d[0], o.y + d[1]
-                return Match(x, y, o.score, o.psr, o.colour_frac, float(self.kf.mahalanobis2((x, y))[0]),
+                return Match(x, y, o.score, o.psr, o.colour_frac, self.kf.d2(x, y),
                              o.used_centroid, None if o.luma is None else (o.luma[0] + d[0], o.luma[1] + d[1]),
                              rest=True)
-        px, py = self.kf.position
+        px, py = self.kf.xy
         hx, hy = self.search_halfsize()
         S_inv = self.kf.innovation_inv()
         m = self.matcher.match(frame_bgr, px, py, hx, hy, S_inv, self.params.gate_d2)
         if m is None:
             return None
-        m.d2 = float(self.kf.mahalanobis2((m.x, m.y))[0])
+        m.d2 = self.kf.d2(m.x, m.y)
         if not self.acceptable(m):
             return None
         self._carry(frame_bgr, m, frame_index)
@@ -192,7 +192,7 @@ class MarkerTrack:
         m = self.matcher.match(frame_bgr, x, y, 2.0, 2.0)
         if m is None or not self.acceptable(m, relax=0.9):
             return None
-        m.d2 = float(self.kf.mahalanobis2((m.x, m.y))[0])
+        m.d2 = self.kf.d2(m.x, m.y)
         return m
 
     def apply(self, frame_index: int, frame_bgr: np.ndarray | None, m: Match | None,
@@ -228,8 +228,8 @@ class MarkerTrack:
                 obs = Observation(frame_index, self.camera, self.marker, float("nan"), float("nan"), LOST)
             else:
                 self.status = OCCLUDED
-                x, y = self.kf.position
-                obs = Observation(frame_index, self.camera, self.marker, float(x), float(y), OCCLUDED)
+                x, y = self.kf.xy
+                obs = Observation(frame_index, self.camera, self.marker, x, y, OCCLUDED)
         self.counts[obs.status] += 1
         return obs
 
