@@ -159,15 +159,16 @@ class Engine:
         if t is None:
             return None
         if key in forced:
-            return np.array(forced[key], dtype=float)
+            x, y = forced[key]
+            return float(x), float(y)
         p = props.get(key)
         if p is None:
             return None
         rem = frames[t.camera][2]
         if not rem:
-            return np.array([p.match.x, p.match.y])
-        v = t.kf.velocity * self.direction
-        return np.array([p.match.x, p.match.y]) + v * rem
+            return p.match.x, p.match.y
+        vx, vy = t.kf.vxy
+        return p.match.x + vx * self.direction * rem, p.match.y + vy * self.direction * rem
 
     def _stereo_check(self, frames, props, forced, only_reattached: bool) -> None:
         a, b = self.stereo.cams

@@ -69,6 +69,10 @@ class ConstantVelocityKF:
         return self._x[0], self._x[1]
 
     @property
+    def vxy(self) -> tuple[float, float]:
+        return self._x[2], self._x[3]
+
+    @property
     def velocity(self) -> np.ndarray:
         return np.array(self._x[2:])
 
@@ -130,22 +134,22 @@ class ConstantVelocityKF:
         zx, zy = float(z[0]), float(z[1])
         x0, x1, x2, x3 = self._x
         p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = self._p
-        P = ((p00, p01, p02, p03), (p01, p11, p12, p13), (p02, p12, p22, p23), (p03, p13, p23, p33))
         s00, s01, s11 = p00 + r, p01, p11 + r
         det = s00 * s11 - s01 * s01
         i00, i01, i11 = s11 / det, -s01 / det, s00 / det
-        # K = P[:, :2] S^-1 (4 x 2); x += K (z - Hx); P -= K P[:2, :] (then symmetrised)
-        K = [(row[0] * i00 + row[1] * i01, row[0] * i01 + row[1] * i11) for row in P]
+        # K = P[:, :2] S^-1 (4 x 2); x += K (z - Hx); P -= K P[:2, :] (upper triangle; symmetric)
+        k00, k01 = p00 * i00 + p01 * i01, p00 * i01 + p01 * i11
+        k10, k11 = p01 * i00 + p11 * i01, p01 * i01 + p11 * i11
+        k20, k21 = p02 * i00 + p12 * i01, p02 * i01 + p12 * i11
+        k30, k31 = p03 * i00 + p13 * i01, p03 * i01 + p13 * i11
         ex, ey = zx - x0, zy - x1
-        self._x = [x0 + K[0][0] * ex + K[0][1] * ey, x1 + K[1][0] * ex + K[1][1] * ey,
-                   x2 + K[2][0] * ex + K[2][1] * ey, x3 + K[3][0] * ex + K[3][1] * ey]
-        P0, P1 = P[0], P[1]
-        n = []
-        for i in range(4):  # the upper triangle; the result is symmetric
-            ki0, ki1, Pi = K[i][0], K[i][1], P[i]
-            for j in range(i, 4):
-                n.append(Pi[j] - ki0 * P0[j] - ki1 * P1[j])
-        self._p = n
+        self._x = [x0 + k00 * ex + k01 * ey, x1 + k10 * ex + k11 * ey,
+                   x2 + k20 * ex + k21 * ey, x3 + k30 * ex + k31 * ey]
+        self._p = [p00 - k00 * p00 - k01 * p01, p01 - k00 * p01 - k01 * p11, p02 - k00 * p02 - k01 * p12,
+                   p03 - k00 * p03 - k01 * p13,
+                   p11 - k10 * p01 - k11 * p11, p12 - k10 * p02 - k11 * p12, p13 - k10 * p03 - k11 * p13,
+                   p22 - k20 * p02 - k21 * p12, p23 - k20 * p03 - k21 * p13,
+                   p33 - k30 * p03 - k31 * p13]
         self._coasting = False
         self.coast_frames = 0
 
