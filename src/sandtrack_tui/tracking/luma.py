@@ -50,14 +50,18 @@ def edge_centre(frame_bgr, x: float, y: float, radius: float, iterations: int = 
         prof = cv2.remap(luma, px, py, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)
         g = prof[:, 2:] - prof[:, :-2]  # outward rise of brightness (central difference)
         k = np.argmax(g, axis=1)
-        np.clip(k, 1, n - 4, out=k)
-        a, b, c = np.take(g, (_ROWS * (n - 2) + k)[:, None] + _ABC).T  # g[ray, k - 1 .. k + 1]
+        np.maximum(k, 1, out=k)  # (np.clip's wrapper costs more than the clipping here)
+        np.minimum(k, n - 4, out=k)
+        a, b, c = np.take(g, _RAY_BASE[n] + k[:, None]).T  # g[ray, k - 1 .. k + 1]
         den = a - 2 * b + c
         ok = (b > MIN_RISE) & (den < 0)
         if np.count_nonzero(ok) < N_RAYS // 2:
             return None
         a, c, den, k = a[ok], c[ok], den[ok], k[ok]
-        d = steps[k + 1] + np.clip(0.5 * (a - c) / den, -0.5, 0.5) * STEP
+        t = 0.5 * (a - c) / den
+        np.maximum(t, -0.5, out=t)
+        np.minimum(t, 0.5, out=t)
+        d = steps[k + 1] + t * STEP
         sol = _robust_circle(_COS[ok] * d, _SIN[ok] * d)
         if sol is None:
             return None
@@ -75,6 +79,7 @@ _ROWS = np.arange(N_RAYS)
 _ABC = np.array([-1, 0, 1])
 _STEPS: dict = {}
 _COS_S: dict = {}
+_RAY_BASE: dict = {}  # n -> flat index of g[ray, -1 .. 1] (g has n - 2 columns)
 _SIN_S: dict = {}
 
 
@@ -90,6 +95,7 @@ def _steps(radius: float) -> np.ndarray:
         if n not in _COS_S:
             _COS_S[n] = np.ascontiguousarray(_COS[:, None] * s[None, :])
             _SIN_S[n] = np.ascontiguousarray(_SIN[:, None] * s[None, :])
+            _RAY_BASE[n] = (_ROWS * (n - 2))[:, None] + _ABC
     return s
 
 
