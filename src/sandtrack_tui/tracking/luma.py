@@ -32,7 +32,7 @@ STEP = 0.25
 MIN_RISE = 2.0  # luma levels per half pixel: a real edge, not noise on flat sand
 
 
-def edge_centre(frame_bgr, x: float, y: float, radius: float, iterations: int = 3, settle_px: float = 0.2):
+def edge_centre(frame_bgr, x: float, y: float, radius: float, iterations: int = 3, settle_px: float = 0.35):
     """Centre (x, y) of the marker's dark silhouette near (x, y) in frame coordinates, or None."""
     H, W = frame_bgr.shape[:2]
     R = int(np.ceil(1.8 * radius + 3))

@@ -158,7 +158,10 @@ class MarkerTrack:
         intra = self._is_intra(frame_index)
         if not intra and self._offset is None:
             return  # nothing to carry until the next intra frame
-        m.luma = edge_centre(frame_bgr, m.x, m.y, self.model.radius)
+        sx, sy = m.x, m.y
+        if self._offset is not None:  # start from where the edge centre is expected: fewer fit rounds
+            sx, sy = sx - self._offset[0], sy - self._offset[1]
+        m.luma = edge_centre(frame_bgr, sx, sy, self.model.radius)
         if m.luma is None or intra:
             return
         lx, ly = m.luma
