@@ -40,6 +40,7 @@ class Engine:
     crowded_min_score: float = 0.8
     crowded_max_colour: float = 1.4
     _open_ambiguity: dict = field(default_factory=dict)
+    _both_cache: tuple | None = None
 
     def add(self, track: MarkerTrack, start_frame: int) -> None:
         self.tracks[(track.marker, track.camera)] = track
@@ -175,7 +176,7 @@ class Engine:
         if a not in frames or b not in frames:
             return
         markers, pas, pbs = [], [], []
-        for m in sorted({m for (m, c) in self.tracks if c == a} & {m for (m, c) in self.tracks if c == b}):
+        for m in self._stereo_markers(a, b):
             ka, kb = (m, a), (m, b)
             if only_reattached and not ((ka in props and props[ka].reattach) or (kb in props and props[kb].reattach)):
                 continue
@@ -202,6 +203,14 @@ class Engine:
             if len(self.stereo_flags) < self.max_events:
                 self.stereo_flags.append({"marker": m, "camera": suspect[1], "frame": int(frames[suspect[1]][0]),
                                           "epipolar_px": round(float(d), 2)})
+
+    def _stereo_markers(self, a, b) -> list:
+        """Markers tracked in both cameras, sorted (kept until the set of tracks changes)."""
+        c = self._both_cache
+        if c is None or c[0] != (a, b, len(self.tracks)):
+            ms = sorted({m for (m, k) in self.tracks if k == a} & {m for (m, k) in self.tracks if k == b})
+            c = self._both_cache = ((a, b, len(self.tracks)), ms)
+        return c[1]
 
     def _reacquire(self, cam, img, tracks, props, forced, frames) -> int:
         """Re-attach coasting tracks of `cam` to unexplained blobs; returns how many were."""

@@ -77,6 +77,11 @@ class ConstantVelocityKF:
         return np.array(self._x[2:])
 
     def predict(self) -> np.ndarray:
+        self.advance()
+        return self.position
+
+    def advance(self) -> None:
+        """`predict` without building the position array (per track and frame)."""
         if self._coasting and self.coast_frames > self.coast_cv_frames:
             # Hidden for a while: a hidden marker has mostly stopped (buried, or the tool has passed).
             # Its velocity is forgotten and the position does a random walk, so the gate widens
@@ -85,7 +90,7 @@ class ConstantVelocityKF:
             w2 = self.coast_walk_px**2
             p = self._p
             self._p = [p[0] + w2, p[1], 0.0, 0.0, p[4] + w2, 0.0, 0.0, 0.0, 0.0, 0.0]
-            return self.position
+            return
         x0, x1, x2, x3 = self._x
         if self._coasting:
             x2, x3 = x2 * self.coast_damping, x3 * self.coast_damping
@@ -97,7 +102,6 @@ class ConstantVelocityKF:
         n00, n01, n11 = p00 + 2 * p02 + p22, p01 + p03 + p12 + p23, p11 + 2 * p13 + p33
         self._p = [n00 + 0.25 * q, n01, a02 + 0.5 * q, a03, n11 + 0.25 * q, a12, a13 + 0.5 * q,
                    p22 + q, p23, p33 + q]
-        return self.position
 
     def innovation_cov(self) -> np.ndarray:
         return self.P[:2, :2] + self.R

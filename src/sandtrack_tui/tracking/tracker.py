@@ -104,7 +104,7 @@ class MarkerTrack:
         self.reacquisitions = 0
         self._since_update = 0
         self.counts = {TRACKED: 0, OCCLUDED: 0, LOST: 0, MANUAL: 0}
-        self.intra: np.ndarray | None = None  # per frame of this camera: intra-coded (set by the caller)
+        self.intra = None  # per frame of this camera: intra-coded (set by the caller)
         self._offset: tuple | None = None  # colour centre - luma centre at the last intra frame
         self._anchor_luma: tuple | None = None
         self._rest: RestReference | None = None
@@ -116,7 +116,7 @@ class MarkerTrack:
         return self.status in (OCCLUDED, LOST)
 
     def predict(self) -> None:
-        self.kf.predict()
+        self.kf.advance()
 
     def search_halfsize(self) -> tuple[float, float]:
         hx, hy = self.kf.gate_halfsize(self.params.gate_d2)
@@ -146,9 +146,18 @@ class MarkerTrack:
         self._carry(frame_bgr, m, frame_index)
         return m
 
+    @property
+    def intra(self) -> np.ndarray | None:
+        return self._intra
+
+    @intra.setter
+    def intra(self, mask) -> None:
+        self._intra = mask
+        self._intra_set = None if mask is None else frozenset(np.flatnonzero(mask).tolist())
+
     def _is_intra(self, frame_index: int | None) -> bool:
-        i = self.intra
-        return i is not None and frame_index is not None and 0 <= frame_index < len(i) and bool(i[frame_index])
+        s = self._intra_set
+        return s is not None and frame_index in s
 
     def _carry(self, frame_bgr, m: Match, frame_index: int | None) -> None:
         """Measure the luma centre of a whole, clearly seen marker; between intra frames, move the
