@@ -196,9 +196,11 @@ def _close(sources):
 def _find_seeds(project, points: pd.DataFrame, markers, cams, sources, offsets, ref, start, direction):
     """Per (marker, camera): (frame, x, y) to start from, plus problems for those without one."""
     seeds, problems = {}, []
+    empty = points.iloc[:0]
+    by_track = {key: g for key, g in points[points.x_px.notna()].groupby(["marker", "camera"], sort=False)}
     for m in markers:
         for c in cams:
-            p = points[(points.marker == m) & (points.camera == c) & points.x_px.notna()]
+            p = by_track.get((m, c), empty)
             if start is not None:
                 pf = (start, 0.0) if c == ref else paired_frame(sources, offsets, ref, start, c)
                 if pf is None:
