@@ -10,7 +10,8 @@
                  calibration_board_poses.csv, scene.json
     dem/particles.csv, dem/differences.json
 
-Each video is rendered by its own worker process (two at a time); the result only depends on the seed.
+The videos of each camera are rendered by one worker process (two at a time), H.264 encoding on a thread of
+its own; the result only depends on the seed.
 """
 
 from __future__ import annotations
@@ -234,6 +235,7 @@ def render_sample(out_dir: str | Path, seed: int = 0, preset: str = "small", wor
     log(f"rendering the videos of {len(jobs)} cameras ({preset} preset, seed {seed}) with {workers} worker(s)")
     if workers <= 1:
         results = [_camera_worker(a) for a in jobs]
+        _write_dem(out, seed)
     else:
         # spawn, never fork: native thread pools (torch, OpenCV, FFmpeg) are invisible to threading.active_count()
         # and a forked child can hang on a lock one of them held
@@ -241,6 +243,7 @@ def render_sample(out_dir: str | Path, seed: int = 0, preset: str = "small", wor
         with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=ctx) as ex:
             with _environment(OPENBLAS_NUM_THREADS="1"):  # the workers start on submit and inherit it
                 futs = [ex.submit(_camera_worker, a) for a in jobs]
+            _write_dem(out, seed)  # meanwhile
             results = []
             for f in as_completed(futs):
                 results.append(f.result())
@@ -363,7 +366,6 @@ def _write_ground_truth(out: Path, seed: int, preset: str, exp: dict, cal: dict)
         "board_reference_origin_mm": [float(v) for v in REF_ORIGIN],
     }
     (gt / "scene.json").write_text(json.dumps(scene, indent=2) + "\n")
-    _write_dem(out, seed)
 
 
 def _write_readme(out: Path, seed: int, preset: str, exp: dict, cal: dict, two_view: int) -> None:

@@ -75,7 +75,8 @@ class Mp4Writer:
             if self._error is not None:
                 continue  # keep draining so that write() never blocks
             try:
-                frame = av.VideoFrame.from_ndarray(bgr, format="bgr24")
+                # wraps the array without copying it (the encoder converts it to YUV at once)
+                frame = av.VideoFrame.from_numpy_buffer(np.ascontiguousarray(bgr), format="bgr24")
                 frame.pts = self.n
                 frame.time_base = self.video.codec_context.time_base
                 self.n += 1
