@@ -104,21 +104,16 @@ class Engine:
         """For each track, the other tracks whose predictions touch it: id(track) -> [(track, xy)]."""
         if len(tracks) < 2:
             return {}
-        pts = [(t, xy, *xy, t.model.radius) for t in tracks for xy in (t.kf.xy,)]
-        pairs = []
-        for i, (_, _, xi, yi, ri) in enumerate(pts):  # plain floats: a handful of tracks per camera
+        pts = [(*t.kf.xy, t.model.radius) for t in tracks]
+        near: list[list[int]] = [[] for _ in tracks]  # neighbour indices, ascending
+        for i, (xi, yi, ri) in enumerate(pts):  # plain floats: a handful of tracks per camera
             for k in range(i + 1, len(pts)):
-                _, _, xk, yk, rk = pts[k]
+                xk, yk, rk = pts[k]
                 lim = self.crowd_factor * (ri + rk)
                 if abs(xi - xk) < lim and abs(yi - yk) < lim and math.hypot(xi - xk, yi - yk) < lim:
-                    pairs.append((i, k))
-        out = {}
-        for i in range(len(pts)):  # in the order of the tracks, as each track's list was built before
-            for a, b in pairs:
-                if i in (a, b):
-                    o = pts[b if a == i else a]
-                    out.setdefault(id(pts[i][0]), []).append((o[0], o[1]))
-        return out
+                    near[i].append(k)
+                    near[k].append(i)
+        return {id(tracks[i]): [(tracks[k], pts[k][:2]) for k in ks] for i, ks in enumerate(near) if ks}
 
     def _crowded_reject(self, t: MarkerTrack, m: Match, neighbours) -> bool:
         """Markers touching each other: their discs merge, the centroid and the NCC peak both lie.

@@ -15,9 +15,6 @@ import numpy as np
 
 GATE_D2 = 9.21  # chi-square, 2 dof, 99 %
 
-_F = np.array([[1, 0, 1, 0], [0, 1, 0, 1], [0, 0, 1, 0], [0, 0, 0, 1]], dtype=np.float64)
-_H = np.array([[1, 0, 0, 0], [0, 1, 0, 0]], dtype=np.float64)
-
 
 class ConstantVelocityKF:
     """State and covariance are kept as plain floats (a 4 x 4 per track and frame: numpy's per-call
@@ -30,10 +27,8 @@ class ConstantVelocityKF:
         # Upper triangle of P: p00 p01 p02 p03 p11 p12 p13 p22 p23 p33.
         m2, v2 = float(meas_px**2), float(init_speed_px**2)
         self._p = [m2, 0.0, 0.0, 0.0, m2, 0.0, 0.0, v2, 0.0, v2]
-        q = accel_px**2
-        self._q = q
-        # Discrete white-noise acceleration over one frame.
-        self.Q = q * np.array([[0.25, 0, 0.5, 0], [0, 0.25, 0, 0.5], [0.5, 0, 1, 0], [0, 0.5, 0, 1]])
+        # Discrete white-noise acceleration over one frame: Q = q [[I/4, I/2], [I/2, I]] (see advance).
+        self._q = accel_px**2
         self.R = np.eye(2) * meas_px**2
         self._r = float(self.R[0, 0])
         self.coast_damping = coast_damping
