@@ -9,12 +9,19 @@
 3. sample_data/ (when present): errors against ground_truth/cameras.toml and the true corners.
 4. The full sample preset (when the demo has rendered it into its cache): the same figures on its
    longer calibration session (2100 frames per camera, many of them motion-blurred).
+5. For 3 and 4, the session's own precision: the rig calibrated again on random halves of its
+   frames (same detections; at most half as many bundle views as the full run, so each half has
+   half its data); the spread of the relative-pose error over the halves, divided by sqrt(2),
+   estimates the spread of a full-session estimate. `rotation_expected_err_deg` /
+   `translation_expected_err_mm` are the root-mean-square length of such an error: what an
+   unbiased calibration of this session would miss by, from the data's noise alone.
 
 Run: `python benchmarks/bench_calibration.py` (prints JSON), or `run()` from benchmarks/run_all.py.
 """
 
 from __future__ import annotations
 
+import inspect
 import json
 import os
 import pickle
@@ -23,6 +30,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -30,9 +38,10 @@ sys.path.insert(0, str(ROOT / "src"))
 
 from sandtrack_tui.board import load_board  # noqa: E402
 from sandtrack_tui.calibration.caliscope import import_caliscope  # noqa: E402
+from sandtrack_tui.calibration.geometry import inv_T, to_T  # noqa: E402
 from sandtrack_tui.calibration.pipeline import calibrate_videos  # noqa: E402
 from sandtrack_tui.calibration.report import accuracy_report, relative_pose_errors  # noqa: E402
-from sandtrack_tui.calibration.rig import fit_frame_poses  # noqa: E402
+from sandtrack_tui.calibration.rig import calibrate_rig, fit_frame_poses  # noqa: E402
 
 REAL = ROOT.parent / "shared" / "data" / "caliscope_4cam"
 SAMPLE = ROOT / "sample_data"
@@ -154,7 +163,47 @@ def sample_data_figures(folder: Path = SAMPLE, with_points: bool = True) -> dict
     if res.points is not None:
         out["points_rows"] = int(len(res.points))
         out.update(_points_vs_truth(res, truth, folder))
+    out.update(half_sample_precision(res, board, truth))
     return out
+
+
+def _relative_error(est, truth) -> tuple[np.ndarray, np.ndarray]:
+    """(rotation error vector in degrees, translation error in mm) of the second camera against the first."""
+    a, b = truth.names[:2]
+
+    def rel(cal):
+        ca, cb = cal.cameras[a], cal.cameras[b]
+        return to_T(cb.rvec, cb.tvec) @ inv_T(to_T(ca.rvec, ca.tvec))
+
+    Te, Tt = rel(est), rel(truth)
+    rvec = cv2.Rodrigues(Te[:3, :3] @ Tt[:3, :3].T)[0].ravel()
+    return np.degrees(rvec), Te[:3, 3] - Tt[:3, 3]
+
+
+BUNDLE_FRAMES = inspect.signature(calibrate_videos).parameters["max_bundle_frames"].default
+
+
+def half_sample_precision(res, board, truth, halves: int = 16, seed: int = 1) -> dict:
+    """Spread of the relative pose over calibrations on random halves of the session's frames."""
+    views = res.views
+    names = list(views)
+    sizes = {n: (res.calibration.cameras[n].width, res.calibration.cameras[n].height) for n in names}
+    frames = np.array(sorted(set().union(*[set(v) for v in views.values()])))
+    rng = np.random.default_rng(seed)
+    rot, trans = [], []
+    for _ in range(halves):
+        half = set(rng.choice(frames, len(frames) // 2, replace=False).tolist())
+        part = {n: {f: v for f, v in views[n].items() if f in half} for n in names}
+        rig = calibrate_rig(part, board, sizes, max_frames=BUNDLE_FRAMES // 2)
+        r, t = _relative_error(rig.calibration, truth)
+        rot.append(r)
+        trans.append(t)
+    sd_r = np.std(rot, axis=0, ddof=1) / np.sqrt(2)
+    sd_t = np.std(trans, axis=0, ddof=1) / np.sqrt(2)
+    return {"precision_halves": halves, "rotation_sd_deg_per_axis": [round(float(v), 4) for v in sd_r],
+            "rotation_expected_err_deg": float(np.sqrt(np.sum(sd_r ** 2))),
+            "translation_sd_mm_per_axis": [round(float(v), 3) for v in sd_t],
+            "translation_expected_err_mm": float(np.sqrt(np.sum(sd_t ** 2)))}
 
 
 def _points_vs_truth(res, truth, folder: Path = SAMPLE) -> dict:
