@@ -17,7 +17,8 @@ time) / (frames decoded / wall time of decode only); `cpu_rate_ratio` = (decode-
 per frame) / (decode + track process CPU per frame), CPU of all threads (user + sys). On a machine
 shared with other work the wall ratio moves with the load; the CPU ratio is the steadier figure.
 `track_ms_per_marker_frame` / `track_cpu_ms_per_marker_frame`: time inside the tracking step
-only (no decoding, no store), per marker and camera frame.
+only (no decoding, no store), per marker and camera frame. `backward_*`: the same markers
+re-tracked backward from the last frame, its rate against the forward run's.
 """
 
 from __future__ import annotations
@@ -120,6 +121,30 @@ def _decode_only(videos, n_frames: dict) -> tuple[float, float]:
     return dt, dc
 
 
+def _backward(project_file: Path, videos, forward_s_per_frame: float) -> dict:
+    """Re-track every marker backward from the last frame (decoding each group of pictures forward,
+    handing its frames out in reverse): rate against forward tracking, and how far the backward
+    points stray from the forward ones (they start from the same points)."""
+    with Project.open(project_file) as proj:
+        before = proj.points()
+        last = int(before[before.camera == "side"].frame.max())
+        srcs = {c: FrameSource(v, cache_mb=64) for c, v in videos.items()}
+        t0 = time.perf_counter()
+        summary = track_project(proj, start=last, direction="backward", sources=srcs)
+        dt = time.perf_counter() - t0
+        for src in srcs.values():
+            src.close()
+        after = proj.points()
+        proj.undo()
+    n = sum(summary["frames_by_camera"].values())
+    both = before.merge(after, on=["frame", "camera", "marker"], suffixes=("", "_b"))
+    both = both[(both.status == "tracked") & (both.status_b == "tracked")]
+    return {"backward_frames_per_s": round(n / dt, 2),
+            "backward_vs_forward_rate": round(forward_s_per_frame * n / dt, 3),
+            "backward_vs_forward_points_median_px": round(float(np.median(
+                np.hypot(both.x_px - both.x_px_b, both.y_px - both.y_px_b))), 4)}
+
+
 def _score(points: pd.DataFrame, truth: dict) -> dict:
     """The demo's scoring (groundtruth.score_tracking): markers matched to true ids by their first point."""
     t = SimpleNamespace(markers=truth)
@@ -203,6 +228,7 @@ def run(mil_frames: int = 60) -> dict:
                    track_ms_per_marker_frame=ms_wall, track_cpu_ms_per_marker_frame=ms_cpu,
                    stereo_flags=flags, ambiguous=amb)
         out.update(_score(points, truth))
+        out.update(_backward(tmp / "bench.sandtrack", videos, t_wall / decoded_in_track))
         side = points[(points.camera == "side") & (points.frame < mil_frames)]
         ours = _score(side, {"side": truth["side"][truth["side"].frame < mil_frames]})
         out["ours_first_frames_err_mean_px"] = ours["mean_error_px"]

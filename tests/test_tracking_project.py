@@ -12,14 +12,7 @@ import pytest
 from sandtrack_tui.cli import main
 from sandtrack_tui.store import Project
 from sandtrack_tui.tracking import synthetic
-from sandtrack_tui.tracking.run import (
-    BACKWARD_CACHE_MB,
-    FORWARD_CACHE_MB,
-    accept_seeds,
-    auto_seed,
-    seed_marker,
-    track_project,
-)
+from sandtrack_tui.tracking.run import TRACKING_CACHE_MB, accept_seeds, auto_seed, seed_marker, track_project
 
 N = 40
 
@@ -106,7 +99,7 @@ def test_retrack_from_a_frame_and_backward(stereo_data, tmp_path):
         tf = clips["front"].truth.query("frame == 20 and marker == 2").iloc[0]
         seed_marker(proj, 7, "side", 20, t.x_px + 0.7, t.y_px - 0.5, 14, 14)
         seed_marker(proj, 7, "front", 20, tf.x_px - 0.6, tf.y_px + 0.4)
-        opened = []  # frame cache asked for: a group of pictures backward, a few frames forward
+        opened = []  # frame cache asked for: a few frames in either direction
         real_open = proj.open_sources
         proj.open_sources = lambda cache_mb=256: opened.append(cache_mb) or real_open(cache_mb=cache_mb)
         s = track_project(proj, markers=[7], direction="backward")
@@ -115,7 +108,7 @@ def test_retrack_from_a_frame_and_backward(stereo_data, tmp_path):
         assert back.frame.min() == 0 and back.frame.max() == 20
         # Re-tracking forward from frame 10 overwrites frames 11.. and keeps the manual seed at 20.
         s = track_project(proj, markers=[7], start=10, stop=30)
-        assert opened == [BACKWARD_CACHE_MB, FORWARD_CACHE_MB] and FORWARD_CACHE_MB <= 64
+        assert opened == [TRACKING_CACHE_MB] * 2 and TRACKING_CACHE_MB <= 64
         side = proj.points(marker=7, camera="side")
         assert side.frame.max() == 30
         assert side.query("frame == 20").status.iloc[0] == "manual"

@@ -35,11 +35,10 @@ __all__ = ["auto_seed", "accept_seeds", "seed_marker", "track_project", "snap_to
 SEED_COLUMNS = ["marker", "camera", "frame", "x_px", "y_px", "w", "h", "epipolar_px"]
 BOXES_KEY = "tracking_boxes"
 _USABLE = (MANUAL, TRACKED, "interpolated", "imported")
-# Frame cache per camera when track_project opens the videos itself. Forward tracking reads each
-# frame once (the cache only spares re-decoding the seed frames); backward tracking decodes each
-# group of pictures forward from its key frame and walks back through it, so it keeps a group.
-FORWARD_CACHE_MB = 48
-BACKWARD_CACHE_MB = 256
+# Frame cache per camera when track_project opens the videos itself: tracking reads each frame
+# once, in either direction (decoding.py reads backward group by group), so the cache only spares
+# re-decoding the seed frames.
+TRACKING_CACHE_MB = 48
 
 
 # -- clocks and pairing -----------------------------------------------------------------------
@@ -237,7 +236,7 @@ def track_project(project, markers=None, start: int | None = None, stop: int | N
         raise SandtrackError(f"direction must be forward or backward, not {direction!r}")
     dirn = 1 if direction == "forward" else -1
     own = sources is None
-    sources = sources or project.open_sources(cache_mb=FORWARD_CACHE_MB if dirn > 0 else BACKWARD_CACHE_MB)
+    sources = sources or project.open_sources(cache_mb=TRACKING_CACHE_MB)
     feeds_list: list = []
     # The decoder threads need the GIL briefly for every frame; with the default 5 ms switch
     # interval they queue behind the tracking thread and decoding slows down a lot. 2 ms keeps
