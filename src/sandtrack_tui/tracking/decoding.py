@@ -20,6 +20,8 @@ import threading
 
 import numpy as np
 
+from .luma import intra_frames
+
 BACKWARD_BUDGET_MB = 160  # frames held per camera while a group of pictures is handed out in reverse
 
 
@@ -27,11 +29,13 @@ class ThreadPrefetch:
     def __init__(self, source, indices: list[int], depth: int = 6, budget_mb: float = BACKWARD_BUDGET_MB):
         self.q: queue.Queue = queue.Queue(maxsize=depth)
         self._stop = threading.Event()
-        backward = _key_frames(source) is not None and len(indices) > 1 and \
-            all(a > b for a, b in zip(indices, indices[1:], strict=False))
-        run = self._run_backward if backward else self._run
-        self._t = threading.Thread(target=run, args=(source, indices) + ((budget_mb,) if backward else ()),
-                                   daemon=True)
+        keys = _key_frames(source) if len(indices) > 1 and all(
+            a > b for a, b in zip(indices, indices[1:], strict=False)) else None
+        if keys is None:
+            self._t = threading.Thread(target=self._run, args=(source, indices), daemon=True)
+        else:
+            self._t = threading.Thread(target=self._run_backward, args=(source, indices, keys, budget_mb),
+                                       daemon=True)
         self._t.start()
 
     def _run(self, source, indices):
@@ -43,11 +47,9 @@ class ThreadPrefetch:
         except BaseException as exc:  # handed to the consumer
             self._put(exc)
 
-    def _run_backward(self, source, indices, budget_mb):
+    def _run_backward(self, source, indices, keys, budget_mb):
         try:
-            keys = _key_frames(source)
-            frame_bytes = 3 * int(getattr(source, "width", 0) or 1920) * int(getattr(source, "height", 0) or 1080)
-            budget = max(1, int(budget_mb * 2**20 // frame_bytes))  # frames held at once
+            budget = max(1, int(budget_mb * 2**20 // (3 * source.width * source.height)))  # frames held at once
             pos = 0
             while pos < len(indices):
                 top = indices[pos]
@@ -88,11 +90,9 @@ class ThreadPrefetch:
 
 def _key_frames(source) -> np.ndarray | None:
     """Indices of the source's key frames (a video file), or None (image folders, in-memory clips)."""
-    mask = getattr(source, "keyframes", None)
-    if mask is None or getattr(source, "is_folder", False):
-        return None
-    keys = np.flatnonzero(np.asarray(mask, dtype=bool))
-    return keys if len(keys) and keys[0] == 0 else None
+    mask = intra_frames(source)
+    keys = None if mask is None else np.flatnonzero(mask)
+    return keys if keys is not None and len(keys) and keys[0] == 0 else None
 
 
 def prefetch(source, indices: list[int]):
