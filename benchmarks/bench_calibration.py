@@ -163,7 +163,25 @@ def sample_data_figures(folder: Path = SAMPLE, with_points: bool = True) -> dict
     if res.points is not None:
         out["points_rows"] = int(len(res.points))
         out.update(_points_vs_truth(res, truth, folder))
+    out.update(_corners_vs_truth(res, folder))
     out.update(half_sample_precision(res, board, truth))
+    return out
+
+
+def _corners_vs_truth(res, folder: Path) -> dict:
+    """Every detected corner against its true pixel (the rendered cameras start whole frames apart, so no
+    view is interpolated between two frames)."""
+    import pandas as pd
+
+    out = {}
+    for cam, views in res.views.items():
+        gt = pd.read_csv(folder / "ground_truth" / f"calibration_corners_{cam}.csv")
+        truth = {(int(f), int(c)): (x, y) for f, c, x, y in gt[["frame", "corner_id", "x_px", "y_px"]].to_numpy()}
+        err = [np.hypot(*(p - truth[(v.source_frame, int(c))])) for v in views.values() if v.source_frame >= 0
+               for c, p in zip(v.ids, v.corners, strict=True) if (v.source_frame, int(c)) in truth]
+        err = np.array(err)
+        out[f"{cam}_corner_err_px_median_rms"] = [round(float(np.median(err)), 3),
+                                                   round(float(np.sqrt(np.mean(err ** 2))), 3)]
     return out
 
 

@@ -22,6 +22,7 @@ import numpy as np
 from ..board import BoardSpec
 from ..errors import SandtrackError
 from ..video import FrameSource
+from .corners import refine_corners
 
 ProgressFn = Callable[[str, int, int], None]
 LARGE_PX = 1400  # images wider than this are searched in windows first (smaller ones: whole image, cheap enough)
@@ -45,9 +46,10 @@ class BoardView:
 class BoardDetector:
     """Finds one board in greyscale or BGR images. Thread-safe (one OpenCV detector per thread)."""
 
-    def __init__(self, board: BoardSpec, mirror_search: bool = True, min_corners: int = 6):
+    def __init__(self, board: BoardSpec, mirror_search: bool = True, min_corners: int = 6, edge_refine: bool = True):
         self.board = board
         self.mirror_search = mirror_search and board.type == "charuco"
+        self.edge_refine = edge_refine  # corners at the crossing of their square edges (corners.py)
         self.min_corners = max(4, min_corners)
         self._local = threading.local()
         a, _ = board.inner_corners
@@ -67,6 +69,18 @@ class BoardDetector:
         a window around it first, else the board is located at half size to find that window.
         Windows only save time: the corners are always refined on full-resolution pixels."""
         gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+        view = self._find(gray, hint)
+        if view is not None and self.edge_refine:
+            view.corners = refine_corners(gray, self._grid[view.ids], view.corners, self._edge_margin())
+        return view
+
+    def _edge_margin(self) -> float:
+        """Free band along each square edge, in squares: up to the ArUco markers, or half a square."""
+        if self.board.type != "charuco":
+            return 0.5
+        return 0.5 * (self.board.square_mm - self.board.marker_size_mm) / self.board.square_mm
+
+    def _find(self, gray: np.ndarray, hint: BoardView | None) -> BoardView | None:
         near = None
         large = max(gray.shape) > LARGE_PX
         self._local.hint_hit = not large  # small images: only the hint's side (plain/mirrored) is used
