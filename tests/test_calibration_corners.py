@@ -84,3 +84,17 @@ def test_corners_that_cannot_be_measured_keep_the_detector_position():
     assert np.array_equal(refine_corners(img, grid[:5], view.corners[:5], 0.125), view.corners[:5])
     small = cv2.resize(img, None, fx=0.25, fy=0.25, interpolation=cv2.INTER_AREA)
     assert np.array_equal(refine_corners(small, grid, view.corners * 0.25, 0.125), view.corners * 0.25)
+
+
+def test_local_homographies_of_a_large_board_fit_each_neighbourhood():
+    from sandtrack_tui.calibration.corners import _apply, _local_homographies
+
+    u, v = np.meshgrid(np.arange(40.0), np.arange(30.0), indexing="ij")
+    grid = np.stack([u.ravel(), v.ravel()], axis=1)  # 1,200 corners: neighbours only, not all pairs
+    H_true = np.array([[31.0, 4.0, 200.0], [-3.0, 29.0, 150.0], [2e-4, 1e-4, 1.0]])
+    corners = _apply(H_true[None], grid[None])[0]
+    H, ok = _local_homographies(grid, corners)
+    assert ok.all()
+    probe = grid[:, None, :] + np.array([[0.5, 0.0], [0.0, -0.5], [0.3, 0.3]])  # points between the corners
+    expected = _apply(np.broadcast_to(H_true, H.shape), probe)
+    assert np.abs(_apply(H, probe) - expected).max() < 1e-6

@@ -102,19 +102,29 @@ def refine_corners(gray: np.ndarray, grid: np.ndarray, corners: np.ndarray, marg
     return out
 
 
-def _local_homographies(grid: np.ndarray, corners: np.ndarray, reach: float = 2.0):
+def _local_homographies(grid: np.ndarray, corners: np.ndarray, reach: int = 2):
     """Per corner, the board-to-image homography of the corners within `reach` squares (a direct
     linear fit, centred on the corner and scaled, all corners at once): (N, 3, 3) and ok (N,)."""
     n = len(grid)
-    near = (np.abs(grid[:, None, :] - grid[None, :, :]).max(axis=-1) <= reach).astype(np.float64)  # (N, N)
-    src = grid[None, :, :] - grid[:, None, :]  # (N, N, 2) board, centred on corner k
+    g = np.rint(grid).astype(np.intp)
+    lo = g.min(axis=0)
+    size = g.max(axis=0) - lo + 1
+    index = np.full(tuple(size), -1, dtype=np.intp)  # grid position -> corner
+    index[g[:, 0] - lo[0], g[:, 1] - lo[1]] = np.arange(n)
+    steps = np.arange(-reach, reach + 1)
+    offs = np.stack(np.meshgrid(steps, steps, indexing="ij"), axis=-1).reshape(-1, 2)  # (M, 2)
+    pos = g[:, None, :] + offs[None] - lo  # (N, M, 2)
+    inside = ((pos >= 0) & (pos < size)).all(axis=-1)
+    nb = np.where(inside, index[np.clip(pos[..., 0], 0, size[0] - 1), np.clip(pos[..., 1], 0, size[1] - 1)], -1)
+    near = (nb >= 0).astype(np.float64)  # (N, M)
     scale = max(float(np.ptp(corners, axis=0).max()), 1.0)
-    dst = (corners[None, :, :] - corners[:, None, :]) / scale
-    x, y, u, v = src[..., 0], src[..., 1], dst[..., 0], dst[..., 1]
+    x, y = (np.broadcast_to(offs[None, :, i].astype(np.float64), near.shape) for i in (0, 1))
+    dst = (corners[np.maximum(nb, 0)] - corners[:, None, :]) / scale
+    u, v = dst[..., 0], dst[..., 1]
     zero, one = np.zeros_like(x), np.ones_like(x)
     rows_u = np.stack([-x, -y, -one, zero, zero, zero, u * x, u * y, u], axis=-1)
     rows_v = np.stack([zero, zero, zero, -x, -y, -one, v * x, v * y, v], axis=-1)
-    A = np.concatenate([rows_u, rows_v], axis=1) * np.concatenate([near, near], axis=1)[..., None]  # (N, 2N, 9)
+    A = np.concatenate([rows_u, rows_v], axis=1) * np.concatenate([near, near], axis=1)[..., None]  # (N, 2M, 9)
     _, vecs = np.linalg.eigh(np.einsum("kri,krj->kij", A, A, optimize=False))
     Hn = vecs[:, :, 0].reshape(n, 3, 3)  # smallest eigenvalue's vector
     # undo the centring and scaling: H = D^-1 Hn S with S = shift by -grid[k], D = (p - corner[k]) / scale
@@ -123,9 +133,8 @@ def _local_homographies(grid: np.ndarray, corners: np.ndarray, reach: float = 2.
     Dinv = np.tile(np.diag([scale, scale, 1.0]), (n, 1, 1))
     Dinv[:, :2, 2] = corners
     H = Dinv @ Hn @ S
-    cols = np.where(near > 0, grid[None, :, 0], np.nan)
-    rows = np.where(near > 0, grid[None, :, 1], np.nan)
-    spread = (np.nanmax(cols, 1) > np.nanmin(cols, 1)) & (np.nanmax(rows, 1) > np.nanmin(rows, 1))
+    used = (near > 0)[..., None]
+    spread = (np.where(used, offs, reach + 1).min(axis=1) < np.where(used, offs, -reach - 1).max(axis=1)).all(axis=1)
     ok = (near.sum(axis=1) >= 6) & spread & np.isfinite(H).all(axis=(1, 2)) & (np.abs(H[:, 2, 2]) > 1e-12)
     return H, ok
 
