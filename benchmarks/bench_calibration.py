@@ -21,7 +21,6 @@ Run: `python benchmarks/bench_calibration.py` (prints JSON), or `run()` from ben
 
 from __future__ import annotations
 
-import inspect
 import json
 import os
 import pickle
@@ -30,7 +29,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -38,8 +36,7 @@ sys.path.insert(0, str(ROOT / "src"))
 
 from sandtrack_tui.board import load_board  # noqa: E402
 from sandtrack_tui.calibration.caliscope import import_caliscope  # noqa: E402
-from sandtrack_tui.calibration.geometry import inv_T, to_T  # noqa: E402
-from sandtrack_tui.calibration.pipeline import calibrate_videos  # noqa: E402
+from sandtrack_tui.calibration.pipeline import MAX_BUNDLE_FRAMES, calibrate_videos  # noqa: E402
 from sandtrack_tui.calibration.report import accuracy_report, relative_pose_errors  # noqa: E402
 from sandtrack_tui.calibration.rig import calibrate_rig, fit_frame_poses  # noqa: E402
 
@@ -185,22 +182,6 @@ def _corners_vs_truth(res, folder: Path) -> dict:
     return out
 
 
-def _relative_error(est, truth) -> tuple[np.ndarray, np.ndarray]:
-    """(rotation error vector in degrees, translation error in mm) of the second camera against the first."""
-    a, b = truth.names[:2]
-
-    def rel(cal):
-        ca, cb = cal.cameras[a], cal.cameras[b]
-        return to_T(cb.rvec, cb.tvec) @ inv_T(to_T(ca.rvec, ca.tvec))
-
-    Te, Tt = rel(est), rel(truth)
-    rvec = cv2.Rodrigues(Te[:3, :3] @ Tt[:3, :3].T)[0].ravel()
-    return np.degrees(rvec), Te[:3, 3] - Tt[:3, 3]
-
-
-BUNDLE_FRAMES = inspect.signature(calibrate_videos).parameters["max_bundle_frames"].default
-
-
 def half_sample_precision(res, board, truth, halves: int = 16, seed: int = 1) -> dict:
     """Spread of the relative pose over calibrations on random halves of the session's frames."""
     views = res.views
@@ -212,10 +193,10 @@ def half_sample_precision(res, board, truth, halves: int = 16, seed: int = 1) ->
     for _ in range(halves):
         half = set(rng.choice(frames, len(frames) // 2, replace=False).tolist())
         part = {n: {f: v for f, v in views[n].items() if f in half} for n in names}
-        rig = calibrate_rig(part, board, sizes, max_frames=BUNDLE_FRAMES // 2)
-        r, t = _relative_error(rig.calibration, truth)
-        rot.append(r)
-        trans.append(t)
+        rig = calibrate_rig(part, board, sizes, max_frames=MAX_BUNDLE_FRAMES // 2)
+        second = relative_pose_errors(rig.calibration, truth)["per_camera"][truth.names[1]]
+        rot.append(second["rotation_err_vec_deg"])
+        trans.append(second["translation_err_vec_mm"])
     sd_r = np.std(rot, axis=0, ddof=1) / np.sqrt(2)
     sd_t = np.std(trans, axis=0, ddof=1) / np.sqrt(2)
     return {"precision_halves": halves, "rotation_sd_deg_per_axis": [round(float(v), 4) for v in sd_r],

@@ -90,7 +90,7 @@ def refine_corners(gray: np.ndarray, grid: np.ndarray, corners: np.ndarray, marg
     both_arms = ((ok & (s > 0)).sum(axis=-1) >= MIN_POINTS) & ((ok & (s < 0)).sum(axis=-1) >= MIN_POINTS)
     normal, offset, fitted = _robust_lines(e_img, ok)
     good = both_arms.all(axis=1) & fitted.all(axis=1)
-    M = normal  # (K, 2 lines, 2)
+    M = normal  # (K, 2 lines, 2): the two lines' equations M p = offset
     det = M[:, 0, 0] * M[:, 1, 1] - M[:, 0, 1] * M[:, 1, 0]
     good &= np.abs(det) > 0.2  # the two edges cross at a clear angle
     det = np.where(good, det, 1.0)
@@ -158,7 +158,7 @@ def _robust_lines(pts: np.ndarray, ok: np.ndarray):
     without the points more than 3 robust SDs (at least 0.3 px) off it. Returns unit normals (K, L, 2),
     offsets (K, L) (normal . p = offset) and whether each line had enough points (K, L)."""
     w = ok.astype(np.float64)
-    normal = offset = None
+    count = ok.sum(axis=-1)
     for _ in range(2):
         n = w.sum(axis=-1)
         safe = np.maximum(n, 1.0)
@@ -171,7 +171,6 @@ def _robust_lines(pts: np.ndarray, ok: np.ndarray):
         normal = np.stack([-np.sin(theta), np.cos(theta)], axis=-1)
         offset = (normal * c).sum(-1)
         res = np.abs((pts * normal[..., None, :]).sum(-1) - offset[..., None])
-        count = ok.sum(axis=-1)
         ranked = np.sort(np.where(ok, res, np.inf), axis=-1)  # unused points last
         typical = np.take_along_axis(ranked, np.maximum(count - 1, 0)[..., None] // 2, axis=-1)[..., 0]
         typical = np.where(count > 0, typical, 0.0)

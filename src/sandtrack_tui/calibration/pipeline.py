@@ -28,6 +28,7 @@ from .world import describe, world_from_board_pose, world_from_known_points
 ProgressFn = Callable[[str, int, int], None]
 MIN_SHARED_VIEWS = 12
 MAX_RMSE_PX = 3.0
+MAX_BUNDLE_FRAMES = 200  # board frames in the bundle adjustment at most (spread evenly over the session)
 
 
 def _offsets(videos, sources, given: dict[str, float] | None, warnings: list[str]) -> tuple[dict, dict]:
@@ -79,8 +80,9 @@ def _shared_count(views, names) -> int:
 def calibrate_videos(videos: dict[str, str | Path], board: BoardSpec, *, offsets_s: dict[str, float] | None = None,
                      reference_frame: int | None = None, origin_mm=(0.0, 0.0, 0.0),
                      known_points: pd.DataFrame | None = None, with_points: bool = False,
-                     models: dict[str, str] | None = None, detect_budget: int = 400, max_bundle_frames: int = 200,
-                     progress: ProgressFn | None = None, workers: int = 2) -> CalibrationResult:
+                     models: dict[str, str] | None = None, detect_budget: int = 400,
+                     max_bundle_frames: int = MAX_BUNDLE_FRAMES, progress: ProgressFn | None = None,
+                     workers: int = 2) -> CalibrationResult:
     """Calibrate the cameras of `videos` ({name: path}, first = reference/rig camera).
 
     reference_frame: a frame (of the first camera) where the board lies flat on the sand; defines

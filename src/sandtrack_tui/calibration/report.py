@@ -9,6 +9,7 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from ..board import BoardSpec
@@ -131,6 +132,9 @@ def relative_pose_errors(est: Calibration, truth: Calibration) -> dict:
             c = (np.trace(Re[:3, :3] @ Rt[:3, :3].T) - 1) / 2
             d["rotation_err_deg"] = float(np.degrees(np.arccos(np.clip(c, -1, 1))))
             d["translation_err_mm"] = float(np.linalg.norm(Re[:3, 3] - Rt[:3, 3]))
+            # the same errors as vectors (rotation vector of est * truth^-1, in degrees; rig-frame mm)
+            d["rotation_err_vec_deg"] = np.degrees(cv2.Rodrigues(Re[:3, :3] @ Rt[:3, :3].T)[0].ravel()).tolist()
+            d["translation_err_vec_mm"] = (Re[:3, 3] - Rt[:3, 3]).tolist()
             worst_rot = max(worst_rot, d["rotation_err_deg"])
             worst_t = max(worst_t, d["translation_err_mm"])
         out["per_camera"][n] = d
