@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 
 from ..errors import SandtrackError
+from . import kernels
 
 EPS = 3.0  # added to B + G + R: keeps the chromaticity of near-black pixels finite
 
@@ -40,18 +41,14 @@ class ColourModel:
         """Per-pixel score, float32: ~0 on sand, ~1 on the marker."""
         if not bgr.size:
             return np.zeros(bgr.shape[:2], dtype=np.float32)
-        f = cv2.transform(bgr.astype(np.float32, copy=False), self._matrix)
-        out = f[..., 0] / f[..., 1]
-        out += self.b
-        return out
+        w = self.w
+        return kernels.colour_score(bgr, np.float32(w[0]), np.float32(w[1]), np.float32(w[2]), np.float32(self.b),
+                                    np.float32(EPS))
 
     @property
-    def _matrix(self) -> np.ndarray:
-        m = getattr(self, "_m", None)
-        if m is None:
-            m = np.array([[self.w[0], self.w[1], self.w[2], 0.0], [1.0, 1.0, 1.0, EPS]], dtype=np.float32)
-            self._m = m
-        return m
+    def weight_floor(self) -> float:
+        """Score at which `weights` starts above 0."""
+        return min(0.5 * self.threshold, 0.15)
 
     def mask(self, bgr: np.ndarray) -> np.ndarray:
         """uint8 0/1: score >= threshold. For 8-bit pixels (B + G + R + EPS > 0) the test is linear,
@@ -67,7 +64,7 @@ class ColourModel:
 
     def weights(self, score: np.ndarray) -> np.ndarray:
         """Soft marker membership for centroids (≈ coverage of the pixel by the marker)."""
-        lo = min(0.5 * self.threshold, 0.15)
+        lo = self.weight_floor
         w = (score - lo) * (1.0 / (1.0 - lo))
         np.maximum(w, 0.0, out=w)  # (np.clip's wrapper costs more than the clipping here)
         np.minimum(w, 1.0, out=w)

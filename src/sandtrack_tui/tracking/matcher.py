@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from . import kernels
 from .colour import ColourModel
 
 
@@ -94,83 +95,24 @@ class TemplateMatcher:
         r_lo, r_hi = max(math.ceil(-hy - 0.5 - oy), 0), min(math.floor(hy + 0.5 - oy), res.shape[0] - 1)
         if c_hi < c_lo or r_hi < r_lo:
             return None
-        box = res[r_lo:r_hi + 1, c_lo:c_hi + 1]
-        r, c = divmod(int(np.argmax(box)), box.shape[1])
-        r, c = r + r_lo, c + c_lo
-        if S_inv is not None and _d2(S_inv, c + ox, r + oy) > gate_d2 + 1.0:
-            # The best peak in the box lies outside the gate ellipse: search inside the ellipse only
-            # (+1: the grid is integer, the refined centre is not).
-            gx = np.arange(c_lo, c_hi + 1, dtype=np.float64) + ox
-            gy = np.arange(r_lo, r_hi + 1, dtype=np.float64) + oy
-            d2 = (S_inv[0, 0] * gx * gx)[None, :] + (2 * S_inv[0, 1]) * np.outer(gy, gx) \
-                + (S_inv[1, 1] * gy * gy)[:, None]
-            inside = d2 <= gate_d2 + 1.0
-            if not inside.any():
-                return None
-            r, c = divmod(int(np.argmax(np.where(inside, box, -2.0))), box.shape[1])
-            r, c = r + r_lo, c + c_lo
-        peak = float(res[r, c])
-        sx = _parabola(res[r, c - 1], peak, res[r, c + 1]) if 0 < c < res.shape[1] - 1 else 0.0
-        sy = _parabola(res[r - 1, c], peak, res[r + 1, c]) if 0 < r < res.shape[0] - 1 else 0.0
-        psr = _psr(res, r, c, math.ceil(self.model.radius) + 1)
-        # Peak centre in ROI (score image) coordinates.
-        ncc_x, ncc_y = c + self.half + sx, r + self.half + sy
-        cxr, cyr, frac = self.centroid(score, ncc_x, ncc_y)
-        used = frac >= 0.75 and math.hypot(cxr - ncc_x, cyr - ncc_y) <= 0.5 * self.model.radius
-        if used:
-            mx, my = cxr, cyr
-        else:
-            mx, my = ncc_x, ncc_y
+        # The peak inside the gate ellipse (+1: the grid is integer, the refined centre is not).
+        s = (0.0, 0.0, 0.0, -1.0) if S_inv is None else (S_inv[0, 0], S_inv[0, 1], S_inv[1, 1], gate_d2 + 1.0)
+        found, mx, my, peak, psr, frac, used = kernels.match_peak(
+            res, score, c_lo, c_hi, r_lo, r_hi, float(ox), float(oy), *map(float, s), self.half,
+            math.ceil(self.model.radius) + 1, self.model.radius + 1.5, self.model.weight_floor,
+            self.model.disc_area, self.model.radius)
+        if not found:
+            return None
         self._last = (score, x0, y0)
-        return Match(x=mx + x0, y=my + y0, score=peak, psr=psr, colour_frac=frac, used_centroid=bool(used))
+        return Match(x=mx + x0, y=my + y0, score=peak, psr=psr, colour_frac=frac, used_centroid=used)
 
     def centroid(self, score: np.ndarray, x: float, y: float, iterations: int = 2) -> tuple[float, float, float]:
         """Colour-weighted centroid near (x, y) in `score`'s coordinates; returns (x, y, coverage).
 
         The window is a disc of radius r + 1.5 around the rounded estimate: the whole marker plus
         a rim of sand, whose weights are ~0, so rounding the window's centre costs no accuracy."""
-        R, disc = self._centroid_window()
-        frac = 0.0
-        for _ in range(iterations):
-            ix, iy = int(round(x)), int(round(y))
-            if ix - R < 0 or iy - R < 0 or ix + R + 1 > score.shape[1] or iy + R + 1 > score.shape[0]:
-                return self._centroid_clipped(score, x, y)
-            wts = self.model.weights(score[iy - R:iy + R + 1, ix - R:ix + R + 1]) * disc
-            mom = cv2.moments(wts)
-            tot = mom["m00"]
-            frac = tot / self.model.disc_area
-            if tot < 1e-6:
-                return x, y, 0.0
-            x, y = ix - R + mom["m10"] / tot, iy - R + mom["m01"] / tot
-            if int(round(x)) == ix and int(round(y)) == iy:
-                break  # the window would not move
-        return x, y, frac
-
-    def _centroid_window(self):
-        w = getattr(self, "_cw", None)
-        if w is None:
-            rad = self.model.radius + 1.5
-            R = int(np.ceil(rad))
-            yy, xx = np.mgrid[-R:R + 1, -R:R + 1]
-            w = (R, ((xx * xx + yy * yy) <= rad * rad).astype(np.float32))
-            self._cw = w
-        return w
-
-    def _centroid_clipped(self, score: np.ndarray, x: float, y: float) -> tuple[float, float, float]:
-        """Near the image border: the same centroid on the part of the window inside the image."""
-        rad = self.model.radius + 1.5
-        R = int(np.ceil(rad))
-        ix, iy = int(round(x)), int(round(y))
-        xa, ya = max(ix - R, 0), max(iy - R, 0)
-        xb, yb = min(ix + R + 1, score.shape[1]), min(iy + R + 1, score.shape[0])
-        if xb <= xa or yb <= ya:
-            return x, y, 0.0
-        yy, xx = np.mgrid[ya:yb, xa:xb]
-        wts = self.model.weights(score[ya:yb, xa:xb]) * (((xx - ix) ** 2 + (yy - iy) ** 2) <= rad * rad)
-        tot = float(wts.sum())
-        if tot < 1e-6:
-            return x, y, 0.0
-        return float((wts * xx).sum() / tot), float((wts * yy).sum() / tot), tot / self.model.disc_area
+        m = self.model
+        return kernels.centroid(score, float(x), float(y), iterations, m.radius + 1.5, m.weight_floor, m.disc_area)
 
     def refine_at(self, frame_bgr: np.ndarray, x: float, y: float) -> tuple[float, float, float]:
         """Colour centroid around a given point of the frame (seeding, re-acquisition)."""
@@ -191,33 +133,3 @@ def _crop(img: np.ndarray, x0: int, y0: int, w: int, h: int) -> np.ndarray:
         return np.zeros((h, w) + img.shape[2:], dtype=img.dtype)
     sub = img[ya:yb, xa:xb]
     return cv2.copyMakeBorder(sub, ya - y0, y0 + h - yb, xa - x0, x0 + w - xb, cv2.BORDER_REPLICATE)
-
-
-def _d2(S_inv: np.ndarray, dx: float, dy: float) -> float:
-    return float(S_inv[0, 0] * dx * dx + 2 * S_inv[0, 1] * dx * dy + S_inv[1, 1] * dy * dy)
-
-
-def _parabola(a: float, b: float, c: float) -> float:
-    a, b, c = float(a), float(b), float(c)
-    den = a - 2 * b + c
-    if den >= 0:
-        return 0.0
-    return min(max(0.5 * (a - c) / den, -0.5), 0.5)
-
-
-def _psr(res: np.ndarray, r: int, c: int, excl: int) -> float:
-    """(peak - mean) / std of the correlation outside a window around the peak."""
-    win = res[max(r - excl, 0):r + excl + 1, max(c - excl, 0):c + excl + 1]
-    n = res.size - win.size
-    if n < 16:
-        return float("nan")
-    s1, s2 = _sums(res)
-    w1, w2 = _sums(win)
-    mean = (s1 - w1) / n
-    sd = max((s2 - w2) / n - mean * mean, 0.0) ** 0.5
-    return float((res[r, c] - mean) / max(sd, 1e-3))
-
-
-def _sums(a: np.ndarray) -> tuple[float, float]:
-    """Sum and sum of squares, in float64 (cv2.sumElems/cv2.norm accumulate in double)."""
-    return cv2.sumElems(a)[0], cv2.norm(a, cv2.NORM_L2SQR)

@@ -15,16 +15,9 @@ in predicted frames as the half-resolution colour does (luma.py), so following i
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
-from .chroma import LUMA_BGR
-
-_LUMA_ROW = LUMA_BGR.reshape(1, 3)
-
-
-def _luma(frame_bgr, x0: int, y0: int, n: int) -> np.ndarray:
-    return cv2.transform(np.asarray(frame_bgr[y0:y0 + n, x0:x0 + n], dtype=np.float32), _LUMA_ROW)
+from . import kernels
 
 
 class RestReference:
@@ -38,31 +31,18 @@ class RestReference:
         self.ok = self.x0 >= 0 and self.y0 >= 0 and self.x0 + self.n <= W and self.y0 + self.n <= H
         if not self.ok:
             return
-        ref = _luma(frame_bgr, self.x0, self.y0, self.n)
-        gx = cv2.Sobel(ref, cv2.CV_32F, 1, 0, ksize=3, scale=0.125)
-        gy = cv2.Sobel(ref, cv2.CV_32F, 0, 1, ksize=3, scale=0.125)
-        gx, gy = gx.ravel(), gy.ravel()
-        a, b, c = float(np.dot(gx, gx)), float(np.dot(gx, gy)), float(np.dot(gy, gy))
-        det = a * c - b * b
-        self.contrast = float(ref.max() - ref.min())
-        self.ok = det > 1e-6 and self.contrast > 10.0
-        if self.ok:
-            self.ref, self.gx, self.gy = ref.ravel(), gx, gy
-            self.ginv = (c / det, -b / det, a / det)
+        # Gradients: Sobel 3 x 3 / 8; ginv: the inverse of the 2 x 2 normal matrix (xx, xy, yy).
+        self.ok, self.contrast, self.ref, self.gx, self.gy, self.ginv = kernels.rest_reference(
+            self._window(frame_bgr), 0, 0, self.n)
+
+    def _window(self, frame_bgr):
+        return frame_bgr[self.y0:self.y0 + self.n, self.x0:self.x0 + self.n]
 
     def shift(self, frame_bgr, max_shift_px: float, max_residual: float) -> tuple[float, float] | None:
         """The window's brightness shift (dx, dy) px since the reference when it is at most
         `max_shift_px` and explains the change within `max_residual` rms; else None."""
         if not self.ok:
             return None
-        diff = self.ref - _luma(frame_bgr, self.x0, self.y0, self.n).ravel()
-        bx, by = float(np.dot(self.gx, diff)), float(np.dot(self.gy, diff))
-        i00, i01, i11 = self.ginv
-        dx, dy = i00 * bx + i01 * by, i01 * bx + i11 * by
-        if dx * dx + dy * dy > max_shift_px * max_shift_px:
-            return None
-        # Residual of the least-squares shift: |diff - J d|^2 = |diff|^2 - d . J'diff.
-        r2 = float(np.dot(diff, diff)) - dx * bx - dy * by
-        if r2 > max_residual * max_residual * diff.size:
-            return None
-        return dx, dy
+        ok, dx, dy = kernels.rest_shift(self._window(frame_bgr), 0, 0, self.n, self.ref, self.gx, self.gy,
+                                        self.ginv, max_shift_px, max_residual)
+        return (dx, dy) if ok else None

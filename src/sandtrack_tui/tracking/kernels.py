@@ -1,0 +1,316 @@
+"""Compiled inner loops of the tracker (numba): the per-marker work that runs every frame.
+
+A marker's window is ~20 x 20 px; at that size numpy and OpenCV spend their time entering and
+leaving each call, not computing, and the tracker shares two cores with the video decoder. These
+kernels do the same arithmetic in one call each. Compiled on first use, cached on disk.
+
+- `luma_window`: BT.601 brightness of a BGR window, float32 (as cv2.transform with LUMA_BGR).
+- `rest_reference` / `rest_shift`: the Lucas-Kanade shift test of rest.py.
+- `edge_centre`: the luma silhouette circle of luma.py (cubic profiles along rays, sampled as
+  OpenCV's remap does: Keys a = -0.75 weights, edges replicated).
+- `colour_score`, `centroid`, `match_peak`: the template matcher's score image, colour centroid,
+  and everything it does with the NCC surface (gated peak, sub-pixel vertex, PSR, centroid).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+_JIT = {"cache": True}  # (the GIL is kept: releasing it for microseconds only invites thread switches)
+_LB, _LG, _LR = np.float32(0.114), np.float32(0.587), np.float32(0.299)
+
+
+@numba.njit(**_JIT)
+def luma_window(frame, x0, y0, n):
+    out = np.empty((n, n), np.float32)
+    for i in range(n):
+        for j in range(n):
+            p = frame[y0 + i, x0 + j]
+            out[i, j] = _LB * np.float32(p[0]) + _LG * np.float32(p[1]) + _LR * np.float32(p[2])
+    return out
+
+
+@numba.njit(**_JIT)
+def rest_reference(frame, x0, y0, n):
+    """(ok, contrast, luma (n*n), gx, gy, inverse normal matrix (3,)) of a window; gradients are
+    Sobel 3 x 3 / 8 with reflected borders (as cv2.Sobel, scale 0.125)."""
+    ref = luma_window(frame, x0, y0, n)
+    gx = np.empty((n, n), np.float32)
+    gy = np.empty((n, n), np.float32)
+    for i in range(n):
+        im, ip = (1 if i == 0 else i - 1), (n - 2 if i == n - 1 else i + 1)
+        for j in range(n):
+            jm, jp = (1 if j == 0 else j - 1), (n - 2 if j == n - 1 else j + 1)
+            dx = (ref[im, jp] - ref[im, jm]) + 2 * (ref[i, jp] - ref[i, jm]) + (ref[ip, jp] - ref[ip, jm])
+            dy = (ref[ip, jm] - ref[im, jm]) + 2 * (ref[ip, j] - ref[im, j]) + (ref[ip, jp] - ref[im, jp])
+            gx[i, j] = np.float32(0.125) * dx
+            gy[i, j] = np.float32(0.125) * dy
+    a = b = c = 0.0
+    lo, hi = ref[0, 0], ref[0, 0]
+    for i in range(n):
+        for j in range(n):
+            u, v = float(gx[i, j]), float(gy[i, j])
+            a += u * u
+            b += u * v
+            c += v * v
+            lo, hi = min(lo, ref[i, j]), max(hi, ref[i, j])
+    det = a * c - b * b
+    contrast = float(hi - lo)
+    ginv = np.zeros(3)
+    ok = det > 1e-6 and contrast > 10.0
+    if ok:
+        ginv[0], ginv[1], ginv[2] = c / det, -b / det, a / det
+    return ok, contrast, ref.ravel(), gx.ravel(), gy.ravel(), ginv
+
+
+@numba.njit(**_JIT)
+def rest_shift(frame, x0, y0, n, ref, gx, gy, ginv, max_shift_px, max_residual):
+    """(ok, dx, dy): the least-squares brightness shift of the window since `ref`, ok when it is at
+    most max_shift_px and leaves at most max_residual rms unexplained."""
+    bx = by = dd = 0.0
+    k = 0
+    for i in range(n):
+        for j in range(n):
+            p = frame[y0 + i, x0 + j]
+            lum = _LB * np.float32(p[0]) + _LG * np.float32(p[1]) + _LR * np.float32(p[2])
+            d = float(ref[k] - lum)
+            bx += float(gx[k]) * d
+            by += float(gy[k]) * d
+            dd += d * d
+            k += 1
+    dx = ginv[0] * bx + ginv[1] * by
+    dy = ginv[1] * bx + ginv[2] * by
+    if dx * dx + dy * dy > max_shift_px * max_shift_px:
+        return False, dx, dy
+    if dd - dx * bx - dy * by > max_residual * max_residual * (n * n):
+        return False, dx, dy
+    return True, dx, dy
+
+
+@numba.njit(**_JIT)
+def _cubic_weights(t, w):
+    a = -0.75
+    x = t + 1.0
+    w[0] = ((a * x - 5 * a) * x + 8 * a) * x - 4 * a
+    w[1] = ((a + 2) * t - (a + 3)) * t * t + 1
+    x = 1.0 - t
+    w[2] = ((a + 2) * x - (a + 3)) * x * x + 1
+    w[3] = 1.0 - w[0] - w[1] - w[2]
+
+
+@numba.njit(**_JIT)
+def _cubic_sample(img, x, y, wx, wy):
+    h, w = img.shape
+    fx, fy = np.floor(x), np.floor(y)
+    ix, iy = int(fx), int(fy)
+    _cubic_weights(x - fx, wx)
+    _cubic_weights(y - fy, wy)
+    s = 0.0
+    for r in range(4):
+        yy = min(max(iy - 1 + r, 0), h - 1)
+        row = 0.0
+        for c in range(4):
+            xx = min(max(ix - 1 + c, 0), w - 1)
+            row += wx[c] * img[yy, xx]
+        s += wy[r] * row
+    return s
+
+
+@numba.njit(**_JIT)
+def _robust_circle(x, y, rounds):
+    """Kasa circle fit, then Cauchy re-weighting by the distance from the circle: (ok, cx, cy, r)."""
+    m = x.shape[0]
+    w = np.ones(m)
+    a1 = a2 = r = 0.0
+    for k in range(rounds):
+        s1 = sx = sy = sz = sxx = sxy = syy = sxz = syz = 0.0
+        for i in range(m):
+            xi, yi, wi = x[i], y[i], w[i]
+            zi = xi * xi + yi * yi
+            s1 += wi
+            sx += wi * xi
+            sy += wi * yi
+            sz += wi * zi
+            sxx += wi * xi * xi
+            sxy += wi * xi * yi
+            syy += wi * yi * yi
+            sxz += wi * xi * zi
+            syz += wi * yi * zi
+        c00, c01, c02 = syy * s1 - sy * sy, sy * sx - sxy * s1, sxy * sy - syy * sx
+        c11, c12, c22 = sxx * s1 - sx * sx, sxy * sx - sxx * sy, sxx * syy - sxy * sxy
+        det = sxx * c00 + sxy * c01 + sx * c02
+        if abs(det) < 1e-12:
+            return False, 0.0, 0.0, 0.0
+        r0, r1, r2_ = 0.5 * sxz, 0.5 * syz, 0.5 * sz
+        a1 = (c00 * r0 + c01 * r1 + c02 * r2_) / det
+        a2 = (c01 * r0 + c11 * r1 + c12 * r2_) / det
+        a3 = (c02 * r0 + c12 * r1 + c22 * r2_) / det
+        r2 = 2 * a3 + a1 * a1 + a2 * a2
+        if not r2 > 0:
+            return False, 0.0, 0.0, 0.0
+        r = r2 ** 0.5
+        if k == rounds - 1:
+            break
+        res = np.empty(m)
+        for i in range(m):
+            res[i] = np.hypot(x[i] - a1, y[i] - a2) - r
+        scale = 1.4826 * np.sort(np.abs(res))[m // 2] + 0.05
+        for i in range(m):
+            q = res[i] / (2 * scale)
+            w[i] = 1.0 / (1.0 + q * q)
+    return True, a1, a2, r
+
+
+@numba.njit(**_JIT)
+def edge_centre(win, cx, cy, radius, steps, cos, sin, min_rise, step_px, iterations, settle_px):
+    """(ok, x, y): centre of the marker's dark silhouette near (cx, cy) in the BGR window `win`,
+    in the window's coordinates (see luma.edge_centre)."""
+    luma = luma_window(win, 0, 0, win.shape[0])
+    n = steps.shape[0]
+    n_rays = cos.shape[0]
+    wx = np.empty(4)
+    wy = np.empty(4)
+    prof = np.empty(n)
+    ex = np.empty(n_rays)
+    ey = np.empty(n_rays)
+    for _ in range(iterations):
+        good = 0
+        fx, fy = np.float32(cx), np.float32(cy)
+        for ray in range(n_rays):
+            for s in range(n):
+                px = float(cos[ray] * steps[s] + fx)
+                py = float(sin[ray] * steps[s] + fy)
+                prof[s] = _cubic_sample(luma, px, py, wx, wy)
+            best, k = -np.inf, 0
+            for s in range(n - 2):  # outward rise of brightness (central difference)
+                g = prof[s + 2] - prof[s]
+                if g > best:
+                    best, k = g, s
+            k = min(max(k, 1), n - 4)
+            a = prof[k + 1] - prof[k - 1]
+            b = prof[k + 2] - prof[k]
+            c = prof[k + 3] - prof[k + 1]
+            den = a - 2 * b + c
+            if not (b > min_rise and den < 0):
+                continue
+            t = min(max(0.5 * (a - c) / den, -0.5), 0.5)
+            d = steps[k + 1] + t * step_px
+            ex[good] = cos[ray] * d
+            ey[good] = sin[ray] * d
+            good += 1
+        if good < n_rays // 2:
+            return False, cx, cy
+        ok, ox, oy, r = _robust_circle(ex[:good], ey[:good], 2)
+        if not ok or ox * ox + oy * oy > 4.0 or abs(r - radius) > 0.5 * radius + 1:
+            return False, cx, cy
+        cx, cy = cx + ox, cy + oy
+        if ox * ox + oy * oy < settle_px * settle_px:
+            break
+    return True, cx, cy
+
+
+@numba.njit(**_JIT)
+def colour_score(win, w0, w1, w2, b, eps):
+    """Marker score of a BGR window, float32: (w . bgr) / (B + G + R + eps) + b (colour.py)."""
+    h, w = win.shape[0], win.shape[1]
+    out = np.empty((h, w), np.float32)
+    for i in range(h):
+        for j in range(w):
+            p = win[i, j]
+            B, G, R = np.float32(p[0]), np.float32(p[1]), np.float32(p[2])
+            out[i, j] = (w0 * B + w1 * G + w2 * R) / (B + G + R + eps) + b
+    return out
+
+
+@numba.njit(**_JIT)
+def centroid(score, x, y, iterations, rad, lo, disc_area):
+    """Coverage-weighted centroid in a disc of radius `rad` around the rounded (x, y) of `score`
+    (weights: (score - lo) / (1 - lo) clipped to 0..1); (x, y, coverage / disc_area). Where the
+    disc leaves the image, one pass over the part inside."""
+    R = int(np.ceil(rad))
+    h, w = score.shape
+    gain = 1.0 / (1.0 - lo)
+    frac = 0.0
+    for _ in range(iterations):
+        ix, iy = int(np.rint(x)), int(np.rint(y))
+        clipped = ix - R < 0 or iy - R < 0 or ix + R + 1 > w or iy + R + 1 > h
+        m00 = m10 = m01 = 0.0
+        for yy in range(max(iy - R, 0), min(iy + R + 1, h)):
+            for xx in range(max(ix - R, 0), min(ix + R + 1, w)):
+                if (xx - ix) * (xx - ix) + (yy - iy) * (yy - iy) > rad * rad:
+                    continue
+                v = min(max((score[yy, xx] - lo) * gain, 0.0), 1.0)
+                m00 += v
+                m10 += v * xx
+                m01 += v * yy
+        frac = m00 / disc_area
+        if m00 < 1e-6:
+            return x, y, 0.0
+        x, y = m10 / m00, m01 / m00
+        if clipped or (int(np.rint(x)) == ix and int(np.rint(y)) == iy):
+            break  # the window would not move
+    return x, y, frac
+
+
+@numba.njit(**_JIT)
+def _parabola(a, b, c):
+    den = a - 2 * b + c
+    if den >= 0:
+        return 0.0
+    return min(max(0.5 * (a - c) / den, -0.5), 0.5)
+
+
+@numba.njit(**_JIT)
+def match_peak(res, score, c_lo, c_hi, r_lo, r_hi, ox, oy, s00, s01, s11, gate, half, excl,
+               rad, lo, disc_area, radius):
+    """Best NCC peak of `res` in the box rows r_lo..r_hi, columns c_lo..c_hi (and, when gate > 0,
+    inside the gate ellipse d2 <= gate of the offsets (c + ox, r + oy) with the inverse innovation
+    covariance s), refined to sub-pixel by parabolas, its peak-to-sidelobe ratio, then the colour
+    centroid of `score` around it. Returns (found, x, y, peak, psr, coverage, used_centroid) with x, y in
+    `score` coordinates."""
+    best, br, bc = -np.inf, -1, -1
+    for r in range(r_lo, r_hi + 1):
+        for c in range(c_lo, c_hi + 1):
+            if res[r, c] > best:
+                best, br, bc = res[r, c], r, c
+    if gate > 0:
+        dx, dy = bc + ox, br + oy
+        if s00 * dx * dx + 2 * s01 * dx * dy + s11 * dy * dy > gate:
+            best, br, bc = -np.inf, -1, -1  # the best peak lies outside the gate: search inside it only
+            for r in range(r_lo, r_hi + 1):
+                dy = r + oy
+                for c in range(c_lo, c_hi + 1):
+                    dx = c + ox
+                    if s00 * dx * dx + 2 * s01 * dx * dy + s11 * dy * dy <= gate and res[r, c] > best:
+                        best, br, bc = res[r, c], r, c
+            if br < 0:
+                return False, 0.0, 0.0, 0.0, 0.0, 0.0, False
+    nr, nc = res.shape
+    peak = float(res[br, bc])
+    sx = _parabola(float(res[br, bc - 1]), peak, float(res[br, bc + 1])) if 0 < bc < nc - 1 else 0.0
+    sy = _parabola(float(res[br - 1, bc]), peak, float(res[br + 1, bc])) if 0 < br < nr - 1 else 0.0
+    # Peak-to-sidelobe ratio: (peak - mean) / std of the correlation outside a window around the peak.
+    n_in = s1 = s2 = 0.0
+    for r in range(nr):
+        inside_r = br - excl <= r <= br + excl
+        for c in range(nc):
+            if inside_r and bc - excl <= c <= bc + excl:
+                n_in += 1
+                continue
+            v = float(res[r, c])
+            s1 += v
+            s2 += v * v
+    n = nr * nc - n_in
+    if n < 16:
+        psr = np.nan
+    else:
+        mean = s1 / n
+        sd = max(s2 / n - mean * mean, 0.0) ** 0.5
+        psr = (peak - mean) / max(sd, 1e-3)
+    ncc_x, ncc_y = bc + half + sx, br + half + sy
+    cx, cy, frac = centroid(score, ncc_x, ncc_y, 2, rad, lo, disc_area)
+    used = frac >= 0.75 and np.hypot(cx - ncc_x, cy - ncc_y) <= 0.5 * radius
+    if used:
+        return True, cx, cy, peak, psr, frac, True
+    return True, ncc_x, ncc_y, peak, psr, frac, False
