@@ -14,7 +14,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from ..errors import SandtrackError
@@ -52,15 +51,20 @@ class ColourModel:
 
     def mask(self, bgr: np.ndarray) -> np.ndarray:
         """uint8 0/1: score >= threshold. For 8-bit pixels (B + G + R + EPS > 0) the test is linear,
-        (w + b - t) . bgr + (b - t) EPS >= 0, one transform instead of a ratio."""
+        (w + b - t) . bgr + (b - t) EPS >= 0."""
         if bgr.dtype != np.uint8 or not bgr.size:
             return (self.score(bgr) >= self.threshold).astype(np.uint8)
-        m = getattr(self, "_mask_m", None)
-        if m is None:
-            c = self.b - self.threshold
-            m = np.array([[self.w[0] + c, self.w[1] + c, self.w[2] + c, c * EPS]], dtype=np.float32)
-            self._mask_m = m
-        return (cv2.transform(bgr.astype(np.float32), m) >= 0).view(np.uint8)
+        c = self.b - self.threshold
+        w = self.w
+        return kernels.colour_mask(bgr, np.float32(w[0] + c), np.float32(w[1] + c), np.float32(w[2] + c),
+                                   np.float32(c * EPS))
+
+    def blob_moments(self, bgr: np.ndarray, labels: np.ndarray, k: int, xa: int, ya: int, xb: int, yb: int):
+        """(area, m10, m01): `weights` summed over component k of `labels` grown by one pixel, and
+        its first moments from (xa, ya), within rows ya..yb-1 and columns xa..xb-1 of `bgr`."""
+        w = self.w
+        return kernels.blob_moments(bgr, labels, k, xa, ya, xb, yb, np.float32(w[0]), np.float32(w[1]),
+                                    np.float32(w[2]), np.float32(self.b), np.float32(EPS), self.weight_floor)
 
     def weights(self, score: np.ndarray) -> np.ndarray:
         """Soft marker membership for centroids (≈ coverage of the pixel by the marker)."""

@@ -17,11 +17,21 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-_JIT = {"cache": True}  # (the GIL is kept: releasing it for microseconds only invites thread switches)
+
+def _jit(func):
+    """Compiled, cached on disk next to this file or in the user's cache; without a writable place
+    (a read-only install run by another user) compiled in each process instead. The GIL is kept:
+    releasing it for microseconds would only invite thread switches."""
+    try:
+        return numba.njit(cache=True)(func)
+    except RuntimeError:
+        return numba.njit(func)
+
+
 _LB, _LG, _LR = np.float32(0.114), np.float32(0.587), np.float32(0.299)
 
 
-@numba.njit(**_JIT)
+@_jit
 def luma_window(frame, x0, y0, n):
     out = np.empty((n, n), np.float32)
     for i in range(n):
@@ -31,7 +41,7 @@ def luma_window(frame, x0, y0, n):
     return out
 
 
-@numba.njit(**_JIT)
+@_jit
 def rest_reference(frame, x0, y0, n):
     """(ok, contrast, luma (n*n), gx, gy, inverse normal matrix (3,)) of a window; gradients are
     Sobel 3 x 3 / 8 with reflected borders (as cv2.Sobel, scale 0.125)."""
@@ -64,7 +74,7 @@ def rest_reference(frame, x0, y0, n):
     return ok, contrast, ref.ravel(), gx.ravel(), gy.ravel(), ginv
 
 
-@numba.njit(**_JIT)
+@_jit
 def rest_shift(frame, x0, y0, n, ref, gx, gy, ginv, max_shift_px, max_residual):
     """(ok, dx, dy): the least-squares brightness shift of the window since `ref`, ok when it is at
     most max_shift_px and leaves at most max_residual rms unexplained."""
@@ -88,7 +98,7 @@ def rest_shift(frame, x0, y0, n, ref, gx, gy, ginv, max_shift_px, max_residual):
     return True, dx, dy
 
 
-@numba.njit(**_JIT)
+@_jit
 def _cubic_weights(t, w):
     a = -0.75
     x = t + 1.0
@@ -99,7 +109,7 @@ def _cubic_weights(t, w):
     w[3] = 1.0 - w[0] - w[1] - w[2]
 
 
-@numba.njit(**_JIT)
+@_jit
 def _cubic_sample(img, x, y, wx, wy):
     h, w = img.shape
     fx, fy = np.floor(x), np.floor(y)
@@ -117,7 +127,7 @@ def _cubic_sample(img, x, y, wx, wy):
     return s
 
 
-@numba.njit(**_JIT)
+@_jit
 def _robust_circle(x, y, rounds):
     """Kasa circle fit, then Cauchy re-weighting by the distance from the circle: (ok, cx, cy, r)."""
     m = x.shape[0]
@@ -162,7 +172,7 @@ def _robust_circle(x, y, rounds):
     return True, a1, a2, r
 
 
-@numba.njit(**_JIT)
+@_jit
 def edge_centre(win, cx, cy, radius, steps, cos, sin, min_rise, step_px, iterations, settle_px):
     """(ok, x, y): centre of the marker's dark silhouette near (cx, cy) in the BGR window `win`,
     in the window's coordinates (see luma.edge_centre)."""
@@ -210,7 +220,7 @@ def edge_centre(win, cx, cy, radius, steps, cos, sin, min_rise, step_px, iterati
     return True, cx, cy
 
 
-@numba.njit(**_JIT)
+@_jit
 def colour_score(win, w0, w1, w2, b, eps):
     """Marker score of a BGR window, float32: (w . bgr) / (B + G + R + eps) + b (colour.py)."""
     h, w = win.shape[0], win.shape[1]
@@ -223,7 +233,7 @@ def colour_score(win, w0, w1, w2, b, eps):
     return out
 
 
-@numba.njit(**_JIT)
+@_jit
 def centroid(score, x, y, iterations, rad, lo, disc_area):
     """Coverage-weighted centroid in a disc of radius `rad` around the rounded (x, y) of `score`
     (weights: (score - lo) / (1 - lo) clipped to 0..1); (x, y, coverage / disc_area). Where the
@@ -253,7 +263,7 @@ def centroid(score, x, y, iterations, rad, lo, disc_area):
     return x, y, frac
 
 
-@numba.njit(**_JIT)
+@_jit
 def _parabola(a, b, c):
     den = a - 2 * b + c
     if den >= 0:
@@ -261,7 +271,7 @@ def _parabola(a, b, c):
     return min(max(0.5 * (a - c) / den, -0.5), 0.5)
 
 
-@numba.njit(**_JIT)
+@_jit
 def match_peak(res, score, c_lo, c_hi, r_lo, r_hi, ox, oy, s00, s01, s11, gate, half, excl,
                rad, lo, disc_area, radius):
     """Best NCC peak of `res` in the box rows r_lo..r_hi, columns c_lo..c_hi (and, when gate > 0,
@@ -314,3 +324,41 @@ def match_peak(res, score, c_lo, c_hi, r_lo, r_hi, ox, oy, s00, s01, s11, gate, 
     if used:
         return True, cx, cy, peak, psr, frac, True
     return True, ncc_x, ncc_y, peak, psr, frac, False
+
+
+@_jit
+def colour_mask(win, m0, m1, m2, m3):
+    """uint8 0/1 per pixel: m0 B + m1 G + m2 R + m3 >= 0 (the linear form of score >= threshold)."""
+    h, w = win.shape[0], win.shape[1]
+    out = np.empty((h, w), np.uint8)
+    for i in range(h):
+        for j in range(w):
+            p = win[i, j]
+            v = m0 * np.float32(p[0]) + m1 * np.float32(p[1]) + m2 * np.float32(p[2]) + m3
+            out[i, j] = 1 if v >= 0 else 0
+    return out
+
+
+@_jit
+def blob_moments(win, labels, k, xa, ya, xb, yb, w0, w1, w2, b, eps, lo):
+    """Soft moments (m00, m10, m01; x, y from (xa, ya)) of component `k` of `labels` grown by one
+    pixel (3 x 3), within rows ya..yb-1 and columns xa..xb-1, weighted by the colour coverage."""
+    gain = 1.0 / (1.0 - lo)
+    m00 = m10 = m01 = 0.0
+    for i in range(ya, yb):
+        for j in range(xa, xb):
+            hit = False
+            for ii in range(max(i - 1, ya), min(i + 2, yb)):
+                for jj in range(max(j - 1, xa), min(j + 2, xb)):
+                    if labels[ii, jj] == k:
+                        hit = True
+            if not hit:
+                continue
+            p = win[i, j]
+            B, G, R = np.float32(p[0]), np.float32(p[1]), np.float32(p[2])
+            s = (w0 * B + w1 * G + w2 * R) / (B + G + R + eps) + b
+            v = min(max((s - lo) * gain, 0.0), 1.0)
+            m00 += v
+            m10 += v * (j - xa)
+            m01 += v * (i - ya)
+    return m00, m10, m01

@@ -47,19 +47,13 @@ def find_blobs(frame_bgr: np.ndarray, model: ColourModel, cx: float, cy: float, 
         # Soft area and centroid over the component grown by one pixel (its anti-aliased rim).
         xa, ya = max(sl[1].start - 1, 0), max(sl[0].start - 1, 0)
         xb, yb = min(sl[1].stop + 1, mask.shape[1]), min(sl[0].stop + 1, mask.shape[0])
-        comp = cv2.dilate((labels[ya:yb, xa:xb] == k).astype(np.uint8), _KERNEL)
-        ww = model.weights(model.score(win[ya:yb, xa:xb])) * comp
-        mom = cv2.moments(ww)
-        area = mom["m00"]
+        area, m10, m01 = model.blob_moments(win, labels, k, xa, ya, xb, yb)
         if not (min_frac * model.disc_area <= area <= max_frac * model.disc_area):
             continue
-        bx_c, by_c = mom["m10"] / area + xa + x0, mom["m01"] / area + ya + y0
+        bx_c, by_c = m10 / area + xa + x0, m01 / area + ya + y0
         if abs(bx_c - cx) <= hx and abs(by_c - cy) <= hy:
             out.append(Blob(bx_c, by_c, area))
     return out
-
-
-_KERNEL = np.ones((3, 3), np.uint8)
 
 
 def unexplained(blobs: list[Blob], explained_xy: np.ndarray, radius: float) -> list[Blob]:
