@@ -14,6 +14,7 @@ $(BIN)/python:
 $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/pip install --disable-pip-version-check -q "torch==2.13.0"
 	$(BIN)/pip install --disable-pip-version-check -q -e ".[dev]"
+	$(BIN)/python -m sandtrack_tui.tracking.kernels  # compile the tracker's kernels once (cached)
 	@touch $(STAMP)
 
 install: $(STAMP)

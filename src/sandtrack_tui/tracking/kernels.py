@@ -362,3 +362,29 @@ def blob_moments(win, labels, k, xa, ya, xb, yb, w0, w1, w2, b, eps, lo):
             m10 += v * (j - xa)
             m01 += v * (i - ya)
     return m00, m10, m01
+
+
+def warm_up() -> None:
+    """Compile (or load) every kernel for the argument types tracking uses, on a small synthetic
+    frame: run once after installing, so the first tracking run does not pay the compilation."""
+    from .matcher import Match
+    from .reacquire import find_blobs
+    from .rest import RestReference
+    from .tracker import MarkerTrack
+
+    yy, xx = np.mgrid[0:96, 0:96]
+    inside = ((xx - 40.3) ** 2 + (yy - 47.6) ** 2 <= 20.0).astype(np.float32)[..., None]
+    frame = np.round(np.array([120.0, 160.0, 190.0]) * (1 - inside) + np.array([170.0, 70.0, 40.0]) * inside)
+    frame = frame.astype(np.uint8)
+    track = MarkerTrack(1, "warm-up", frame, 0, 40.3, 47.6, 12, 12)
+    track.intra = np.ones(2, bool)
+    track.predict()
+    m = track.propose(frame, 1)
+    track.apply(1, frame, m)
+    track.matcher.update_template(frame, 40.3, 47.6)
+    RestReference(frame, 40.3, 47.6, track.model.radius, m or Match(40.3, 47.6, 1.0, 10.0, 1.0)).shift(frame, 0.2, 3.0)
+    find_blobs(frame, track.model, 40.0, 47.0, 30.0, 30.0)
+
+
+if __name__ == "__main__":
+    warm_up()
