@@ -13,6 +13,7 @@ Also here: a generic "blueness" measure for finding markers with no model yet (s
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -40,13 +41,17 @@ class ColourModel:
         """Per-pixel score, float32: ~0 on sand, ~1 on the marker."""
         if not bgr.size:
             return np.zeros(bgr.shape[:2], dtype=np.float32)
-        w = self.w
-        return kernels.colour_score(bgr, np.float32(w[0]), np.float32(w[1]), np.float32(w[2]), np.float32(self.b),
-                                    np.float32(EPS))
+        return kernels.colour_score(bgr, *self._score_coeffs)
+
+    @cached_property
+    def _score_coeffs(self) -> tuple:
+        """(w0, w1, w2, b, EPS) as float32, as the kernels take them."""
+        return (*np.float32(self.w), np.float32(self.b), np.float32(EPS))
 
     @property
     def weight_floor(self) -> float:
-        """Score at which `weights` starts above 0."""
+        """Score from which a pixel counts towards a centroid or a blob's area: its weight is
+        (score - floor) / (1 - floor), clipped to 0..1 (≈ its coverage by the marker)."""
         return min(0.5 * self.threshold, 0.15)
 
     def mask(self, bgr: np.ndarray) -> np.ndarray:
@@ -54,25 +59,18 @@ class ColourModel:
         (w + b - t) . bgr + (b - t) EPS >= 0."""
         if bgr.dtype != np.uint8 or not bgr.size:
             return (self.score(bgr) >= self.threshold).astype(np.uint8)
+        return kernels.colour_mask(bgr, *self._mask_coeffs)
+
+    @cached_property
+    def _mask_coeffs(self) -> tuple:
         c = self.b - self.threshold
-        w = self.w
-        return kernels.colour_mask(bgr, np.float32(w[0] + c), np.float32(w[1] + c), np.float32(w[2] + c),
-                                   np.float32(c * EPS))
+        return (*np.float32(self.w + c), np.float32(c * EPS))
 
     def blob_moments(self, bgr: np.ndarray, labels: np.ndarray, k: int, xa: int, ya: int, xb: int, yb: int):
-        """(area, m10, m01): `weights` summed over component k of `labels` grown by one pixel, and
-        its first moments from (xa, ya), within rows ya..yb-1 and columns xa..xb-1 of `bgr`."""
-        w = self.w
-        return kernels.blob_moments(bgr, labels, k, xa, ya, xb, yb, np.float32(w[0]), np.float32(w[1]),
-                                    np.float32(w[2]), np.float32(self.b), np.float32(EPS), self.weight_floor)
-
-    def weights(self, score: np.ndarray) -> np.ndarray:
-        """Soft marker membership for centroids (≈ coverage of the pixel by the marker)."""
-        lo = self.weight_floor
-        w = (score - lo) * (1.0 / (1.0 - lo))
-        np.maximum(w, 0.0, out=w)  # (np.clip's wrapper costs more than the clipping here)
-        np.minimum(w, 1.0, out=w)
-        return w
+        """(area, m10, m01): pixel weights (see weight_floor) summed over component k of `labels`
+        grown by one pixel, and its first moments from (xa, ya), within rows ya..yb-1 and columns
+        xa..xb-1 of `bgr`."""
+        return kernels.blob_moments(bgr, labels, k, xa, ya, xb, yb, *self._score_coeffs, self.weight_floor)
 
 
 def blueness(bgr: np.ndarray) -> np.ndarray:

@@ -17,6 +17,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from .chroma import LUMA_BGR
+
 
 def _jit(func):
     """Compiled, cached on disk next to this file or in the user's cache; without a writable place
@@ -28,24 +30,38 @@ def _jit(func):
         return numba.njit(func)
 
 
-_LB, _LG, _LR = np.float32(0.114), np.float32(0.587), np.float32(0.299)
+_LB, _LG, _LR = (np.float32(v) for v in LUMA_BGR)
 
 
 @_jit
-def luma_window(frame, x0, y0, n):
-    out = np.empty((n, n), np.float32)
-    for i in range(n):
-        for j in range(n):
-            p = frame[y0 + i, x0 + j]
-            out[i, j] = _LB * np.float32(p[0]) + _LG * np.float32(p[1]) + _LR * np.float32(p[2])
+def _luma(p):
+    """Brightness of one BGR pixel, float32."""
+    return _LB * np.float32(p[0]) + _LG * np.float32(p[1]) + _LR * np.float32(p[2])
+
+
+@_jit
+def _score(p, w0, w1, w2, b, eps):
+    """Colour score of one BGR pixel, float32: (w . bgr) / (B + G + R + eps) + b."""
+    B, G, R = np.float32(p[0]), np.float32(p[1]), np.float32(p[2])
+    return (w0 * B + w1 * G + w2 * R) / (B + G + R + eps) + b
+
+
+@_jit
+def luma_window(win):
+    h, w = win.shape[0], win.shape[1]
+    out = np.empty((h, w), np.float32)
+    for i in range(h):
+        for j in range(w):
+            out[i, j] = _luma(win[i, j])
     return out
 
 
 @_jit
-def rest_reference(frame, x0, y0, n):
-    """(ok, contrast, luma (n*n), gx, gy, inverse normal matrix (3,)) of a window; gradients are
-    Sobel 3 x 3 / 8 with reflected borders (as cv2.Sobel, scale 0.125)."""
-    ref = luma_window(frame, x0, y0, n)
+def rest_reference(win):
+    """(ok, contrast, luma (n*n), gx, gy, inverse normal matrix (3,)) of a square window; gradients
+    are Sobel 3 x 3 / 8 with reflected borders (as cv2.Sobel, scale 0.125)."""
+    ref = luma_window(win)
+    n = ref.shape[0]
     gx = np.empty((n, n), np.float32)
     gy = np.empty((n, n), np.float32)
     for i in range(n):
@@ -75,16 +91,15 @@ def rest_reference(frame, x0, y0, n):
 
 
 @_jit
-def rest_shift(frame, x0, y0, n, ref, gx, gy, ginv, max_shift_px, max_residual):
+def rest_shift(win, ref, gx, gy, ginv, max_shift_px, max_residual):
     """(ok, dx, dy): the least-squares brightness shift of the window since `ref`, ok when it is at
     most max_shift_px and leaves at most max_residual rms unexplained."""
+    n = win.shape[0]
     bx = by = dd = 0.0
     k = 0
     for i in range(n):
         for j in range(n):
-            p = frame[y0 + i, x0 + j]
-            lum = _LB * np.float32(p[0]) + _LG * np.float32(p[1]) + _LR * np.float32(p[2])
-            d = float(ref[k] - lum)
+            d = float(ref[k] - _luma(win[i, j]))
             bx += float(gx[k]) * d
             by += float(gy[k]) * d
             dd += d * d
@@ -176,7 +191,7 @@ def _robust_circle(x, y, rounds):
 def edge_centre(win, cx, cy, radius, steps, cos, sin, min_rise, step_px, iterations, settle_px):
     """(ok, x, y): centre of the marker's dark silhouette near (cx, cy) in the BGR window `win`,
     in the window's coordinates (see luma.edge_centre)."""
-    luma = luma_window(win, 0, 0, win.shape[0])
+    luma = luma_window(win)
     n = steps.shape[0]
     n_rays = cos.shape[0]
     wx = np.empty(4)
@@ -227,9 +242,7 @@ def colour_score(win, w0, w1, w2, b, eps):
     out = np.empty((h, w), np.float32)
     for i in range(h):
         for j in range(w):
-            p = win[i, j]
-            B, G, R = np.float32(p[0]), np.float32(p[1]), np.float32(p[2])
-            out[i, j] = (w0 * B + w1 * G + w2 * R) / (B + G + R + eps) + b
+            out[i, j] = _score(win[i, j], w0, w1, w2, b, eps)
     return out
 
 
@@ -354,10 +367,7 @@ def blob_moments(win, labels, k, xa, ya, xb, yb, w0, w1, w2, b, eps, lo):
                         hit = True
             if not hit:
                 continue
-            p = win[i, j]
-            B, G, R = np.float32(p[0]), np.float32(p[1]), np.float32(p[2])
-            s = (w0 * B + w1 * G + w2 * R) / (B + G + R + eps) + b
-            v = min(max((s - lo) * gain, 0.0), 1.0)
+            v = min(max((_score(win[i, j], w0, w1, w2, b, eps) - lo) * gain, 0.0), 1.0)
             m00 += v
             m10 += v * (j - xa)
             m01 += v * (i - ya)

@@ -33,7 +33,7 @@ class RestReference:
             return
         # Gradients: Sobel 3 x 3 / 8; ginv: the inverse of the 2 x 2 normal matrix (xx, xy, yy).
         self.ok, self.contrast, self.ref, self.gx, self.gy, self.ginv = kernels.rest_reference(
-            self._window(frame_bgr), 0, 0, self.n)
+            self._window(frame_bgr))
 
     def _window(self, frame_bgr):
         return frame_bgr[self.y0:self.y0 + self.n, self.x0:self.x0 + self.n]
@@ -43,6 +43,6 @@ class RestReference:
         `max_shift_px` and explains the change within `max_residual` rms; else None."""
         if not self.ok:
             return None
-        ok, dx, dy = kernels.rest_shift(self._window(frame_bgr), 0, 0, self.n, self.ref, self.gx, self.gy,
-                                        self.ginv, max_shift_px, max_residual)
+        ok, dx, dy = kernels.rest_shift(self._window(frame_bgr), self.ref, self.gx, self.gy, self.ginv,
+                                        max_shift_px, max_residual)
         return (dx, dy) if ok else None
