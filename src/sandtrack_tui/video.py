@@ -26,6 +26,7 @@ from pathlib import Path
 import av
 import cv2
 import numpy as np
+from av.video.reformatter import VideoReformatter
 
 from .errors import SandtrackError
 
@@ -83,6 +84,7 @@ class FrameSource:
         self._container = None
         self._decoder = None
         self._next_index = None  # index the running decoder will yield next
+        self._reformatter = None
         if not self.path.exists():
             raise SandtrackError(f"file not found: {self.path}")
         if self.path.is_dir():
@@ -240,7 +242,7 @@ class FrameSource:
         for frame in self._decoder:
             if frame.pts is None:
                 continue
-            img = frame.to_ndarray(format="bgr24")
+            img = self._to_bgr(frame)
             k = int(np.searchsorted(self._pts, frame.pts))
             if k < len(self._pts) and self._pts[k] == frame.pts:
                 self._next_index = k + 1
@@ -251,6 +253,13 @@ class FrameSource:
             if frame.pts > target:
                 break
         raise SandtrackError(f"{self.path}: frame {i} could not be decoded (damaged file?)")
+
+    def _to_bgr(self, frame) -> np.ndarray:
+        # One converter per source, one thread: a frame's own to_ndarray() builds a new scaler
+        # context, with a new pool of threads, for every frame (~10 % of the decoding time).
+        if self._reformatter is None:
+            self._reformatter = VideoReformatter()
+        return self._reformatter.reformat(frame, format="bgr24", threads=1).to_ndarray()
 
     def _seek(self, target_pts: int) -> None:
         container = self._ensure_container()

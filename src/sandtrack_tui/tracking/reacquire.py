@@ -35,6 +35,8 @@ def find_blobs(frame_bgr: np.ndarray, model: ColourModel, cx: float, cy: float, 
         return []
     win = frame_bgr[y0:y1, x0:x1]
     mask = model.mask(win)
+    if not mask.any():  # most searches of a hidden marker: nothing of its colour in sight
+        return []
     # (connectedComponentsWithStats took ~5x as long as the labelling alone on these windows)
     n, labels = cv2.connectedComponents(mask, connectivity=8)
     if n <= 1:

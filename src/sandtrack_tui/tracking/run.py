@@ -39,6 +39,7 @@ _USABLE = (MANUAL, TRACKED, "interpolated", "imported")
 # once, in either direction (decoding.py reads backward group by group), so the cache only spares
 # re-decoding the seed frames.
 TRACKING_CACHE_MB = 48
+BATCH_STEPS = 4  # steps tracked in one run once their frames are decoded (decoding.py)
 
 
 # -- clocks and pairing -----------------------------------------------------------------------
@@ -328,6 +329,10 @@ def track_project(project, markers=None, start: int | None = None, stop: int | N
                 if should_stop is not None and should_stop():
                     summary["stopped"] = True
                     break
+                if k % BATCH_STEPS == 0:
+                    ahead = steps[k:k + BATCH_STEPS]
+                    for c, feed in feeds.items():
+                        feed.wait_for(sum(c in s for s in ahead))
                 frames = {}
                 for c, (j, rem) in st.items():
                     jj, img = feeds[c].get()
