@@ -8,7 +8,7 @@ import pytest
 
 from sandtrack_tui.errors import SandtrackError
 from sandtrack_tui.tracking import colour, synthetic
-from sandtrack_tui.tracking.engine import Engine
+from sandtrack_tui.tracking.engine import Engine, _touching_pairs
 from sandtrack_tui.tracking.kalman import ConstantVelocityKF
 from sandtrack_tui.tracking.seeding import detect_markers, snap_to_marker
 from sandtrack_tui.tracking.stereo import StereoCheck, interpolate_track
@@ -203,3 +203,16 @@ def test_interpolate_track_to_other_camera_times():
     q = interpolate_track(frames, xy, times, np.array([0.5 / 50, 2.25 / 50, 4.5 / 50, 9 / 50]))
     assert np.allclose(q[0], (1.0, -0.5)) and np.allclose(q[1], (4.5, -2.25))
     assert np.isnan(q[2]).all() and np.allclose(q[3], (18.0, -9.0))
+
+
+@pytest.mark.parametrize("limit", [lambda ri, rk: 1.4 * (ri + rk), lambda ri, rk: 1.2 * max(ri, rk)],
+                         ids=["crowding", "conflict"])
+def test_touching_pairs_are_exactly_the_close_pairs(limit):
+    rng = np.random.default_rng(7)
+    for n in (0, 1, 2, 8, 30):
+        pts = [(float(x), float(y), float(r)) for x, y, r in
+               zip(rng.uniform(0, 120, n), rng.uniform(0, 60, n), rng.uniform(3, 8, n), strict=True)]
+        brute = [(i, k) for i in range(n) for k in range(i + 1, n)
+                 if np.hypot(pts[i][0] - pts[k][0], pts[i][1] - pts[k][1]) < limit(pts[i][2], pts[k][2])]
+        assert _touching_pairs(pts, limit) == brute
+    assert brute  # the crowded case was exercised

@@ -106,13 +106,9 @@ class Engine:
             return {}
         pts = [(*t.kf.xy, t.model.radius) for t in tracks]
         near: list[list[int]] = [[] for _ in tracks]  # neighbour indices, ascending
-        for i, (xi, yi, ri) in enumerate(pts):  # plain floats: a handful of tracks per camera
-            for k in range(i + 1, len(pts)):
-                xk, yk, rk = pts[k]
-                lim = self.crowd_factor * (ri + rk)
-                if abs(xi - xk) < lim and abs(yi - yk) < lim and math.hypot(xi - xk, yi - yk) < lim:
-                    near[i].append(k)
-                    near[k].append(i)
+        for i, k in _touching_pairs(pts, lambda ri, rk: self.crowd_factor * (ri + rk)):
+            near[i].append(k)
+            near[k].append(i)
         return {id(tracks[i]): [(tracks[k], pts[k][:2]) for k in ks] for i, ks in enumerate(near) if ks}
 
     def _crowded_reject(self, t: MarkerTrack, m: Match, neighbours) -> bool:
@@ -133,21 +129,14 @@ class Engine:
         keyed = [(t, props[(t.marker, t.camera)]) for t in tracks if (t.marker, t.camera) in props]
         if len(keyed) < 2:
             return
-        # Plain floats: a handful of tracks per camera, where numpy's per-call cost would dominate.
         pts = [(p.match.x, p.match.y, t.model.radius) for t, p in keyed]
-        for i in range(len(keyed)):
-            xi, yi, ri = pts[i]
-            for k in range(i + 1, len(keyed)):
-                xk, yk, rk = pts[k]
-                lim = 1.2 * max(ri, rk)
-                if abs(xi - xk) >= lim or abs(yi - yk) >= lim or math.hypot(xi - xk, yi - yk) >= lim:
-                    continue
-                (ta, pa), (tb, pb) = keyed[i], keyed[k]
-                ka, kb = (ta.marker, ta.camera), (tb.marker, tb.camera)
-                if ka not in props or kb not in props:
-                    continue
-                better_a = (pa.match.score - 0.05 * pa.match.d2) >= (pb.match.score - 0.05 * pb.match.d2)
-                del props[kb if better_a else ka]
+        for i, k in _touching_pairs(pts, lambda ri, rk: 1.2 * max(ri, rk)):
+            (ta, pa), (tb, pb) = keyed[i], keyed[k]
+            ka, kb = (ta.marker, ta.camera), (tb.marker, tb.camera)
+            if ka not in props or kb not in props:
+                continue
+            better_a = (pa.match.score - 0.05 * pa.match.d2) >= (pb.match.score - 0.05 * pb.match.d2)
+            del props[kb if better_a else ka]
 
     def _point_at(self, key, frames, props, forced):
         """Position of a marker in one camera at the step's wanted time, or None."""
@@ -304,3 +293,28 @@ class Engine:
                "why": "blob wanted by two tracks" if shared else "several candidate blobs in the gate"}
         self.ambiguous.append(rec)
         self._open_ambiguity[key] = rec
+
+
+def _touching_pairs(pts, limit) -> list[tuple[int, int]]:
+    """Index pairs (i, k), i < k, in ascending order, of points (x, y, r) closer than limit(ri, rk)
+    (a function growing with both radii). Swept along x: a camera's markers are mostly far apart,
+    so few pairs are looked at. Plain floats: a handful of points, where numpy's per-call cost
+    would dominate."""
+    order = sorted((i for i, p in enumerate(pts) if math.isfinite(p[0]) and math.isfinite(p[1])),
+                   key=lambda i: pts[i][0])
+    if len(order) < 2:
+        return []
+    r_max = max(pts[i][2] for i in order)
+    reach = limit(r_max, r_max)
+    pairs = []
+    for a, i in enumerate(order):
+        xi, yi, ri = pts[i]
+        for k in order[a + 1:]:
+            xk, yk, rk = pts[k]
+            if xk - xi >= reach:
+                break
+            lim = limit(ri, rk)
+            if xk - xi < lim and abs(yk - yi) < lim and math.hypot(xk - xi, yk - yi) < lim:
+                pairs.append((i, k) if i < k else (k, i))
+    pairs.sort()
+    return pairs
