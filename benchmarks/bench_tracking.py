@@ -4,7 +4,7 @@ On sample_data/ (the rendered digital twin: experiment/side.mp4, front.mp4, grou
 exists, else on a synthetic 1080p stereo clip encoded to H.264. Seeds: each marker's first visible
 frame in each camera, the true centre as an operator would click it (snapped).
 
-Speed, timed in the same run, alternately, SPEED_PAIRS (5) times each, every tracking run on a fresh
+Speed, timed in the same run, alternately, SPEED_PAIRS (7) times each, every tracking run on a fresh
 copy of the seeded project:
 - decode only: every frame of both videos through `FrameSource` (PyAV, FFmpeg's own threads,
   4:2:0 -> full-frame BGR24, as the tool shows and tracks them) by the same prefetching decoder
@@ -53,7 +53,7 @@ from sandtrack_tui.tracking.seeding import marker_box, snap_to_marker  # noqa: E
 from sandtrack_tui.video import FrameSource  # noqa: E402
 
 SAMPLE = ROOT / "sample_data"
-SPEED_PAIRS = 5  # decode-only / decode + track runs, alternating; the ratio is the median over the pairs
+SPEED_PAIRS = 7  # decode-only / decode + track runs, alternating; the ratio is the median over the pairs
 
 
 def _encode(frames, path: Path) -> None:

@@ -7,7 +7,7 @@ it and copying 6 MB frames made it slower than this on 2 cores.)
 
 Batches: the tracker is faster than the decoder, so it would wait for every frame and resume with
 its caches emptied by the decoder threads. It asks for a few frames at a time instead
-(`wait_for`), and tracks them in one run: ~5 % more frames per second on 2 cores.
+(`wait_for`), and tracks them in one run: 3-5 % more frames per second on 2 cores.
 
 Backward order: a video can only be decoded forward from a key frame, so frame j costs decoding
 from its key frame up to j. Asked for frame by frame in reverse, a reader decodes each group of
