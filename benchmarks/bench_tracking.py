@@ -202,6 +202,7 @@ def run(mil_frames: int = 60) -> dict:
         # Speed on a shared machine: decode-only and decode+track alternate, SPEED_PAIRS times, same run;
         # each tracking run starts from a fresh copy of the seeded project (as a user's first run would).
         ratios, pairs_cpu, dec, trk, step_ms, step_s = [], [], [], [], [], []
+        decoded_only = sum(n_frames.values())
         for rep in range(SPEED_PAIRS):
             dec.append(_decode_only(videos, n_frames))
             run_file = tmp / f"run{rep}.sandtrack"
@@ -221,7 +222,6 @@ def run(mil_frames: int = 60) -> dict:
             if rep == 0:
                 shutil.copyfile(run_file, tmp / "tracked.sandtrack")  # (closed: nothing left in its journal)
             decoded_in_track = sum(summary["frames_by_camera"].values())
-            decoded_only = sum(n_frames.values())
             ratios.append((decoded_in_track / trk[-1][0]) / (decoded_only / dec[-1][0]))
             pairs_cpu.append((dec[-1][1] / decoded_only) / (trk[-1][1] / decoded_in_track))
             run_file.unlink()

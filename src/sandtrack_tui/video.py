@@ -84,7 +84,9 @@ class FrameSource:
         self._container = None
         self._decoder = None
         self._next_index = None  # index the running decoder will yield next
-        self._reformatter = None
+        # One BGR converter per source, one thread: a frame's own to_ndarray() builds a new scaler
+        # context, with a new pool of threads, for every frame (~10 % of the decoding time).
+        self._reformatter = VideoReformatter()
         if not self.path.exists():
             raise SandtrackError(f"file not found: {self.path}")
         if self.path.is_dir():
@@ -242,7 +244,7 @@ class FrameSource:
         for frame in self._decoder:
             if frame.pts is None:
                 continue
-            img = self._to_bgr(frame)
+            img = self._reformatter.reformat(frame, format="bgr24", threads=1).to_ndarray()
             k = int(np.searchsorted(self._pts, frame.pts))
             if k < len(self._pts) and self._pts[k] == frame.pts:
                 self._next_index = k + 1
@@ -253,13 +255,6 @@ class FrameSource:
             if frame.pts > target:
                 break
         raise SandtrackError(f"{self.path}: frame {i} could not be decoded (damaged file?)")
-
-    def _to_bgr(self, frame) -> np.ndarray:
-        # One converter per source, one thread: a frame's own to_ndarray() builds a new scaler
-        # context, with a new pool of threads, for every frame (~10 % of the decoding time).
-        if self._reformatter is None:
-            self._reformatter = VideoReformatter()
-        return self._reformatter.reformat(frame, format="bgr24", threads=1).to_ndarray()
 
     def _seek(self, target_pts: int) -> None:
         container = self._ensure_container()
