@@ -90,6 +90,26 @@ def test_edit_written_in_chunks_is_one_undo_step(project):
     assert project.points(frame=2).x_px.item() == 2.0
 
 
+def test_edit_without_a_disk_sync_per_write_commits_each_write(project):
+    m = project.add_marker()
+    other = sqlite3.connect(str(project.path))  # another process's view of the file
+    try:
+        with project.edit("track forward", sync_each_write=False) as ed:
+            assert project.conn.execute("PRAGMA synchronous").fetchone()[0] == 1  # NORMAL
+            ed.write(_rows(m, "side", [0, 1]))
+            assert other.execute("SELECT COUNT(*) FROM points").fetchone()[0] == 2  # committed at once
+        assert project.conn.execute("PRAGMA synchronous").fetchone()[0] == 2  # FULL again
+        with pytest.raises(RuntimeError), project.edit("fails", sync_each_write=False) as ed:
+            ed.write(_rows(m, "side", [2]))
+            raise RuntimeError("stopped")
+        assert project.conn.execute("PRAGMA synchronous").fetchone()[0] == 2
+        assert other.execute("SELECT COUNT(*) FROM points").fetchone()[0] == 3
+    finally:
+        other.close()
+    assert project.undo() == "fails" and project.undo() == "track forward"
+    assert project.points().empty
+
+
 def test_settings_and_markers_are_undoable(project):
     project.set("sync_offset_s", 0.1)
     project.set("sync_offset_s", 0.2)

@@ -69,10 +69,19 @@ def test_track_project_accuracy_occlusion_and_undo(stereo_data, tmp_path):
     with _project(root, cal, tmp_path) as proj:
         accept_seeds(proj, auto_seed(proj, frame=0))
         edits_before = len(proj.history())
-        calls = []
-        summary = track_project(proj, progress=lambda d, t: calls.append((d, t)), chunk_steps=10)
+        calls, modes = [], []
+
+        def progress(done, total):
+            calls.append((done, total))
+            modes.append(proj.conn.execute("PRAGMA synchronous").fetchone()[0])
+
+        summary = track_project(proj, progress=progress, chunk_steps=10)
         assert summary["stereo"] and summary["frames"] == N
         assert calls[-1] == (N, N)
+        # The run's chunks are committed without waiting for the disk (1 = NORMAL), the file is
+        # back to a disk sync per commit (2 = FULL) once the run ends.
+        assert set(modes) == {1}
+        assert proj.conn.execute("PRAGMA synchronous").fetchone()[0] == 2
         assert len(proj.history()) == edits_before + 1  # one undoable edit for the whole run
         pts = proj.points()
         # Map proposal ids to true ids through frame 0.

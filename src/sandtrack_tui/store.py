@@ -1,7 +1,8 @@
 """The project store: one experiment = one SQLite file (`NAME.sandtrack`).
 
 Every edit is committed at once (WAL journal, synchronous=FULL), so a killed process or a
-dropped SSH link loses nothing; there is no save step.
+dropped SSH link loses nothing; there is no save step. Long runs (tracking) commit their chunks
+without waiting for the disk and sync once at the end (`Project.edit(sync_each_write=False)`).
 
 Tables
 - ``meta(key, value)``: ``schema_version`` and creation time.
@@ -426,11 +427,29 @@ class Project:
         return self._write(fn)
 
     @contextmanager
-    def edit(self, description: str, kind: str = "points"):
+    def edit(self, description: str, kind: str = "points", sync_each_write: bool = True):
         """One undoable edit whose rows may be written in several commits (e.g. while tracking):
-        every `write` is committed at once, so an interrupted run keeps what it wrote."""
+        every `write` is committed at once, so an interrupted run keeps what it wrote.
+
+        sync_each_write=False (long runs writing many chunks): a commit does not wait for the disk.
+        A killed process still loses nothing, as the committed journal is in the operating system's
+        hands; only a power cut could take back the last chunks. The file is synced to disk once,
+        when the edit ends."""
         ed = _Edit(self, description, kind)
-        yield ed
+        if sync_each_write:
+            yield ed
+            return
+        self._set_synchronous("NORMAL")
+        try:
+            yield ed
+        finally:
+            self._set_synchronous("FULL")
+            with suppress(sqlite3.DatabaseError):  # the journal holds the rows either way
+                self.conn.execute("PRAGMA wal_checkpoint(PASSIVE)")  # syncs the journal, then the file
+
+    def _set_synchronous(self, mode: str) -> None:
+        with suppress(sqlite3.DatabaseError):
+            self.conn.execute(f"PRAGMA synchronous={mode}")
 
     def _log_point_deletions(self, eid: int, where: str, args: tuple, seq: int) -> int:
         rows = self.conn.execute(f"SELECT {', '.join(POINT_COLUMNS)} FROM points WHERE {where}", args).fetchall()

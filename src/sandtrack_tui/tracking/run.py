@@ -324,7 +324,7 @@ def track_project(project, markers=None, start: int | None = None, stop: int | N
         n_obs = 0
         buf: list[tuple] = []
         desc = f"track {direction} from frame {a}" + (f" (markers {', '.join(map(str, markers))})" if markers else "")
-        with project.edit(desc) as ed:
+        with project.edit(desc, sync_each_write=False) as ed:
             for k, st in enumerate(steps):
                 if should_stop is not None and should_stop():
                     summary["stopped"] = True
