@@ -48,6 +48,13 @@ def _score(win, i, j, w0, w1, w2, b, eps):
 
 
 @_jit
+def _coverage(score, lo, gain):
+    """A pixel's weight in centroids and blob areas, ≈ its coverage by the marker:
+    (score - lo) / (1 - lo) clipped to 0..1, with gain = 1 / (1 - lo) (ColourModel.weight_floor)."""
+    return min(max((score - lo) * gain, 0.0), 1.0)
+
+
+@_jit
 def luma_window(win):
     h, w = win.shape[0], win.shape[1]
     out = np.empty((h, w), np.float32)
@@ -264,7 +271,7 @@ def centroid(score, x, y, iterations, rad, lo, disc_area):
             for xx in range(max(ix - R, 0), min(ix + R + 1, w)):
                 if (xx - ix) * (xx - ix) + (yy - iy) * (yy - iy) > rad * rad:
                     continue
-                v = min(max((score[yy, xx] - lo) * gain, 0.0), 1.0)
+                v = _coverage(score[yy, xx], lo, gain)
                 m00 += v
                 m10 += v * xx
                 m01 += v * yy
@@ -367,7 +374,7 @@ def blob_moments(win, labels, k, xa, ya, xb, yb, w0, w1, w2, b, eps, lo):
                         hit = True
             if not hit:
                 continue
-            v = min(max((_score(win, i, j, w0, w1, w2, b, eps) - lo) * gain, 0.0), 1.0)
+            v = _coverage(_score(win, i, j, w0, w1, w2, b, eps), lo, gain)
             m00 += v
             m10 += v * (j - xa)
             m01 += v * (i - ya)
