@@ -6,12 +6,16 @@ frame in each camera, the true centre as an operator would click it (snapped).
 
 Speed, timed in the same run, alternately, SPEED_PAIRS (7) times each, every tracking run on a fresh
 copy of the seeded project:
-- decode only: every frame of both videos through `FrameSource` (PyAV, FFmpeg's own threads,
-  4:2:0 -> full-frame BGR24, as the tool shows and tracks them) by the same prefetching decoder
-  threads the tracker uses (tracking/decoding.py); the main thread only takes the frames.
+- decode only: every frame of both videos by the same prefetching decoder threads the tracker uses
+  (tracking/decoding.py, PyAV with FFmpeg's own threads), handed out as the tracker receives them:
+  the decoded 4:2:0 planes, not converted (yuv.py); the main thread only takes the frames. This is
+  the reference of `decode_and_track_vs_decode_only`.
+- decode only to BGR: the same, each frame converted whole to BGR24 (`FrameSource.frame`, as the
+  terminal UI reads frames; the tracker received these before it read windows of the planes):
+  `decode_and_track_vs_decode_to_bgr`.
 - decode + track: `track_project` on the same files: decoding as above, tracking every marker in
-  both cameras, stereo checks, re-acquisition, and writing every point to the project store;
-  set-up (colour models, key-frame list) included.
+  both cameras (converting the windows it reads), stereo checks, re-acquisition, and writing every
+  point to the project store; set-up (colour models, key-frame list) included.
 Rates count video frames of both cameras (a step of the side camera and its paired front frame
 are two frames): `decode_and_track_vs_decode_only` = (frames decoded by track_project / its wall
 time) / (frames decoded / wall time of decode only), per pair of runs, median over the pairs (all
@@ -110,11 +114,12 @@ def _seeds(videos, truth) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["marker", "camera", "frame", "x_px", "y_px", "w", "h", "epipolar_px"])
 
 
-def _decode_only(videos, n_frames: dict) -> tuple[float, float]:
-    """(wall s, process CPU s) to decode the same frames with the same prefetching threads, no tracking."""
+def _decode_only(videos, n_frames: dict, lazy: bool = True) -> tuple[float, float]:
+    """(wall s, process CPU s) to decode the same frames with the same prefetching threads, no tracking
+    (lazy: as the tracker receives them; else converted whole to BGR)."""
     srcs = {c: FrameSource(v, cache_mb=64) for c, v in videos.items()}
     t0, c0 = time.perf_counter(), time.process_time()
-    feeds = [prefetch(srcs[c], list(range(n_frames[c]))) for c in srcs]
+    feeds = [prefetch(srcs[c], list(range(n_frames[c])), lazy=lazy) for c in srcs]
     for _ in range(max(n_frames.values())):
         for c, f in zip(srcs, feeds, strict=True):
             if _ < n_frames[c]:
@@ -202,8 +207,10 @@ def run(mil_frames: int = 60) -> dict:
         # Speed on a shared machine: decode-only and decode+track alternate, SPEED_PAIRS times, same run;
         # each tracking run starts from a fresh copy of the seeded project (as a user's first run would).
         ratios, pairs_cpu, dec, trk, step_ms, step_s = [], [], [], [], [], []
+        bgr, ratios_bgr, pairs_cpu_bgr = [], [], []
         decoded_only = sum(n_frames.values())
         for rep in range(SPEED_PAIRS):
+            bgr.append(_decode_only(videos, n_frames, lazy=False))
             dec.append(_decode_only(videos, n_frames))
             run_file = tmp / f"run{rep}.sandtrack"
             shutil.copyfile(tmp / "bench.sandtrack", run_file)
@@ -224,11 +231,14 @@ def run(mil_frames: int = 60) -> dict:
             decoded_in_track = sum(summary["frames_by_camera"].values())
             ratios.append((decoded_in_track / trk[-1][0]) / (decoded_only / dec[-1][0]))
             pairs_cpu.append((dec[-1][1] / decoded_only) / (trk[-1][1] / decoded_in_track))
+            ratios_bgr.append((decoded_in_track / trk[-1][0]) / (decoded_only / bgr[-1][0]))
+            pairs_cpu_bgr.append((bgr[-1][1] / decoded_only) / (trk[-1][1] / decoded_in_track))
             run_file.unlink()
         steps = summary["frames"]
         n_markers = len(seeds.marker.unique())
         d_wall, d_cpu = (float(np.median([d[k] for d in dec])) for k in (0, 1))
         t_wall, t_cpu = (float(np.median([t[k] for t in trk])) for k in (0, 1))
+        b_wall, b_cpu = (float(np.median([b[k] for b in bgr])) for k in (0, 1))
         # Rates in video frames per second (both cameras' frames counted).
         r_dec, r_trk = decoded_only / d_wall, decoded_in_track / t_wall
         c_dec, c_trk = d_cpu / decoded_only, t_cpu / decoded_in_track
@@ -240,6 +250,11 @@ def run(mil_frames: int = 60) -> dict:
                    decode_and_track_cpu_ms_per_frame=round(1000 * c_trk, 2),
                    cpu_rate_ratio=round(float(np.median(pairs_cpu)), 3),
                    cpu_rate_ratio_pairs=[round(r, 3) for r in pairs_cpu],
+                   decode_to_bgr_frames_per_s=round(decoded_only / b_wall, 2),
+                   decode_to_bgr_cpu_ms_per_frame=round(1000 * b_cpu / decoded_only, 2),
+                   decode_and_track_vs_decode_to_bgr=round(float(np.median(ratios_bgr)), 3),
+                   decode_and_track_vs_decode_to_bgr_pairs=[round(r, 3) for r in ratios_bgr],
+                   cpu_rate_ratio_vs_bgr=round(float(np.median(pairs_cpu_bgr)), 3),
                    track_ms_per_marker_frame=round(float(np.median([m[0] for m in step_ms])), 4),
                    track_cpu_ms_per_marker_frame=round(float(np.median([m[1] for m in step_ms])), 4),
                    first_run_extra_s=round(step_s[0] - float(np.median(step_s[1:])), 3),

@@ -30,8 +30,12 @@ def test_colour_score_and_mask_equal_the_formula():
     assert got.dtype == np.float32 and np.allclose(got, want, atol=1e-6)
     got_f = kernels.colour_score(f, w[0], w[1], w[2], b, np.float32(EPS))  # float windows (chroma.py)
     assert np.allclose(got_f, want, atol=1e-6)
-    mask = kernels.colour_mask(win, w[0], w[1], w[2], np.float32(-10.0))
-    assert np.array_equal(mask, (f @ w - 10.0 >= 0).astype(np.uint8))
+    mask, found, x0, y0, x1, y1 = kernels.colour_mask(win, w[0], w[1], w[2], np.float32(-10.0))
+    want = (f @ w - 10.0 >= 0).astype(np.uint8)
+    assert np.array_equal(mask, want)
+    rows, cols = np.flatnonzero(want.any(axis=1)), np.flatnonzero(want.any(axis=0))
+    assert found and (x0, y0, x1, y1) == (cols[0], rows[0], cols[-1] + 1, rows[-1] + 1)
+    assert not kernels.colour_mask(win, w[0], w[1], w[2], np.float32(-1e6))[1]
 
 
 def test_cubic_profile_sampling_equals_opencv_remap():
@@ -89,5 +93,6 @@ def test_blob_moments_equal_the_dilated_component_moments():
     f = win[15:25, 16:26].astype(np.float32)
     wts = np.clip(((f @ w) / (f.sum(axis=-1) + np.float32(EPS)) + b - lo) / (1 - lo), 0, 1) * comp
     m = cv2.moments(wts.astype(np.float32))
-    got = kernels.blob_moments(win, labels, 3, 16, 15, 26, 25, w[0], w[1], w[2], b, np.float32(EPS), lo)
+    *got, pixels = kernels.blob_moments(win, labels, 3, 16, 15, 26, 25, w[0], w[1], w[2], b, np.float32(EPS), lo)
     assert np.allclose(got, (m["m00"], m["m10"], m["m01"]), rtol=1e-5)
+    assert pixels == 64

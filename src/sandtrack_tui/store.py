@@ -697,7 +697,13 @@ def _as_point_tuples(rows) -> Iterable[tuple]:
         f, c, m, x, y, status, score, psr, colour = r
         if status not in STATUSES:
             raise SandtrackError(f"unknown point status {status!r} (one of {', '.join(STATUSES)})")
-        yield (int(f), str(c), int(m), _num(x), _num(y), status, _num(score), _num(psr), _num(colour))
+        if type(x) is float and type(y) is float and type(score) is float and type(psr) is float \
+                and type(colour) is float:  # the tracker's rows: v - v == 0 only for finite floats
+            yield (int(f), str(c), int(m), x if x - x == 0.0 else None, y if y - y == 0.0 else None, status,
+                   score if score - score == 0.0 else None, psr if psr - psr == 0.0 else None,
+                   colour if colour - colour == 0.0 else None)
+        else:
+            yield (int(f), str(c), int(m), _num(x), _num(y), status, _num(score), _num(psr), _num(colour))
 
 
 def _dumps_row(values) -> str:

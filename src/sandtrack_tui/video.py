@@ -8,7 +8,9 @@ continues the running decoder. Decoded frames sit in an LRU cache bounded in byt
 images is accepted too (sorted by name, times = index / fps).
 
 Frames are numpy arrays, H x W x 3, uint8, BGR (as OpenCV). Times are seconds of the file's
-presentation timeline.
+presentation timeline. `lazy_frame` gives the same frame without converting it whole: the decoded
+4:2:0 planes, converted to BGR window by window when read (yuv.py), for the tracker, which reads
+only small windows.
 
 `FramePair` pairs the side and front cameras for a sync offset in seconds. Convention used
 everywhere: ``offset_s`` is how much later the front camera started recording than the side
@@ -64,9 +66,11 @@ class _LRU:
             self.items.move_to_end(key)
         return v
 
-    def put(self, key: int, value: np.ndarray) -> None:
+    def put(self, key: int, value, replace: bool = False) -> None:
         if key in self.items:
-            return
+            if not replace:
+                return
+            self.bytes -= self.items.pop(key).nbytes
         self.items[key] = value
         self.bytes += value.nbytes
         while self.bytes > self.max_bytes and len(self.items) > 1:
@@ -87,6 +91,7 @@ class FrameSource:
         # One BGR converter per source, one thread: a frame's own to_ndarray() builds a new scaler
         # context, with a new pool of threads, for every frame (~10 % of the decoding time).
         self._reformatter = VideoReformatter()
+        self._lazy_ok = True  # False once a frame had no exact window converter (yuv.py)
         if not self.path.exists():
             raise SandtrackError(f"file not found: {self.path}")
         if self.path.is_dir():
@@ -195,18 +200,33 @@ class FrameSource:
         return self.frame(i)
 
     def frame(self, i: int) -> np.ndarray:
+        """Frame i as a BGR array."""
+        with self._lock:
+            img = self._get(i, lazy=False)
+            if not isinstance(img, np.ndarray):  # a lazy frame from the cache: converted once, kept
+                img = img.bgr()
+                self._cache.put(i, img, replace=True)
+            return img
+
+    def lazy_frame(self, i: int):
+        """Frame i for reading in windows: a `yuv.Yuv420Frame` (the decoded planes; `f[y0:y1, x0:x1]`
+        is that BGR window, the same pixels as `frame(i)`) when the video is 8-bit 4:2:0 with an exact
+        window converter, else the BGR array."""
+        with self._lock:
+            return self._get(i, lazy=True)
+
+    def _get(self, i: int, lazy: bool):
         n = len(self)
         if i < 0:
             i += n
         if not 0 <= i < n:
             raise IndexError(f"frame {i} outside 0..{n - 1}")
-        with self._lock:
-            cached = self._cache.get(i)
-            if cached is not None:
-                return cached
-            img = self._read_image(i) if self.is_folder else self._decode(i)
-            self._cache.put(i, img)
-            return img
+        cached = self._cache.get(i)
+        if cached is not None:
+            return cached
+        img = self._read_image(i) if self.is_folder else self._decode(i, lazy)
+        self._cache.put(i, img)
+        return img
 
     def iter_frames(self, start: int = 0, stop: int | None = None, step: int = 1):
         """Yield (index, frame) in order; sequential decoding, no seeks between frames."""
@@ -237,14 +257,16 @@ class FrameSource:
         except (av.error.InvalidDataError, av.error.FFmpegError, EOFError):
             return
 
-    def _decode(self, i: int) -> np.ndarray:
+    def _decode(self, i: int, lazy: bool = False):
         target = int(self._pts[i])
         if self._decoder is None or self._next_index is None or i < self._next_index or i > self._next_index + 60:
             self._seek(target)
         for frame in self._decoder:
             if frame.pts is None:
                 continue
-            img = self._reformatter.reformat(frame, format="bgr24", threads=1).to_ndarray()
+            img = self._wrap(frame) if lazy and self._lazy_ok else None
+            if img is None:
+                img = self._reformatter.reformat(frame, format="bgr24", threads=1).to_ndarray()
             k = int(np.searchsorted(self._pts, frame.pts))
             if k < len(self._pts) and self._pts[k] == frame.pts:
                 self._next_index = k + 1
@@ -255,6 +277,13 @@ class FrameSource:
             if frame.pts > target:
                 break
         raise SandtrackError(f"{self.path}: frame {i} could not be decoded (damaged file?)")
+
+    def _wrap(self, frame):
+        from . import yuv  # (numba: imported only when frames are read lazily)
+
+        img = yuv.wrap(frame)
+        self._lazy_ok = img is not None
+        return img
 
     def _seek(self, target_pts: int) -> None:
         container = self._ensure_container()

@@ -54,12 +54,22 @@ class ColourModel:
         (score - floor) / (1 - floor), clipped to 0..1 (≈ its coverage by the marker)."""
         return min(0.5 * self.threshold, 0.15)
 
-    def mask(self, bgr: np.ndarray) -> np.ndarray:
-        """uint8 0/1: score >= threshold. For 8-bit pixels (B + G + R + EPS > 0) the test is linear,
-        (w + b - t) . bgr + (b - t) EPS >= 0."""
-        if bgr.dtype != np.uint8 or not bgr.size:
-            return (self.score(bgr) >= self.threshold).astype(np.uint8)
-        return kernels.colour_mask(bgr, *self._mask_coeffs)
+    def mask_box(self, frame, x0: int, y0: int, x1: int, y1: int) -> tuple:
+        """(mask, found, bx0, by0, bx1, by1): uint8 0/1 per pixel of the window [y0:y1, x0:x1] of a
+        frame, score >= threshold, and the box of its ones in window coordinates. For 8-bit pixels
+        (B + G + R + EPS > 0) the test is linear, (w + b - t) . bgr + (b - t) EPS >= 0; a frame still
+        in its 4:2:0 planes (yuv.py) computes it without converting the window."""
+        linear_mask = getattr(frame, "linear_mask", None)
+        if linear_mask is not None:
+            return linear_mask(self._mask_coeffs, x0, y0, x1, y1)
+        bgr = frame[y0:y1, x0:x1]
+        if bgr.dtype == np.uint8 and bgr.size:
+            return kernels.colour_mask(bgr, *self._mask_coeffs)
+        mask = (self.score(bgr) >= self.threshold).astype(np.uint8)
+        rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+        if not len(rows):
+            return mask, False, 0, 0, 0, 0
+        return mask, True, int(cols[0]), int(rows[0]), int(cols[-1]) + 1, int(rows[-1]) + 1
 
     @cached_property
     def _mask_coeffs(self) -> tuple:
@@ -67,9 +77,9 @@ class ColourModel:
         return (*np.float32(self.w + c), np.float32(c * EPS))
 
     def blob_moments(self, bgr: np.ndarray, labels: np.ndarray, k: int, xa: int, ya: int, xb: int, yb: int):
-        """(area, m10, m01): pixel weights (see weight_floor) summed over component k of `labels`
-        grown by one pixel, and its first moments from (xa, ya), within rows ya..yb-1 and columns
-        xa..xb-1 of `bgr`."""
+        """(area, m10, m01, pixels): pixel weights (see weight_floor) summed over component k of
+        `labels` grown by one pixel, its first moments from (xa, ya), within rows ya..yb-1 and columns
+        xa..xb-1 of `bgr`, and the component's pixel count there."""
         return kernels.blob_moments(bgr, labels, k, xa, ya, xb, yb, *self._score_coeffs, self.weight_floor)
 
 

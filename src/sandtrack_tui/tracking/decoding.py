@@ -5,6 +5,9 @@ the GIL that hand-over waits for the interpreter's switch interval, so `track_pr
 it while tracking. (A decoder in a child process with shared-memory frames was tried: starting
 it and copying 6 MB frames made it slower than this on 2 cores.)
 
+Frames are handed out as `source.lazy_frame(j)` where the source has it: the decoded planes,
+converted to BGR only in the windows the tracker reads (yuv.py), not whole.
+
 Batches: the tracker is faster than the decoder, so it would wait for every frame and resume with
 its caches emptied by the decoder threads. It asks for a few frames at a time instead
 (`wait_for`), and tracks them in one run: 3-5 % more frames per second on 2 cores.
@@ -32,7 +35,7 @@ QUEUE_MB = 80  # frames decoded ahead per camera (12 of 1080p BGR), at least 4
 
 class ThreadPrefetch:
     def __init__(self, source, indices: list[int], depth: int | None = None,
-                 budget_mb: float = BACKWARD_BUDGET_MB):
+                 budget_mb: float = BACKWARD_BUDGET_MB, lazy: bool = True):
         frame_mb = 3 * getattr(source, "width", 1920) * getattr(source, "height", 1080) / 2**20
         self.depth = depth or int(min(max(QUEUE_MB // max(frame_mb, 1e-3), 4), 64))
         self._items: deque = deque()
@@ -40,6 +43,7 @@ class ThreadPrefetch:
         self._want = 1  # items the consumer waits for
         self._done = False
         self._stop = threading.Event()
+        self._read = getattr(source, "lazy_frame", source.frame) if lazy else source.frame
         keys = _key_frames(source) if len(indices) > 1 and all(
             a > b for a, b in zip(indices, indices[1:], strict=False)) else None
         if keys is None:
@@ -63,7 +67,7 @@ class ThreadPrefetch:
         for j in indices:
             if self._stop.is_set():
                 return
-            self._put((j, source.frame(j)))
+            self._put((j, self._read(j)))
 
     def _run_backward(self, source, indices, keys, budget_mb):
         budget = max(1, int(budget_mb * 2**20 // (3 * source.width * source.height)))  # frames held at once
@@ -77,7 +81,7 @@ class ThreadPrefetch:
             for i in range(key, top + 1):  # one forward pass from the key frame
                 if self._stop.is_set():
                     return
-                img = source.frame(i)
+                img = self._read(i)
                 if i in wanted:
                     held[i] = img
             for j in group:
@@ -130,7 +134,7 @@ def _key_frames(source) -> np.ndarray | None:
     return keys if keys is not None and len(keys) and keys[0] == 0 else None
 
 
-def prefetch(source, indices: list[int]):
+def prefetch(source, indices: list[int], lazy: bool = True):
     """Decode `indices` of `source` ahead of the tracker, in a thread (a descending list of a video's
-    frames group by group, see the module notes)."""
-    return ThreadPrefetch(source, indices)
+    frames group by group, see the module notes); `lazy=False` hands out BGR arrays only."""
+    return ThreadPrefetch(source, indices, lazy=lazy)

@@ -14,21 +14,10 @@ kernels do the same arithmetic in one call each. Compiled on first use, cached o
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
+from ..jit import jit as _jit
 from .chroma import LUMA_BGR
-
-
-def _jit(func):
-    """Compiled, cached on disk next to this file or in the user's cache; without a writable place
-    (a read-only install run by another user) compiled in each process instead. The GIL is kept:
-    releasing it for microseconds would only invite thread switches."""
-    try:
-        return numba.njit(cache=True)(func)
-    except RuntimeError:
-        return numba.njit(func)
-
 
 _LB, _LG, _LR = (np.float32(v) for v in LUMA_BGR)
 
@@ -349,24 +338,35 @@ def match_peak(res, score, c_lo, c_hi, r_lo, r_hi, ox, oy, s00, s01, s11, gate, 
 
 @_jit
 def colour_mask(win, m0, m1, m2, m3):
-    """uint8 0/1 per pixel: m0 B + m1 G + m2 R + m3 >= 0 (the linear form of score >= threshold)."""
+    """uint8 0/1 per pixel: m0 B + m1 G + m2 R + m3 >= 0 (the linear form of score >= threshold); and
+    the box of its ones, (found, x0, y0, x1, y1)."""
     h, w = win.shape[0], win.shape[1]
-    out = np.empty((h, w), np.uint8)
+    out = np.zeros((h, w), np.uint8)
+    bx0, by0, bx1, by1 = 1 << 30, 1 << 30, -1, -1
     for i in range(h):
         for j in range(w):
             v = m0 * np.float32(win[i, j, 0]) + m1 * np.float32(win[i, j, 1]) + m2 * np.float32(win[i, j, 2]) + m3
-            out[i, j] = 1 if v >= 0 else 0
-    return out
+            if v >= 0:
+                out[i, j] = 1
+                bx0, bx1 = min(bx0, j), max(bx1, j)
+                by0, by1 = min(by0, i), max(by1, i)
+    if bx1 < 0:
+        return out, False, 0, 0, 0, 0
+    return out, True, bx0, by0, bx1 + 1, by1 + 1
 
 
 @_jit
 def blob_moments(win, labels, k, xa, ya, xb, yb, w0, w1, w2, b, eps, lo):
     """Soft moments (m00, m10, m01; x, y from (xa, ya)) of component `k` of `labels` grown by one
-    pixel (3 x 3), within rows ya..yb-1 and columns xa..xb-1, weighted by the colour coverage."""
+    pixel (3 x 3), within rows ya..yb-1 and columns xa..xb-1, weighted by the colour coverage; and
+    the component's pixel count there."""
     gain = 1.0 / (1.0 - lo)
     m00 = m10 = m01 = 0.0
+    n = 0
     for i in range(ya, yb):
         for j in range(xa, xb):
+            if labels[i, j] == k:
+                n += 1
             hit = False
             for ii in range(max(i - 1, ya), min(i + 2, yb)):
                 for jj in range(max(j - 1, xa), min(j + 2, xb)):
@@ -378,7 +378,7 @@ def blob_moments(win, labels, k, xa, ya, xb, yb, w0, w1, w2, b, eps, lo):
             m00 += v
             m10 += v * (j - xa)
             m01 += v * (i - ya)
-    return m00, m10, m01
+    return m00, m10, m01, n
 
 
 def warm_up() -> None:
@@ -393,14 +393,21 @@ def warm_up() -> None:
     inside = ((xx - 40.3) ** 2 + (yy - 47.6) ** 2 <= 20.0).astype(np.float32)[..., None]
     frame = np.round(np.array([120.0, 160.0, 190.0]) * (1 - inside) + np.array([170.0, 70.0, 40.0]) * inside)
     frame = frame.astype(np.uint8)
-    track = MarkerTrack(1, "warm-up", frame, 0, 40.3, 47.6, 12, 12)
-    track.intra = np.ones(2, bool)
-    track.predict()
-    m = track.propose(frame, 1)
-    track.apply(1, frame, m)
-    track.matcher.update_template(frame, 40.3, 47.6)
-    RestReference(frame, 40.3, 47.6, track.model.radius, m or Match(40.3, 47.6, 1.0, 10.0, 1.0)).shift(frame, 0.2, 3.0)
-    find_blobs(frame, track.model, 40.0, 47.0, 30.0, 30.0)
+    import av
+
+    from .. import yuv
+
+    planar = yuv.wrap(av.VideoFrame.from_ndarray(frame, format="bgr24").reformat(format="yuv420p"))
+    for img in (frame, planar) if planar is not None else (frame,):  # BGR arrays, and frames read in windows
+        track = MarkerTrack(1, "warm-up", frame, 0, 40.3, 47.6, 12, 12)
+        track.intra = np.ones(2, bool)
+        track.predict()
+        m = track.propose(img, 1)
+        track.apply(1, img, m)
+        track.matcher.update_template(img, 40.3, 47.6)
+        rest = RestReference(img, 40.3, 47.6, track.model.radius, m or Match(40.3, 47.6, 1.0, 10.0, 1.0))
+        rest.shift(img, 0.2, 3.0)
+        find_blobs(img, track.model, 40.0, 47.0, 30.0, 30.0)
 
 
 if __name__ == "__main__":
