@@ -115,20 +115,24 @@ def core(points: pd.DataFrame) -> pd.DataFrame:
 
 
 def edit_log_agrees(proj: Project, edit_id: int) -> int:
-    """Every point row logged by the edit holds the logged value, and vice versa; returns the count."""
-    logged = proj.conn.execute("SELECT key, after FROM edit_rows WHERE edit_id=? AND table_name='points'",
-                               (edit_id,)).fetchall()
+    """Every point logged by the edit (its latest value in the log) is the stored point, and every
+    tracked point is logged; returns the count."""
+    logged = {}
+    for table, key, after in proj.conn.execute(
+            "SELECT table_name, key, after FROM edit_rows WHERE edit_id=? ORDER BY seq", (edit_id,)):
+        if table == "points_batch":
+            logged.update((tuple(k), v) for k, v in zip(json.loads(key), json.loads(after), strict=True))
+        elif table == "points":
+            logged[tuple(json.loads(key))] = json.loads(after)
     pts = proj.points()
     have = {(int(r.frame), r.camera, int(r.marker)): r for r in pts.itertuples()}
-    for key, after in logged:
-        f, c, m = json.loads(key)
+    for (f, c, m), after in logged.items():
         row = have[(f, c, m)]
-        x, y, status = json.loads(after)[:3]
+        x, y, status = after[:3]
         assert (row.x_px, row.y_px, row.status) == (x, y, status)
-    keys = {tuple(json.loads(k)) for k, _ in logged}
     tracked = {k for k, r in have.items() if r.status != "manual"}
-    assert tracked == keys
-    return len(keys)
+    assert tracked == set(logged)
+    return len(logged)
 
 
 # -- SIGKILL while tracking -------------------------------------------------------------------

@@ -242,3 +242,48 @@ def test_version_1_project_is_migrated(tmp_path):
         assert int(version) == SCHEMA_VERSION
         indexes = {r[0] for r in proj.conn.execute("SELECT name FROM sqlite_master WHERE type='index'")}
         assert "edit_rows_by_key" in indexes
+
+
+def test_undo_and_redo_of_random_edit_sequences_restore_every_state(tmp_path):
+    """Random edits (writes in several chunks, the same point written twice, deletions), undone and
+    redone at random: the points are always those of the state the log says they should be in."""
+    rng = np.random.default_rng(11)
+    with Project.create(tmp_path / "log.sandtrack") as proj:
+        m = proj.add_marker()
+        states, redo, current = [], [], {}
+
+        def points_now():
+            return {(int(r.frame), r.camera): (r.x_px, r.status) for r in proj.points().itertuples()}
+
+        for step in range(120):
+            op = rng.choice(["edit", "edit", "undo", "redo"])
+            if op == "edit":
+                states.append(dict(current))
+                redo.clear()
+                with proj.edit(f"edit {step}") as ed:
+                    for _ in range(rng.integers(1, 4)):
+                        if rng.random() < 0.25 and current:
+                            keys = list(current)
+                            picked = [keys[i] for i in rng.choice(len(keys), min(3, len(keys)), replace=False)]
+                            ed.delete([(f, c, m) for f, c in picked])
+                            for k in picked:
+                                current.pop(k, None)
+                            continue
+                        frames = rng.integers(0, 12, rng.integers(1, 6))  # repeats within a write too
+                        cam = str(rng.choice(["side", "front"]))
+                        status = str(rng.choice(["tracked", "occluded", "manual"]))
+                        x = float(rng.integers(0, 1000))
+                        ed.write(_rows(m, cam, list(frames), x0=x, status=status))
+                        for f in frames:
+                            current[(int(f), cam)] = (x + f, status)
+                if ed.edit_id is None:  # nothing was written: no edit
+                    states.pop()
+            elif op == "undo" and states:
+                assert proj.undo() is not None
+                redo.append(current)
+                current = states.pop()
+            elif op == "redo" and redo:
+                assert proj.redo() is not None
+                states.append(current)
+                current = redo.pop()
+            assert points_now() == current, f"step {step} ({op})"

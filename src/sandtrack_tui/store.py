@@ -15,7 +15,10 @@ Tables
 - ``points(frame, camera, marker, x_px, y_px, status, score, psr, colour_frac)``: pixel position
   of a marker in one camera's own frame index; status is one of STATUSES.
 - ``edits(id, kind, description, created, undone)`` and ``edit_rows(edit_id, seq, table_name,
-  key, before, after)``: the edit log that undo/redo walks.
+  key, before, after)``: the edit log that undo/redo walks (undo applies an edit's rows' "before"
+  in reverse order, redo their "after" in order). A row is one point, marker or setting, or (table
+  ``points_batch``, from version 3) one write of many points: key, before and after are JSON lists,
+  one entry per point, null where the point did not exist.
 """
 
 from __future__ import annotations
@@ -35,7 +38,7 @@ import pandas as pd
 
 from .errors import SandtrackError
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 STATUSES = ("tracked", "occluded", "lost", "manual", "interpolated", "imported")
 POINT_COLUMNS = ["frame", "camera", "marker", "x_px", "y_px", "status", "score", "psr", "colour_frac"]
 _POINT_VALUES = POINT_COLUMNS[3:]
@@ -64,8 +67,12 @@ _V1_TO_V2 = """
 CREATE INDEX IF NOT EXISTS edit_rows_by_key ON edit_rows (edit_id, key);
 """
 
+# Version 3 logs a write of many points as one edit_rows row (table_name 'points_batch'): nothing to
+# change in the file, but an older version could not undo such rows.
+_V2_TO_V3 = ""
+
 # Migrations from version N to N+1; index 0 creates version 1.
-MIGRATIONS: list[str] = [_SCHEMA_V1, _V1_TO_V2]
+MIGRATIONS: list[str] = [_SCHEMA_V1, _V1_TO_V2, _V2_TO_V3]
 
 
 # Connections this process holds per project file (see Project.open).
@@ -523,7 +530,9 @@ class Project:
             f"SELECT table_name, key, {side} FROM edit_rows WHERE edit_id=? ORDER BY seq {order}", (eid,)
         ).fetchall()
         for table, key, value in rows:
-            if table == "points":
+            if table == "points_batch":
+                self._apply_batch(json.loads(key), json.loads(value), reverse=side == "before")
+            elif table == "points":
                 f, c, m = json.loads(key)
                 if value is None:
                     self.conn.execute("DELETE FROM points WHERE frame=? AND camera=? AND marker=?", (f, c, m))
@@ -542,6 +551,21 @@ class Project:
                     self.conn.execute("INSERT OR REPLACE INTO settings VALUES (?, ?)", (key, value))
 
 
+    def _apply_batch(self, keys: list, values: list, reverse: bool) -> None:
+        """One 'points_batch' log row's side: each key's values, or its deletion where null."""
+        if not isinstance(keys, list) or not isinstance(values, list) or len(keys) != len(values):
+            raise ValueError("points_batch row with keys and values of different lengths")
+        pairs = list(zip(keys, values, strict=True))
+        if reverse:
+            pairs.reverse()
+        # Within one write every key's "before" is the same and its "after" is never null: deleting
+        # first, then writing in order, is the same as applying the entries one by one.
+        self.conn.executemany("DELETE FROM points WHERE frame=? AND camera=? AND marker=?",
+                              [tuple(k) for k, v in pairs if v is None])
+        self.conn.executemany(f"INSERT OR REPLACE INTO points ({', '.join(POINT_COLUMNS)}) "
+                              f"VALUES (?,?,?,?,?,?,?,?,?)", [(*k, *v) for k, v in pairs if v is not None])
+
+
 class _Edit:
     """Rows written through one edit; each `write` is its own committed transaction."""
 
@@ -553,9 +577,8 @@ class _Edit:
         self.seq = 0
 
     def write(self, rows) -> int:
-        """Insert or replace point rows as part of this edit, in one committed transaction. The
-        edit log gets one row per point (its first "before" in this edit, its latest "after"),
-        written with a few batched statements rather than several per point."""
+        """Insert or replace point rows as part of this edit, in one committed transaction, logged as
+        one edit_rows row ('points_batch': the points' keys, values before and after)."""
         records = list(_as_point_tuples(rows))
         if not records:
             return 0
@@ -564,49 +587,17 @@ class _Edit:
         def fn():
             if self.edit_id is None:
                 self.edit_id = self.project._new_edit(self.kind, self.description)
-            keys = _point_keys(records)
-            afters = _point_values_json(records)
-            prior = self._prior_seqs(set(keys)) if self.seq else {}
             olds = _existing_values(conn, records)
-            new_rows: dict[str, list] = {}  # key -> its log row, first write of the key in this edit
-            updates: dict[int, str] = {}  # seq of a row logged by an earlier write -> latest after
-            for rec, key, after in zip(records, keys, afters, strict=True):
-                seq = prior.get(key)
-                if seq is not None:  # a row this edit already wrote keeps its first "before"
-                    updates[seq] = after
-                elif key in new_rows:
-                    new_rows[key][5] = after
-                else:
-                    old = olds.get(rec[:3])
-                    new_rows[key] = [self.edit_id, self.seq, "points", key,
-                                     _dumps_row(old) if old else None, after]
-                    self.seq += 1
-            if updates:
-                conn.executemany("UPDATE edit_rows SET after=? WHERE edit_id=? AND seq=?",
-                                 [(a, self.edit_id, q) for q, a in updates.items()])
-            conn.executemany("INSERT INTO edit_rows VALUES (?,?,?,?,?,?)", new_rows.values())
+            keys = json.dumps([r[:3] for r in records])
+            before = json.dumps([olds.get(r[:3]) for r in records], default=str)
+            after = json.dumps([r[3:] for r in records])
+            self.project._log_row(self.edit_id, self.seq, "points_batch", keys, before, after)
+            self.seq += 1
             conn.executemany(f"INSERT OR REPLACE INTO points ({', '.join(POINT_COLUMNS)}) "
                              f"VALUES (?,?,?,?,?,?,?,?,?)", records)
 
         self.project._write(fn)
         return len(records)
-
-    def _prior_seqs(self, keys: set) -> dict[str, int]:
-        """Log seq of each of `keys` this edit already wrote: key -> seq."""
-        out = {}
-        todo = list(keys)
-        for i in range(0, len(todo), _SQL_BATCH):
-            part = todo[i:i + _SQL_BATCH]
-            q = f"SELECT key, seq FROM edit_rows WHERE edit_id=? AND key IN ({','.join('?' * len(part))})"
-            out.update((k, int(s)) for k, s in self.project.conn.execute(q, (self.edit_id, *part)))
-        return out
-
-    def _prior_seq(self, key: str) -> int | None:
-        if not self.seq:
-            return None
-        row = self.project.conn.execute("SELECT seq FROM edit_rows WHERE edit_id=? AND key=?",
-                                        (self.edit_id, key)).fetchone()
-        return None if row is None else int(row[0])
 
     def delete(self, keys) -> int:
         """Delete points by (frame, camera, marker) as part of this edit (undone with it)."""
@@ -619,42 +610,17 @@ class _Edit:
             if self.edit_id is None:
                 self.edit_id = self.project._new_edit(self.kind, self.description)
             for key in keys:
-                jkey = json.dumps(list(key))
-                prior = self._prior_seq(jkey)
-                if prior is not None:
-                    conn.execute("UPDATE edit_rows SET after=NULL WHERE edit_id=? AND seq=?",
-                                 (self.edit_id, prior))
-                else:
-                    old = conn.execute(
-                        f"SELECT {', '.join(_POINT_VALUES)} FROM points WHERE frame=? AND camera=? AND marker=?",
-                        key).fetchone()
-                    if old is None:
-                        continue
-                    self.project._log_row(self.edit_id, self.seq, "points", jkey, _dumps_row(old), None)
-                    self.seq += 1
+                old = conn.execute(
+                    f"SELECT {', '.join(_POINT_VALUES)} FROM points WHERE frame=? AND camera=? AND marker=?",
+                    key).fetchone()
+                if old is None:
+                    continue
+                self.project._log_row(self.edit_id, self.seq, "points", json.dumps(list(key)), _dumps_row(old), None)
+                self.seq += 1
                 conn.execute("DELETE FROM points WHERE frame=? AND camera=? AND marker=?", key)
 
         self.project._write(fn)
         return len(keys)
-
-
-_SQL_BATCH = 500  # bound parameters per statement, well under SQLite's limit
-
-
-def _point_keys(records) -> list[str]:
-    """json.dumps([frame, camera, marker]) of each record (frame and marker are ints)."""
-    cams = {c: json.dumps(c) for c in {r[1] for r in records}}
-    return [f"[{r[0]}, {cams[r[1]]}, {r[2]}]" for r in records]
-
-
-def _point_values_json(records) -> list[str]:
-    """json.dumps(list(record[3:])) of each record: one encoding for the whole batch, split back
-    into rows (the values are finite floats, None and a status word, so '], [' only separates rows)."""
-    text = json.dumps([r[3:] for r in records])
-    parts = text[2:-2].split("], [")
-    if len(parts) != len(records):  # cannot happen with point values; kept exact anyway
-        return [json.dumps(list(r[3:])) for r in records]
-    return [f"[{p}]" for p in parts]
 
 
 def _existing_values(conn, records) -> dict:
