@@ -216,3 +216,21 @@ def test_touching_pairs_are_exactly_the_close_pairs(limit):
                  if np.hypot(pts[i][0] - pts[k][0], pts[i][1] - pts[k][1]) < limit(pts[i][2], pts[k][2])]
         assert _touching_pairs(pts, limit) == brute
     assert brute  # the crowded case was exercised
+
+
+@pytest.mark.parametrize("distortion", [[0, 0, 0, 0, 0], [0.01, -0.01, 0, -0.01, 0],
+                                        [-0.28, 0.09, 0.001, -0.002, -0.012]], ids=["none", "mild", "gopro-like"])
+def test_compiled_epipolar_distances_equal_opencv_undistortion(distortion):
+    cal, _ = synthetic.render_stereo(2)
+    for cam in cal.cameras.values():
+        cam.distortion = np.array(distortion, dtype=float)
+    fast = StereoCheck(cal, "side", "front")
+    assert all(p is not None for p in fast._params.values())
+    slow = StereoCheck(cal, "side", "front")
+    slow._params = {c: None for c in slow.cams}  # the OpenCV route
+    rng = np.random.default_rng(4)
+    a, b = rng.uniform([10, 10], [470, 350], (50, 2)), rng.uniform([10, 10], [470, 350], (50, 2))
+    assert np.allclose(fast.distance("side", a, "front", b), slow.distance("side", a, "front", b), rtol=0, atol=1e-8)
+    assert np.allclose(fast.distance("front", b[0], "side", a), slow.distance("front", b[0], "side", a), atol=1e-8)
+    with pytest.raises(ValueError):
+        fast.distance("side", a[:3], "front", b[:4])

@@ -128,6 +128,12 @@ class Yuv420Frame:
         return self.shape[0] * self.shape[1] * 3
 
     @property
+    def yuv(self) -> tuple:
+        """(y, u, v, tables): the planes and the conversion tables, for kernels that convert the
+        windows they read themselves (tracking/kernels.py, the *_yuv variants)."""
+        return self._y, self._u, self._v, self._tables
+
+    @property
     def nbytes(self) -> int:
         return self._y.nbytes + self._u.nbytes + self._v.nbytes
 

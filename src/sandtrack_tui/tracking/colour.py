@@ -43,6 +43,14 @@ class ColourModel:
             return np.zeros(bgr.shape[:2], dtype=np.float32)
         return kernels.colour_score(bgr, *self._score_coeffs)
 
+    def score_window(self, frame, x0: int, y0: int, x1: int, y1: int) -> np.ndarray:
+        """score() of the window [y0:y1, x0:x1] of a frame (inside it), also of a frame still in its
+        4:2:0 planes (yuv.py), without converting the window separately."""
+        yuv = getattr(frame, "yuv", None)
+        if yuv is not None and x1 > x0 and y1 > y0:
+            return kernels.colour_score_yuv(*yuv, x0, y0, x1, y1, *self._score_coeffs)
+        return self.score(frame[y0:y1, x0:x1])
+
     @cached_property
     def _score_coeffs(self) -> tuple:
         """(w0, w1, w2, b, EPS) as float32, as the kernels take them."""

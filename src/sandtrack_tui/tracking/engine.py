@@ -41,10 +41,20 @@ class Engine:
     crowded_max_colour: float = 1.4
     _open_ambiguity: dict = field(default_factory=dict)
     _both_cache: tuple | None = None
+    _by_camera: dict | None = None  # camera -> [(key, track, start frame)], in the order of `tracks`
 
     def add(self, track: MarkerTrack, start_frame: int) -> None:
         self.tracks[(track.marker, track.camera)] = track
         self.start[(track.marker, track.camera)] = start_frame
+        self._by_camera = None
+
+    def _tracks_of(self, cam: str) -> list:
+        if self._by_camera is None:
+            groups: dict = {}
+            for key, t in self.tracks.items():
+                groups.setdefault(t.camera, []).append((key, t, self.start[key]))
+            self._by_camera = groups
+        return self._by_camera.get(cam, [])
 
     def step(self, frames: dict, manual: dict | None = None) -> list[Observation]:
         """frames: camera -> (frame index, BGR image, remainder in frames of the wanted time);
@@ -55,22 +65,20 @@ class Engine:
         props: dict[tuple, _Proposal] = {}
         forced: dict[tuple, tuple] = {}
         for cam, (j, img, _rem) in frames.items():
-            live[cam] = []
-            for key, t in self.tracks.items():
-                if t.camera != cam:
-                    continue
-                s = self.start[key]
+            live[cam] = lv = []
+            for key, t, s in self._tracks_of(cam):
                 if j == s and t.frame_index == s and t.counts["manual"] == 0:
                     obs.append(t.seed_observation())
                     continue
                 if self.direction * (j - s) <= 0:
                     continue
                 t.predict()
-                man = manual.get((t.marker, cam, j))
-                if man is not None:
-                    forced[key] = man
-                    continue
-                live[cam].append(t)
+                if manual:
+                    man = manual.get((t.marker, cam, j))
+                    if man is not None:
+                        forced[key] = man
+                        continue
+                lv.append(t)
             crowd = self._neighbours(live[cam])
             for t in live[cam]:
                 if t.coasting:

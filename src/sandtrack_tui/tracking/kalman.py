@@ -104,6 +104,13 @@ class ConstantVelocityKF:
     def innovation_inv(self) -> np.ndarray:
         return _inv2(self.innovation_cov())
 
+    def innovation_inv_terms(self) -> tuple[float, float, float]:
+        """(i00, i01, i11) of the inverse innovation covariance, as plain floats (per track and frame)."""
+        p, r = self._p, self.R
+        s00, s01, s10, s11 = p[0] + r[0, 0], p[1] + r[0, 1], p[1] + r[1, 0], p[4] + r[1, 1]
+        det = s00 * s11 - s01 * s10
+        return s11 / det, -s01 / det, s00 / det
+
     def d2(self, zx: float, zy: float) -> float:
         """Squared Mahalanobis distance of one measurement (zx, zy) from the prediction."""
         p, r = self._p, self.R

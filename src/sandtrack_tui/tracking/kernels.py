@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..jit import jit as _jit
+from ..yuv import _window_bgr
 from .chroma import LUMA_BGR
 
 _LB, _LG, _LR = (np.float32(v) for v in LUMA_BGR)
@@ -379,6 +380,77 @@ def blob_moments(win, labels, k, xa, ya, xb, yb, w0, w1, w2, b, eps, lo):
             m10 += v * (j - xa)
             m01 += v * (i - ya)
     return m00, m10, m01, n
+
+
+@_jit
+def _undistort(u, v, fx, fy, cx, cy, k1, k2, p1, p2, k3):
+    """A distorted pixel (u, v) undistorted, in pixels of the same camera matrix: OpenCV's pinhole
+    model (k1 k2 p1 p2 k3) inverted as cv2.undistortPoints does, iterating until the point
+    reprojects within 1e-10 px (at most 50 rounds)."""
+    x0, y0 = (u - cx) / fx, (v - cy) / fy
+    x, y = x0, y0
+    for _ in range(50):
+        r2 = x * x + y * y
+        icdist = 1.0 / (1.0 + ((k3 * r2 + k2) * r2 + k1) * r2)
+        if icdist < 0:
+            x, y = x0, y0
+            break
+        dx = 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        dy = p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        x, y = (x0 - dx) * icdist, (y0 - dy) * icdist
+        r2 = x * x + y * y
+        cdist = 1.0 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2
+        xd = x * cdist + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        yd = y * cdist + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        if np.hypot(xd * fx + cx - u, yd * fy + cy - v) < 1e-10:
+            break
+    return x * fx + cx, y * fy + cy
+
+
+@_jit
+def epipolar_distances(pa, pb, cam_a, cam_b, F):
+    """Distance (px, undistorted pixels of camera b) of each pb[i] from the epipolar line of pa[i];
+    cam_a, cam_b: (fx, fy, cx, cy, k1, k2, p1, p2, k3); F maps a's undistorted pixels to lines in b."""
+    n = pa.shape[0]
+    out = np.empty(n)
+    for i in range(n):
+        ax, ay = _undistort(pa[i, 0], pa[i, 1], *cam_a)
+        bx, by = _undistort(pb[i, 0], pb[i, 1], *cam_b)
+        l0 = F[0, 0] * ax + F[0, 1] * ay + F[0, 2]
+        l1 = F[1, 0] * ax + F[1, 1] * ay + F[1, 2]
+        l2 = F[2, 0] * ax + F[2, 1] * ay + F[2, 2]
+        out[i] = abs(l0 * bx + l1 * by + l2) / max(np.hypot(l0, l1), 1e-12)
+    return out
+
+
+# The same kernels on a window of a frame still in its 4:2:0 planes (yuv.Yuv420Frame.yuv: planes y, u, v
+# and the conversion tables t): the window is converted inside the call, as the frame's slicing would.
+@_jit
+def _bgr(yp, up, vp, t, x0, y0, x1, y1):
+    return _window_bgr(yp, up, vp, x0, y0, x1, y1, t[0], t[1], t[2], t[3], t[4])
+
+
+@_jit
+def rest_reference_yuv(yp, up, vp, t, x0, y0, n):
+    return rest_reference(_bgr(yp, up, vp, t, x0, y0, x0 + n, y0 + n))
+
+
+@_jit
+def rest_shift_yuv(yp, up, vp, t, x0, y0, ref, gx, gy, ginv, max_shift_px, max_residual):
+    n = int(np.sqrt(ref.shape[0]))
+    return rest_shift(_bgr(yp, up, vp, t, x0, y0, x0 + n, y0 + n), ref, gx, gy, ginv, max_shift_px, max_residual)
+
+
+@_jit
+def edge_centre_yuv(yp, up, vp, t, x0, y0, n, cx, cy, radius, steps, cos, sin, min_rise, step_px, iterations,
+                    settle_px):
+    return edge_centre(_bgr(yp, up, vp, t, x0, y0, x0 + n, y0 + n), cx, cy, radius, steps, cos, sin, min_rise,
+                       step_px, iterations, settle_px)
+
+
+@_jit
+def colour_score_yuv(yp, up, vp, t, x0, y0, x1, y1, w0, w1, w2, b, eps):
+    return colour_score(_bgr(yp, up, vp, t, x0, y0, x1, y1), w0, w1, w2, b, eps)
 
 
 def warm_up() -> None:

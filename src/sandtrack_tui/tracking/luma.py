@@ -41,9 +41,13 @@ def edge_centre(frame_bgr, x: float, y: float, radius: float, iterations: int = 
     x0, y0 = int(round(x)) - R, int(round(y)) - R
     if x0 < 0 or y0 < 0 or x0 + 2 * R + 1 > W or y0 + 2 * R + 1 > H:
         return None
-    win = frame_bgr[y0:y0 + 2 * R + 1, x0:x0 + 2 * R + 1]
-    ok, cx, cy = kernels.edge_centre(win, float(x - x0), float(y - y0), float(radius), _steps(radius), _COS, _SIN,
-                                     MIN_RISE, STEP, iterations, settle_px)
+    args = (float(x - x0), float(y - y0), float(radius), _steps(radius), _COS, _SIN, MIN_RISE, STEP, iterations,
+            settle_px)
+    yuv = getattr(frame_bgr, "yuv", None)  # a frame still in its 4:2:0 planes (yuv.py)
+    if yuv is not None:
+        ok, cx, cy = kernels.edge_centre_yuv(*yuv, x0, y0, 2 * R + 1, *args)
+    else:
+        ok, cx, cy = kernels.edge_centre(frame_bgr[y0:y0 + 2 * R + 1, x0:x0 + 2 * R + 1], *args)
     return (cx + x0, cy + y0) if ok else None
 
 

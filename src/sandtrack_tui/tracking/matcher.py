@@ -68,9 +68,10 @@ class TemplateMatcher:
         self.template = ((1 - alpha) * self.template + alpha * patch).astype(np.float32)
 
     def match(self, frame_bgr: np.ndarray, px: float, py: float, hx: float, hy: float,
-              S_inv: np.ndarray | None = None, gate_d2: float = 9.21) -> Match | None:
+              s_inv: tuple | None = None, gate_d2: float = 9.21) -> Match | None:
         """Best match whose centre lies within (hx, hy) of the prediction (px, py) and, given the
-        inverse innovation covariance S_inv, inside the gate ellipse. None if nothing to match."""
+        inverse innovation covariance s_inv = (i00, i01, i11), inside the gate ellipse. None if
+        nothing to match."""
         H, W = frame_bgr.shape[:2]
         if not (math.isfinite(px) and math.isfinite(py)):
             return None
@@ -81,7 +82,7 @@ class TemplateMatcher:
         x1, y1 = min(cx0 + ex + self.half + 1, W), min(cy0 + ey + self.half + 1, H)
         if x1 - x0 < self.size + 2 or y1 - y0 < self.size + 2:
             return None
-        score = self.model.score(frame_bgr[y0:y1, x0:x1])
+        score = self.model.score_window(frame_bgr, x0, y0, x1, y1)
         res = cv2.matchTemplate(score, self.seed_template, cv2.TM_CCOEFF_NORMED)
         cv2.patchNaNs(res, -1.0)
         if float(res.max()) < self.skip_updated_above:
@@ -96,7 +97,7 @@ class TemplateMatcher:
         if c_hi < c_lo or r_hi < r_lo:
             return None
         # The peak inside the gate ellipse (+1: the grid is integer, the refined centre is not).
-        s = (0.0, 0.0, 0.0, -1.0) if S_inv is None else (S_inv[0, 0], S_inv[0, 1], S_inv[1, 1], gate_d2 + 1.0)
+        s = (0.0, 0.0, 0.0, -1.0) if s_inv is None else (*s_inv, gate_d2 + 1.0)
         found, mx, my, peak, psr, frac, used = kernels.match_peak(
             res, score, c_lo, c_hi, r_lo, r_hi, float(ox), float(oy), *map(float, s), self.half,
             math.ceil(self.model.radius) + 1, self.model.radius + 1.5, self.model.weight_floor,

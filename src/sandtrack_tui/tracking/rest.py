@@ -32,8 +32,12 @@ class RestReference:
         if not self.ok:
             return
         # Gradients: Sobel 3 x 3 / 8; ginv: the inverse of the 2 x 2 normal matrix (xx, xy, yy).
-        self.ok, self.contrast, self.ref, self.gx, self.gy, self.ginv = kernels.rest_reference(
-            self._window(frame_bgr))
+        yuv = getattr(frame_bgr, "yuv", None)  # a frame still in its 4:2:0 planes (yuv.py)
+        if yuv is not None:
+            out = kernels.rest_reference_yuv(*yuv, self.x0, self.y0, self.n)
+        else:
+            out = kernels.rest_reference(self._window(frame_bgr))
+        self.ok, self.contrast, self.ref, self.gx, self.gy, self.ginv = out
 
     def _window(self, frame_bgr):
         return frame_bgr[self.y0:self.y0 + self.n, self.x0:self.x0 + self.n]
@@ -43,6 +47,11 @@ class RestReference:
         `max_shift_px` and explains the change within `max_residual` rms; else None."""
         if not self.ok:
             return None
-        ok, dx, dy = kernels.rest_shift(self._window(frame_bgr), self.ref, self.gx, self.gy, self.ginv,
-                                        max_shift_px, max_residual)
+        yuv = getattr(frame_bgr, "yuv", None)
+        if yuv is not None:
+            ok, dx, dy = kernels.rest_shift_yuv(*yuv, self.x0, self.y0, self.ref, self.gx, self.gy, self.ginv,
+                                                max_shift_px, max_residual)
+        else:
+            ok, dx, dy = kernels.rest_shift(self._window(frame_bgr), self.ref, self.gx, self.gy, self.ginv,
+                                            max_shift_px, max_residual)
         return (dx, dy) if ok else None

@@ -12,6 +12,7 @@ import numpy as np
 
 from ..camera import Calibration
 from ..triangulation import fundamental_matrix
+from . import kernels
 
 
 class StereoCheck:
@@ -23,9 +24,20 @@ class StereoCheck:
         self.F[(cam_b, cam_a)] = self.F[(cam_a, cam_b)].T
         self.threshold_px = threshold_px
         self.band_px = band_px
+        # Pinhole cameras with at most k1 k2 p1 p2 k3: distances in one compiled call (kernels.py).
+        self._params = {c: _pinhole_params(calibration.cameras[c]) for c in self.cams}
 
     def distance(self, cam_from: str, p_from, cam_to: str, p_to) -> np.ndarray:
         """Distance (px, undistorted pixels of cam_to) of p_to (N, 2) from the epipolar line(s) of p_from."""
+        pa, pb = self._params[cam_from], self._params[cam_to]
+        if pa is not None and pb is not None:
+            a = np.asarray(p_from, dtype=np.float64).reshape(-1, 2)
+            b = np.asarray(p_to, dtype=np.float64).reshape(-1, 2)
+            if len(a) == 1 and len(b) > 1:
+                a = np.repeat(a, len(b), axis=0)
+            if len(a) != len(b):
+                raise ValueError(f"{len(a)} points against {len(b)}")
+            return kernels.epipolar_distances(a, b, pa, pb, self.F[(cam_from, cam_to)])
         a = self.calibration.cameras[cam_from].undistort(np.asarray(p_from, dtype=float).reshape(-1, 2))
         b = self.calibration.cameras[cam_to].undistort(np.asarray(p_to, dtype=float).reshape(-1, 2))
         lines = np.hstack([a, np.ones((len(a), 1))]) @ self.F[(cam_from, cam_to)].T
@@ -34,6 +46,16 @@ class StereoCheck:
 
     def other(self, cam: str) -> str:
         return self.cams[1] if cam == self.cams[0] else self.cams[0]
+
+
+def _pinhole_params(cam) -> tuple | None:
+    """(fx, fy, cx, cy, k1, k2, p1, p2, k3) of a pinhole camera without skew and with at most five
+    distortion coefficients; None otherwise (such cameras go through OpenCV)."""
+    K, d = cam.matrix, cam.distortion
+    if cam.model != "pinhole" or len(d) not in (0, 4, 5) or K[0, 1] != 0:
+        return None
+    k = [float(v) for v in d] + [0.0] * (5 - len(d))
+    return (float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), *k)
 
 
 def interpolate_track(frames: np.ndarray, xy: np.ndarray, times_s: np.ndarray, t_query: np.ndarray,
