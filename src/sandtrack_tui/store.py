@@ -18,7 +18,7 @@ Tables
   key, before, after)``: the edit log that undo/redo walks (undo applies an edit's rows' "before"
   in reverse order, redo their "after" in order). A row is one point, marker or setting, or (table
   ``points_batch``, from version 3) one write of many points: key, before and after are JSON lists,
-  one entry per point, null where the point did not exist.
+  one entry per point, null where the point did not exist; its "after" is logged when it is undone.
 """
 
 from __future__ import annotations
@@ -527,11 +527,14 @@ class Project:
     def _apply(self, eid: int, side: str) -> None:
         order = "DESC" if side == "before" else "ASC"
         rows = self.conn.execute(
-            f"SELECT table_name, key, {side} FROM edit_rows WHERE edit_id=? ORDER BY seq {order}", (eid,)
-        ).fetchall()
-        for table, key, value in rows:
+            f"SELECT seq, table_name, key, {side}, after IS NULL FROM edit_rows WHERE edit_id=? ORDER BY seq {order}",
+            (eid,)).fetchall()
+        for seq, table, key, value, no_after in rows:
             if table == "points_batch":
-                self._apply_batch(json.loads(key), json.loads(value), reverse=side == "before")
+                keys = json.loads(key)
+                if side == "before" and no_after:
+                    self._keep_after(eid, seq, keys)
+                self._apply_batch(keys, json.loads(value), reverse=side == "before")
             elif table == "points":
                 f, c, m = json.loads(key)
                 if value is None:
@@ -550,6 +553,15 @@ class Project:
                 else:
                     self.conn.execute("INSERT OR REPLACE INTO settings VALUES (?, ?)", (key, value))
 
+
+    def _keep_after(self, eid: int, seq: int, keys: list) -> None:
+        """Log the values a 'points_batch' row wrote, for redo, as it is undone: undo goes back through
+        the edits and their rows in reverse order, so the points hold exactly those values now."""
+        if not isinstance(keys, list) or not all(isinstance(k, list) and len(k) == 3 for k in keys):
+            raise ValueError("points_batch row with malformed keys")
+        now = _existing_values(self.conn, [tuple(k) for k in keys])
+        after = json.dumps([now.get(tuple(k)) for k in keys], default=str)
+        self.conn.execute("UPDATE edit_rows SET after=? WHERE edit_id=? AND seq=?", (after, eid, seq))
 
     def _apply_batch(self, keys: list, values: list, reverse: bool) -> None:
         """One 'points_batch' log row's side: each key's values, or its deletion where null."""
@@ -578,7 +590,7 @@ class _Edit:
 
     def write(self, rows) -> int:
         """Insert or replace point rows as part of this edit, in one committed transaction, logged as
-        one edit_rows row ('points_batch': the points' keys, values before and after)."""
+        one edit_rows row ('points_batch': the points' keys and values before)."""
         records = list(_as_point_tuples(rows))
         if not records:
             return 0
@@ -590,8 +602,8 @@ class _Edit:
             olds = _existing_values(conn, records)
             keys = json.dumps([r[:3] for r in records])
             before = json.dumps([olds.get(r[:3]) for r in records], default=str)
-            after = json.dumps([r[3:] for r in records])
-            self.project._log_row(self.edit_id, self.seq, "points_batch", keys, before, after)
+            # "after" is logged when the edit is undone (Project._keep_after): not needed before then.
+            self.project._log_row(self.edit_id, self.seq, "points_batch", keys, before, None)
             self.seq += 1
             conn.executemany(f"INSERT OR REPLACE INTO points ({', '.join(POINT_COLUMNS)}) "
                              f"VALUES (?,?,?,?,?,?,?,?,?)", records)

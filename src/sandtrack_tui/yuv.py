@@ -57,32 +57,58 @@ def _window_bgr(yp, up, vp, x0, y0, x1, y1, yt, cb, gu, gv, cr):
 
 
 @jit
-def _linear_mask(yp, up, vp, x0, y0, x1, y1, yt, cb, gu, gv, cr, m0, m1, m2, m3):
+def _passing_levels(yt, cb, gu, gv, cr, m0, m1, m2, m3, u, v, lo, hi, state):
+    """For chroma (u, v): the brightness levels Y whose pixel passes m0 B + m1 G + m2 R + m3 >= 0
+    (float32, as the window would convert), stored as the range lo..hi (state 1; empty when lo > hi)
+    when they are one run of levels, else state 2 (tested pixel by pixel)."""
+    k = u * 256 + v
+    c0, c1, c2 = cb[u], gu[u] + gv[v], cr[v]
+    first, last, n = -1, -1, 0
+    for level in range(256):
+        y = yt[level]
+        b = np.float32(min(max(y + c0, 0), 255))
+        g = np.float32(min(max(y + c1, 0), 255))
+        r = np.float32(min(max(y + c2, 0), 255))
+        if m0 * b + m1 * g + m2 * r + m3 >= 0:
+            if first < 0:
+                first = level
+            last, n = level, n + 1
+    if n == 0:
+        lo[k], hi[k], state[k] = 1, 0, 1
+    elif n == last - first + 1:
+        lo[k], hi[k], state[k] = first, last, 1
+    else:
+        state[k] = 2
+
+
+@jit
+def _linear_mask(yp, up, vp, x0, y0, x1, y1, yt, cb, gu, gv, cr, m0, m1, m2, m3, lo, hi, state):
     """uint8 0/1 per pixel of the window [y0:y1, x0:x1]: m0 B + m1 G + m2 R + m3 >= 0 in float32, with
-    B, G, R as the window converts; and the box of its ones in the window, (found, x0, y0, x1, y1)."""
+    B, G, R as the window converts; and the box of its ones in the window, (found, x0, y0, x1, y1).
+    lo, hi, state: per chroma u * 256 + v, the passing brightness levels (_passing_levels), filled
+    in as chroma values are met (a window holds few distinct ones), so most pixels cost two compares."""
     h, w = y1 - y0, x1 - x0
     out = np.empty((h, w), np.uint8)
-    c0, c1, c2, yv = np.empty(w, np.int32), np.empty(w, np.int32), np.empty(w, np.int32), np.empty(w, np.int32)
     by0, by1 = h, -1
     for i in range(h):
         yy = y0 + i
         ci = yy >> 1
-        for j in range(w):
-            cj = (x0 + j) >> 1
-            u = up[ci, cj]
-            v = vp[ci, cj]
-            c0[j] = cb[u]
-            c1[j] = gu[u] + gv[v]
-            c2[j] = cr[v]
-        for j in range(w):
-            yv[j] = yt[yp[yy, x0 + j]]
         hits = 0
         for j in range(w):
-            y = yv[j]
-            b = np.float32(min(max(y + c0[j], 0), 255))
-            g = np.float32(min(max(y + c1[j], 0), 255))
-            r = np.float32(min(max(y + c2[j], 0), 255))
-            hit = np.uint8(m0 * b + m1 * g + m2 * r + m3 >= 0)
+            xx = x0 + j
+            u, v = up[ci, xx >> 1], vp[ci, xx >> 1]
+            k = u * 256 + v
+            if state[k] == 0:
+                _passing_levels(yt, cb, gu, gv, cr, m0, m1, m2, m3, u, v, lo, hi, state)
+            level = yp[yy, xx]
+            if state[k] == 1:
+                hit = 1 if lo[k] <= level <= hi[k] else 0
+            else:
+                y = yt[level]
+                b = np.float32(min(max(y + cb[u], 0), 255))
+                g = np.float32(min(max(y + gu[u] + gv[v], 0), 255))
+                r = np.float32(min(max(y + cr[v], 0), 255))
+                hit = 1 if m0 * b + m1 * g + m2 * r + m3 >= 0 else 0
             out[i, j] = hit
             hits |= hit
         if hits:
@@ -149,7 +175,8 @@ class Yuv420Frame:
         """(mask, found, bx0, by0, bx1, by1): uint8 0/1 per pixel of the window [y0:y1, x0:x1] where
         m0 B + m1 G + m2 R + m3 >= 0 (coeffs: float32 (m0, m1, m2, m3)), computed in float32 from the
         planes without converting the window, and the box of its ones (window coordinates)."""
-        return _linear_mask(self._y, self._u, self._v, x0, y0, max(x1, x0), max(y1, y0), *self._tables, *coeffs)
+        return _linear_mask(self._y, self._u, self._v, x0, y0, max(x1, x0), max(y1, y0), *self._tables, *coeffs,
+                            *_passing(self._tables, coeffs))
 
     def bgr(self) -> np.ndarray:
         """The whole frame as BGR (FFmpeg's conversion, as FrameSource.frame gives it)."""
@@ -167,7 +194,23 @@ def _swscale_bgr(av_frame) -> np.ndarray:
 
 
 _TABLES: dict = {}
+_PASSING: dict = {}
+_MAX_PASSING = 64  # (lo, hi, state) per colour test and kind of frame: 192 KB each
 _LOCK = threading.Lock()
+
+
+def _passing(tables: tuple, coeffs: tuple) -> tuple:
+    """(lo, hi, state) arrays of _linear_mask for one colour test on frames with these tables; kept
+    for the process (a tracking run's models test the same coefficients on every frame)."""
+    key = (id(tables), *(float(c) for c in coeffs))
+    out = _PASSING.get(key)
+    if out is None:
+        out = (np.zeros(65536, np.uint8), np.zeros(65536, np.uint8), np.zeros(65536, np.uint8))
+        with _LOCK:
+            if len(_PASSING) >= _MAX_PASSING:
+                _PASSING.clear()
+            _PASSING[key] = out
+    return out
 
 
 def converter(av_frame) -> tuple | None:

@@ -21,7 +21,7 @@ from . import kernels
 from .colour import ColourModel
 
 
-@dataclass
+@dataclass(slots=True)
 class Match:
     x: float  # refined centre (px)
     y: float

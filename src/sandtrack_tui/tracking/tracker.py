@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -56,8 +57,9 @@ class TrackParams:
     gate_d2: float = GATE_D2
 
 
-@dataclass
-class Observation:
+class Observation(NamedTuple):
+    """One marker in one camera frame, in the store's point columns (a tuple: made per track and frame)."""
+
     frame: int
     camera: str
     marker: int
@@ -69,8 +71,7 @@ class Observation:
     colour_frac: float = float("nan")
 
     def row(self) -> tuple:
-        return (self.frame, self.camera, self.marker, self.x_px, self.y_px, self.status, self.score, self.psr,
-                self.colour_frac)
+        return tuple(self)
 
 
 class MarkerTrack:
