@@ -234,3 +234,20 @@ def test_compiled_epipolar_distances_equal_opencv_undistortion(distortion):
     assert np.allclose(fast.distance("front", b[0], "side", a), slow.distance("front", b[0], "side", a), atol=1e-8)
     with pytest.raises(ValueError):
         fast.distance("side", a[:3], "front", b[:4])
+
+
+@pytest.mark.parametrize("x", [6.0, 7.0, 7.5])
+def test_marker_resting_at_the_image_edge_is_tracked(x):
+    """Near the border the rest test's window leaves the image (at x = 7 its reference could not be
+    made, and the next frame's rest test raised); the marker is then measured in full."""
+    n = 12
+    path = synthetic.MarkerPath(1, np.tile([[x, 200.0]], (n, 1)), radius=4.5)
+    clip = synthetic.render([path], n, seed=3)
+    eng = Engine()
+    eng.add(MarkerTrack(1, "cam", clip.frames[0], 0, x, 200.0, 14, 14), 0)
+    obs = []
+    for f in range(n):
+        obs += eng.step({"cam": (f, clip.frames[f], 0.0)})
+    tracked = [o for o in obs if o.status == "tracked"]
+    assert len(tracked) == n - 1
+    assert max(np.hypot(o.x_px - x, o.y_px - 200.0) for o in tracked) < 0.5

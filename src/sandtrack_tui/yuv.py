@@ -148,16 +148,14 @@ class Yuv420Frame:
         self._v = _plane(p[2], (h + 1) // 2)
         self._tables = tables
         self.shape = (h, w, 3)
+        # The planes and the conversion tables, for kernels that convert the windows they read
+        # themselves (tracking/kernels.py, the *_yuv variants).
+        self.yuv = (self._y, self._u, self._v, tables)
 
     @property
     def size(self) -> int:
         return self.shape[0] * self.shape[1] * 3
 
-    @property
-    def yuv(self) -> tuple:
-        """(y, u, v, tables): the planes and the conversion tables, for kernels that convert the
-        windows they read themselves (tracking/kernels.py, the *_yuv variants)."""
-        return self._y, self._u, self._v, self._tables
 
     @property
     def nbytes(self) -> int:

@@ -23,8 +23,10 @@ from . import kernels
 class RestReference:
     """Brightness window of a marker at its last full measurement, ready for the shift test."""
 
-    def __init__(self, frame_bgr, x: float, y: float, radius: float, match):
+    def __init__(self, frame_bgr, x: float, y: float, radius: float, match, residual: float = 3.0,
+                 residual_frac: float = 0.03):
         self.n = 2 * int(np.ceil(radius + 3)) + 1
+        self.residual_limit = residual
         self.x0, self.y0 = int(round(x)) - self.n // 2, int(round(y)) - self.n // 2
         self.match = match
         H, W = frame_bgr.shape[:2]
@@ -38,6 +40,9 @@ class RestReference:
         else:
             out = kernels.rest_reference(self._window(frame_bgr))
         self.ok, self.contrast, self.ref, self.gx, self.gy, self.ginv = out
+        # The change no shift explains that still counts as rest: rms levels, at least `residual`,
+        # more on a marker of strong contrast.
+        self.residual_limit = max(residual, residual_frac * self.contrast)
 
     def _window(self, frame_bgr):
         return frame_bgr[self.y0:self.y0 + self.n, self.x0:self.x0 + self.n]

@@ -128,7 +128,7 @@ class MarkerTrack:
         """Best acceptable match inside the gate (after predict), or None."""
         r, p = self._rest, self.params
         if r is not None and self.status == TRACKED and not self._is_intra(frame_index):
-            d = r.shift(frame_bgr, p.rest_shift_px, max(p.rest_residual, p.rest_residual_frac * r.contrast))
+            d = r.shift(frame_bgr, p.rest_shift_px, r.residual_limit)
             if d is not None:
                 o = r.match
                 x, y = o.x + d[0], o.y + d[1]
@@ -227,7 +227,8 @@ class MarkerTrack:
                 if frame_bgr is not None and self._since_update >= p.template_every and clean:
                     self.matcher.update_template(frame_bgr, m.x, m.y, p.template_alpha)
                     self._since_update = 0
-                self._rest = RestReference(frame_bgr, m.x, m.y, self.model.radius, m) \
+                self._rest = RestReference(frame_bgr, m.x, m.y, self.model.radius, m, p.rest_residual,
+                                           p.rest_residual_frac) \
                     if (p.rest_check and frame_bgr is not None and not reattach) else None
             self.status, self.misses = TRACKED, 0
             obs = Observation(frame_index, self.camera, self.marker, m.x, m.y, TRACKED, m.score, m.psr, m.colour_frac)
