@@ -77,9 +77,9 @@ def test_linear_mask_equals_the_test_on_the_converted_window():
         got = frame.linear_mask(coeffs, x0, y0, x1, y1)
         assert np.array_equal(got[0], want[0]) and got[1:] == want[1:]
         # every chroma tested pixel by pixel (as when its passing levels are not one run)
-        irregular = (np.zeros(65536, np.uint8), np.zeros(65536, np.uint8), np.full(65536, 2, np.uint8))
+        irregular = np.full(65536, 2, np.uint32)
         y, u, v, tables = frame.yuv
-        got = yuv._linear_mask(y, u, v, x0, y0, x1, y1, *tables, *coeffs, *irregular)
+        got = yuv._linear_mask(y, u, v, x0, y0, x1, y1, *tables, *coeffs, irregular)
         assert np.array_equal(got[0], want[0]) and got[1:] == want[1:]
 
 

@@ -57,11 +57,10 @@ def _window_bgr(yp, up, vp, x0, y0, x1, y1, yt, cb, gu, gv, cr):
 
 
 @jit
-def _passing_levels(yt, cb, gu, gv, cr, m0, m1, m2, m3, u, v, lo, hi, state):
+def _passing_levels(yt, cb, gu, gv, cr, m0, m1, m2, m3, u, v):
     """For chroma (u, v): the brightness levels Y whose pixel passes m0 B + m1 G + m2 R + m3 >= 0
-    (float32, as the window would convert), stored as the range lo..hi (state 1; empty when lo > hi)
-    when they are one run of levels, else state 2 (tested pixel by pixel)."""
-    k = u * 256 + v
+    (float32, as the window would convert), packed as state | lo << 8 | hi << 16: state 1 when they
+    are the one run of levels lo..hi (empty when lo > hi), else state 2 (tested pixel by pixel)."""
     c0, c1, c2 = cb[u], gu[u] + gv[v], cr[v]
     first, last, n = -1, -1, 0
     for level in range(256):
@@ -74,46 +73,59 @@ def _passing_levels(yt, cb, gu, gv, cr, m0, m1, m2, m3, u, v, lo, hi, state):
                 first = level
             last, n = level, n + 1
     if n == 0:
-        lo[k], hi[k], state[k] = 1, 0, 1
-    elif n == last - first + 1:
-        lo[k], hi[k], state[k] = first, last, 1
-    else:
-        state[k] = 2
+        return np.uint32(1 | 1 << 8)
+    if n == last - first + 1:
+        return np.uint32(1 | first << 8 | last << 16)
+    return np.uint32(2)
 
 
 @jit
-def _linear_mask(yp, up, vp, x0, y0, x1, y1, yt, cb, gu, gv, cr, m0, m1, m2, m3, lo, hi, state):
+def _linear_mask(yp, up, vp, x0, y0, x1, y1, yt, cb, gu, gv, cr, m0, m1, m2, m3, passing):
     """uint8 0/1 per pixel of the window [y0:y1, x0:x1]: m0 B + m1 G + m2 R + m3 >= 0 in float32, with
     B, G, R as the window converts; and the box of its ones in the window, (found, x0, y0, x1, y1).
-    lo, hi, state: per chroma u * 256 + v, the passing brightness levels (_passing_levels), filled
-    in as chroma values are met (a window holds few distinct ones), so most pixels cost two compares."""
+    passing: per chroma u * 256 + v, its passing brightness levels (_passing_levels; 0 = not yet
+    known), filled in as chroma values are met (a window holds few distinct ones): most blocks of
+    2 x 2 pixels are settled by their chroma alone, most others by comparing brightness levels."""
     h, w = y1 - y0, x1 - x0
-    out = np.empty((h, w), np.uint8)
+    out = np.zeros((h, w), np.uint8)
     by0, by1 = h, -1
-    for i in range(h):
-        yy = y0 + i
-        ci = yy >> 1
-        hits = 0
-        for j in range(w):
-            xx = x0 + j
-            u, v = up[ci, xx >> 1], vp[ci, xx >> 1]
+    for ci in range(y0 >> 1, ((y1 - 1) >> 1) + 1):
+        ya, yb = max(2 * ci, y0), min(2 * ci + 2, y1)
+        for cj in range(x0 >> 1, ((x1 - 1) >> 1) + 1):
+            u, v = up[ci, cj], vp[ci, cj]
             k = u * 256 + v
-            if state[k] == 0:
-                _passing_levels(yt, cb, gu, gv, cr, m0, m1, m2, m3, u, v, lo, hi, state)
-            level = yp[yy, xx]
-            if state[k] == 1:
-                hit = 1 if lo[k] <= level <= hi[k] else 0
-            else:
-                y = yt[level]
-                b = np.float32(min(max(y + cb[u], 0), 255))
-                g = np.float32(min(max(y + gu[u] + gv[v], 0), 255))
-                r = np.float32(min(max(y + cr[v], 0), 255))
-                hit = 1 if m0 * b + m1 * g + m2 * r + m3 >= 0 else 0
-            out[i, j] = hit
-            hits |= hit
-        if hits:
-            by0 = min(by0, i)
-            by1 = i
+            e = passing[k]
+            if e == 0:
+                e = passing[k] = _passing_levels(yt, cb, gu, gv, cr, m0, m1, m2, m3, u, v)
+            st, a, b = e & 255, (e >> 8) & 255, e >> 16
+            if st == 1:
+                if a > b:  # no brightness passes with this chroma: the block stays 0
+                    continue
+                if ya == 2 * ci and yb == ya + 2 and 2 * cj >= x0 and 2 * cj + 2 <= x1:  # a whole block
+                    xx = 2 * cj
+                    l00, l01, l10, l11 = yp[ya, xx], yp[ya, xx + 1], yp[ya + 1, xx], yp[ya + 1, xx + 1]
+                    h00, h01 = a <= l00 and l00 <= b, a <= l01 and l01 <= b
+                    h10, h11 = a <= l10 and l10 <= b, a <= l11 and l11 <= b
+                    if h00 or h01 or h10 or h11:
+                        i, j = ya - y0, xx - x0
+                        out[i, j], out[i, j + 1], out[i + 1, j], out[i + 1, j + 1] = h00, h01, h10, h11
+                        by0 = min(by0, i if (h00 or h01) else i + 1)
+                        by1 = max(by1, i + 1 if (h10 or h11) else i)
+                    continue
+            for yy in range(ya, yb):
+                for xx in range(max(2 * cj, x0), min(2 * cj + 2, x1)):
+                    level = yp[yy, xx]
+                    if st == 1:
+                        hit = a <= level <= b
+                    else:
+                        y = yt[level]
+                        bb = np.float32(min(max(y + cb[u], 0), 255))
+                        g = np.float32(min(max(y + gu[u] + gv[v], 0), 255))
+                        r = np.float32(min(max(y + cr[v], 0), 255))
+                        hit = m0 * bb + m1 * g + m2 * r + m3 >= 0
+                    if hit:
+                        out[yy - y0, xx - x0] = 1
+                        by0, by1 = min(by0, yy - y0), max(by1, yy - y0)
     if by1 < 0:
         return out, False, 0, 0, 0, 0
     bx0, bx1 = w, -1
@@ -174,7 +186,7 @@ class Yuv420Frame:
         m0 B + m1 G + m2 R + m3 >= 0 (coeffs: float32 (m0, m1, m2, m3)), computed in float32 from the
         planes without converting the window, and the box of its ones (window coordinates)."""
         return _linear_mask(self._y, self._u, self._v, x0, y0, max(x1, x0), max(y1, y0), *self._tables, *coeffs,
-                            *_passing(self._tables, coeffs))
+                            _passing(self._tables, coeffs))
 
     def bgr(self) -> np.ndarray:
         """The whole frame as BGR (FFmpeg's conversion, as FrameSource.frame gives it)."""
@@ -193,17 +205,17 @@ def _swscale_bgr(av_frame) -> np.ndarray:
 
 _TABLES: dict = {}
 _PASSING: dict = {}
-_MAX_PASSING = 64  # (lo, hi, state) per colour test and kind of frame: 192 KB each
+_MAX_PASSING = 64  # per colour test and kind of frame: 256 KB each
 _LOCK = threading.Lock()
 
 
-def _passing(tables: tuple, coeffs: tuple) -> tuple:
-    """(lo, hi, state) arrays of _linear_mask for one colour test on frames with these tables; kept
-    for the process (a tracking run's models test the same coefficients on every frame)."""
+def _passing(tables: tuple, coeffs: tuple) -> np.ndarray:
+    """The `passing` table of _linear_mask for one colour test on frames with these tables; kept for
+    the process (a tracking run's models test the same coefficients on every frame)."""
     key = (id(tables), *(float(c) for c in coeffs))
     out = _PASSING.get(key)
     if out is None:
-        out = (np.zeros(65536, np.uint8), np.zeros(65536, np.uint8), np.zeros(65536, np.uint8))
+        out = np.zeros(65536, np.uint32)
         with _LOCK:
             if len(_PASSING) >= _MAX_PASSING:
                 _PASSING.clear()
