@@ -201,27 +201,32 @@ def _close(sources):
 def _find_seeds(project, points: pd.DataFrame, markers, cams, sources, offsets, ref, start, direction):
     """Per (marker, camera): (frame, x, y) to start from, plus problems for those without one."""
     seeds, problems = {}, []
-    empty = points.iloc[:0]
-    by_track = {key: g for key, g in points[points.x_px.notna()].groupby(["marker", "camera"], sort=False)}
+    have = points[points.x_px.notna()]
+    if start is None:  # each track's first (last, backward) manual point
+        found = {}
+        for r in have[have.status == MANUAL].sort_values("frame").itertuples(index=False):
+            key = (int(r.marker), r.camera)
+            if direction < 0 or key not in found:
+                found[key] = r
+    else:  # each track's usable point at the paired frame of `start`
+        found, at = {}, {}
+        for c in cams:
+            pf = (start, 0.0) if c == ref else paired_frame(sources, offsets, ref, start, c)
+            at[c] = None if pf is None else pf[0]
+            if pf is not None:
+                rows = have[(have.camera == c) & (have.frame == pf[0]) & have.status.isin(_USABLE)]
+                found.update(((int(r.marker), c), r) for r in rows.itertuples(index=False))
     for m in markers:
         for c in cams:
-            p = by_track.get((m, c), empty)
-            if start is not None:
-                pf = (start, 0.0) if c == ref else paired_frame(sources, offsets, ref, start, c)
-                if pf is None:
-                    problems.append(f"marker {m} {c}: frame {start} has no paired {c} frame")
-                    continue
-                row = p[(p.frame == pf[0]) & p.status.isin(_USABLE)]
-                if row.empty:
-                    problems.append(f"marker {m} {c}: no point at frame {pf[0]} to start from")
-                    continue
-            else:
-                row = p[p.status == MANUAL].sort_values("frame")
-                if row.empty:
+            r = found.get((m, c))
+            if r is None:
+                if start is None:
                     problems.append(f"marker {m} {c}: no seed (manual point)")
-                    continue
-                row = row.iloc[[0]] if direction > 0 else row.iloc[[-1]]
-            r = row.iloc[0]
+                elif at[c] is None:
+                    problems.append(f"marker {m} {c}: frame {start} has no paired {c} frame")
+                else:
+                    problems.append(f"marker {m} {c}: no point at frame {at[c]} to start from")
+                continue
             seeds[(m, c)] = (int(r.frame), float(r.x_px), float(r.y_px))
     return seeds, problems
 
