@@ -292,6 +292,9 @@ def track_project(project, markers=None, start: int | None = None, stop: int | N
                 last[c] = pf[0]
                 st[c] = pf
             steps.append(st)
+        # Decoding starts now, while the tracks are set up (their seed frames come from the same
+        # sources, which hand them over under a lock; frames decoded first are cached for the other).
+        feeds_list = [prefetch(sources[c], [st[c][0] for st in steps if c in st]) for c in cams]
         stereo = _stereo_for(project, cams, (epipolar_px, band_px))
         summary["stereo"] = stereo is not None
         engine = Engine(stereo=stereo, direction=dirn)
@@ -321,8 +324,6 @@ def track_project(project, markers=None, start: int | None = None, stop: int | N
                   for r in man_pts.itertuples() if (int(r.marker), r.camera) in engine.tracks}
         for key, (f, _, _) in seeds.items():
             manual.pop((key[0], key[1], f), None)
-        feeds_list = [prefetch(sources[c], [st[c][0] for st in steps if c in st])
-                      for c in cams]
         feeds = dict(zip(cams, feeds_list, strict=True))
         t0 = time.perf_counter()
         t_track = cpu_track = 0.0
