@@ -42,6 +42,8 @@ SCHEMA_VERSION = 3
 STATUSES = ("tracked", "occluded", "lost", "manual", "interpolated", "imported")
 POINT_COLUMNS = ["frame", "camera", "marker", "x_px", "y_px", "status", "score", "psr", "colour_frac"]
 _POINT_VALUES = POINT_COLUMNS[3:]
+_PUT_POINT = f"INSERT OR REPLACE INTO points ({', '.join(POINT_COLUMNS)}) VALUES (?,?,?,?,?,?,?,?,?)"
+_DELETE_POINT = "DELETE FROM points WHERE frame=? AND camera=? AND marker=?"
 
 _SCHEMA_V1 = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -538,10 +540,9 @@ class Project:
             elif table == "points":
                 f, c, m = json.loads(key)
                 if value is None:
-                    self.conn.execute("DELETE FROM points WHERE frame=? AND camera=? AND marker=?", (f, c, m))
+                    self.conn.execute(_DELETE_POINT, (f, c, m))
                 else:
-                    self.conn.execute(f"INSERT OR REPLACE INTO points ({', '.join(POINT_COLUMNS)}) "
-                                      f"VALUES (?,?,?,?,?,?,?,?,?)", (f, c, m, *json.loads(value)))
+                    self.conn.execute(_PUT_POINT, (f, c, m, *json.loads(value)))
             elif table == "markers":
                 if value is None:
                     self.conn.execute("DELETE FROM markers WHERE id=?", (int(key),))
@@ -552,7 +553,6 @@ class Project:
                     self.conn.execute("DELETE FROM settings WHERE key=?", (key,))
                 else:
                     self.conn.execute("INSERT OR REPLACE INTO settings VALUES (?, ?)", (key, value))
-
 
     def _keep_after(self, eid: int, seq: int, keys: list) -> None:
         """Log the values a 'points_batch' row wrote, for redo, as it is undone: undo goes back through
@@ -572,10 +572,8 @@ class Project:
             pairs.reverse()
         # Within one write every key's "before" is the same and its "after" is never null: deleting
         # first, then writing in order, is the same as applying the entries one by one.
-        self.conn.executemany("DELETE FROM points WHERE frame=? AND camera=? AND marker=?",
-                              [tuple(k) for k, v in pairs if v is None])
-        self.conn.executemany(f"INSERT OR REPLACE INTO points ({', '.join(POINT_COLUMNS)}) "
-                              f"VALUES (?,?,?,?,?,?,?,?,?)", [(*k, *v) for k, v in pairs if v is not None])
+        self.conn.executemany(_DELETE_POINT, [tuple(k) for k, v in pairs if v is None])
+        self.conn.executemany(_PUT_POINT, [(*k, *v) for k, v in pairs if v is not None])
 
 
 class _Edit:
@@ -605,8 +603,7 @@ class _Edit:
             # "after" is logged when the edit is undone (Project._keep_after): not needed before then.
             self.project._log_row(self.edit_id, self.seq, "points_batch", keys, before, None)
             self.seq += 1
-            conn.executemany(f"INSERT OR REPLACE INTO points ({', '.join(POINT_COLUMNS)}) "
-                             f"VALUES (?,?,?,?,?,?,?,?,?)", records)
+            conn.executemany(_PUT_POINT, records)
 
         self.project._write(fn)
         return len(records)
@@ -629,7 +626,7 @@ class _Edit:
                     continue
                 self.project._log_row(self.edit_id, self.seq, "points", json.dumps(list(key)), _dumps_row(old), None)
                 self.seq += 1
-                conn.execute("DELETE FROM points WHERE frame=? AND camera=? AND marker=?", key)
+                conn.execute(_DELETE_POINT, key)
 
         self.project._write(fn)
         return len(keys)

@@ -253,15 +253,16 @@ def _frame(planes: tuple, fmt: str, colorspace: int, color_range: int):
     return f
 
 
+# The ramp probes' brightness: in block j of every block row the levels 4 j .. 4 j + 3, two per
+# pixel row; _PROBE_LEVELS[r] is the level of each of the 128 pixel columns in pixel row r of a block.
+_PROBE_LEVELS = np.arange(256, dtype=np.uint8).reshape(64, 2, 2).transpose(1, 0, 2).reshape(2, 128)
+
+
 def _ramp_probe(chroma_rows: bool) -> tuple:
     """Planes 512 x 128: block row i has U = i (V = 128), or V = i (U = 128); the 64 blocks of a row
-    hold every Y level once (Y = 4 j + 0..3 in block j)."""
-    level = np.arange(256, dtype=np.uint8)
-    y = np.empty((512, 128), np.uint8)
-    blocks = level.reshape(64, 2, 2)  # block j: [[4j, 4j+1], [4j+2, 4j+3]]
-    y[0::2] = np.tile(blocks[:, 0].ravel(), (256, 1))
-    y[1::2] = np.tile(blocks[:, 1].ravel(), (256, 1))
-    ramp = np.repeat(level[:, None], 64, axis=1)
+    hold every Y level once (_PROBE_LEVELS)."""
+    y = np.tile(_PROBE_LEVELS, (256, 1))
+    ramp = np.repeat(np.arange(256, dtype=np.uint8)[:, None], 64, axis=1)
     flat = np.full((256, 64), 128, np.uint8)
     return (y, ramp, flat) if chroma_rows else (y, flat, ramp)
 
@@ -270,11 +271,8 @@ def _offsets(value: np.ndarray, known: np.ndarray) -> np.ndarray | None:
     """Per row c, the integer t[c] with value[c, k] == known[k] + t[c] wherever value is not clipped
     (0 or 255) and known[k] is known (not NaN); NaN where no such k; None if a row disagrees."""
     ok = (value > 0) & (value < 255) & ~np.isnan(known)[None, :]
-    d = np.where(ok, value - np.nan_to_num(known)[None, :], np.nan)
-    if not ok.any():
-        return np.full(value.shape[0], np.nan)
-    with np.errstate(all="ignore"):
-        lo, hi = np.nanmin(np.where(ok, d, np.inf), axis=1), np.nanmax(np.where(ok, d, -np.inf), axis=1)
+    diff = value - np.nan_to_num(known)[None, :]
+    lo, hi = np.where(ok, diff, np.inf).min(axis=1), np.where(ok, diff, -np.inf).max(axis=1)
     some = ok.any(axis=1)
     if (lo[some] != hi[some]).any():
         return None
@@ -291,18 +289,17 @@ def _saturated(t: np.ndarray | None, value: np.ndarray) -> np.ndarray | None:
     return None if np.isnan(t).any() else t
 
 
-def _fit(bgr_u: np.ndarray, bgr_v: np.ndarray, y_of_px: np.ndarray) -> tuple | None:
+def _fit(bgr_u: np.ndarray, bgr_v: np.ndarray) -> tuple | None:
     """The five tables from the two ramp probes' BGR output (block row = chroma level)."""
     def by_level(bgr, ch):  # (256 chroma levels, 256 Y levels): the channel's value
         out = np.empty((256, 256), np.float64)
         for r in (0, 1):
-            out[:, y_of_px[r]] = bgr[r::2, :, ch]
+            out[:, _PROBE_LEVELS[r]] = bgr[r::2, :, ch]
         return out
 
     b_u, g_u, g_v, r_v = by_level(bgr_u, 0), by_level(bgr_u, 1), by_level(bgr_v, 1), by_level(bgr_v, 2)
     # Y' and Cb together from B: anchored at Cb[128] = 0, each filling in where the other was clipped.
-    yt = np.full(256, np.nan)
-    yt[(b_u[128] > 0) & (b_u[128] < 255)] = b_u[128][(b_u[128] > 0) & (b_u[128] < 255)]
+    yt = np.where((b_u[128] > 0) & (b_u[128] < 255), b_u[128], np.nan)
     cb = None
     for _ in range(4):
         cb = _offsets(b_u, yt)
@@ -324,7 +321,6 @@ def _fit(bgr_u: np.ndarray, bgr_v: np.ndarray, y_of_px: np.ndarray) -> tuple | N
 
 
 def _probe(fmt: str, colorspace: int, color_range: int) -> tuple | None:
-    y_of_px = [np.arange(256).reshape(64, 2, 2)[:, r].ravel() for r in (0, 1)]  # Y level of each column
     rng = np.random.default_rng(0)
     check = (rng.integers(0, 256, (256, 512), dtype=np.uint8),
              rng.integers(0, 256, (128, 256), dtype=np.uint8), rng.integers(0, 256, (128, 256), dtype=np.uint8))
@@ -333,7 +329,7 @@ def _probe(fmt: str, colorspace: int, color_range: int) -> tuple | None:
         want_all = [_swscale_bgr(_frame(p, fmt, colorspace, color_range)) for p in probes]
     except (av.error.FFmpegError, ValueError):  # a colour space swscale cannot convert (it fails on frames too)
         return None
-    tables = _fit(want_all[0].astype(np.float64), want_all[1].astype(np.float64), y_of_px)
+    tables = _fit(want_all[0].astype(np.float64), want_all[1].astype(np.float64))
     if tables is None:
         return None
     for planes, want in zip(probes, want_all, strict=True):

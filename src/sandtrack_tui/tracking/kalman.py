@@ -98,13 +98,7 @@ class ConstantVelocityKF:
         self._p = [n00 + 0.25 * q, n01, a02 + 0.5 * q, a03, n11 + 0.25 * q, a12, a13 + 0.5 * q,
                    p22 + q, p23, p33 + q]
 
-    def innovation_cov(self) -> np.ndarray:
-        return self.P[:2, :2] + self.R
-
-    def innovation_inv(self) -> np.ndarray:
-        return _inv2(self.innovation_cov())
-
-    def innovation_inv_terms(self) -> tuple[float, float, float]:
+    def innovation_inv(self) -> tuple[float, float, float]:
         """(i00, i01, i11) of the inverse innovation covariance, as plain floats (per track and frame)."""
         p, r = self._p, self.R
         s00, s01, s10, s11 = p[0] + r[0, 0], p[1] + r[0, 1], p[1] + r[1, 0], p[4] + r[1, 1]
@@ -173,8 +167,3 @@ class ConstantVelocityKF:
         self._coasting = False
         self.coast_frames = 0
 
-
-def _inv2(S: np.ndarray) -> np.ndarray:
-    a, b, c, d = S[0, 0], S[0, 1], S[1, 0], S[1, 1]
-    det = a * d - b * c
-    return np.array([[d, -b], [-c, a]]) / det

@@ -137,7 +137,7 @@ class MarkerTrack:
                              rest=True)
         px, py = self.kf.xy
         hx, hy = self.search_halfsize()
-        m = self.matcher.match(frame_bgr, px, py, hx, hy, self.kf.innovation_inv_terms(), self.params.gate_d2)
+        m = self.matcher.match(frame_bgr, px, py, hx, hy, self.kf.innovation_inv(), self.params.gate_d2)
         if m is None:
             return None
         m.d2 = self.kf.d2(m.x, m.y)
