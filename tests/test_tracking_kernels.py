@@ -26,9 +26,9 @@ def test_colour_score_and_mask_equal_the_formula():
     w, b = np.float32([0.9, -0.4, -0.6]), np.float32(0.2)
     f = win.astype(np.float32)
     want = (f @ w) / (f.sum(axis=-1) + np.float32(EPS)) + b
-    got = kernels.colour_score(win, w[0], w[1], w[2], b, np.float32(EPS))
+    got = kernels.colour_score(win, w[0], w[1], w[2], b, np.float32(EPS), np.float32(1))
     assert got.dtype == np.float32 and np.allclose(got, want, atol=1e-6)
-    got_f = kernels.colour_score(f, w[0], w[1], w[2], b, np.float32(EPS))  # float windows (chroma.py)
+    got_f = kernels.colour_score(f, w[0], w[1], w[2], b, np.float32(EPS), np.float32(1))  # float windows (chroma.py)
     assert np.allclose(got_f, want, atol=1e-6)
     mask, found, x0, y0, x1, y1 = kernels.colour_mask(win, w[0], w[1], w[2], np.float32(-10.0))
     want = (f @ w - 10.0 >= 0).astype(np.uint8)
@@ -93,6 +93,7 @@ def test_blob_moments_equal_the_dilated_component_moments():
     f = win[15:25, 16:26].astype(np.float32)
     wts = np.clip(((f @ w) / (f.sum(axis=-1) + np.float32(EPS)) + b - lo) / (1 - lo), 0, 1) * comp
     m = cv2.moments(wts.astype(np.float32))
-    *got, pixels = kernels.blob_moments(win, labels, 3, 16, 15, 26, 25, w[0], w[1], w[2], b, np.float32(EPS), lo)
+    *got, pixels = kernels.blob_moments(win, labels, 3, 16, 15, 26, 25, w[0], w[1], w[2], b, np.float32(EPS),
+                                        np.float32(1), lo)
     assert np.allclose(got, (m["m00"], m["m10"], m["m01"]), rtol=1e-5)
     assert pixels == 64

@@ -142,6 +142,28 @@ def score_tracking(points: pd.DataFrame, truth: SampleTruth, id_map: dict[int, i
     }
 
 
+def identity_switches(points: pd.DataFrame, truth: SampleTruth, id_map: dict[int, int],
+                      near_px: float = 3.0) -> dict:
+    """Tracked points that sit on another marker (within `near_px` of another marker's true centre):
+    an identity switch the tracker did not flag; and the share of visible frames reported tracked."""
+    switches = visible_n = visible_tracked = 0
+    for camera, t in truth.markers.items():
+        p = points[(points.camera == camera) & points.marker.isin(list(id_map)) & (points.status == "tracked")]
+        p = p.assign(true_marker=p.marker.map(id_map))
+        m = p.merge(t[["frame", "marker", "x_px", "y_px"]], on="frame", suffixes=("", "_t"))
+        near = np.hypot(m.x_px - m.x_px_t, m.y_px - m.y_px_t) <= near_px
+        switches += int((near & (m.marker_t != m.true_marker)).groupby([m.marker, m.frame]).any().sum())
+        first = {mk: int(f) for mk, f in points[points.camera == camera].groupby("marker").frame.min().items()}
+        for mk, tm in id_map.items():
+            if mk not in first:
+                continue
+            vis = t[(t.marker == tm) & t.visible.astype(bool) & (t.frame > first[mk])]
+            visible_n += len(vis)
+            visible_tracked += int(vis.frame.isin(p[p.marker == mk].frame).sum())
+    return {"identity_switches": switches,
+            "visible_tracked_pct": 100.0 * visible_tracked / visible_n if visible_n else float("nan")}
+
+
 # -- 3D ------------------------------------------------------------------------------------------
 def score_xyz(xyz: pd.DataFrame, truth: SampleTruth, id_map: dict[int, int], method: str) -> dict:
     """3D error of the tracked markers (rows with finite XYZ) against the true trajectories."""

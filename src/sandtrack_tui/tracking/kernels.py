@@ -31,16 +31,17 @@ def _luma(win, i, j):
 
 
 @_jit
-def _score(win, i, j, w0, w1, w2, b, eps):
-    """Colour score of pixel (i, j) of a BGR window, float32: (w . bgr) / (B + G + R + eps) + b."""
+def _score(win, i, j, w0, w1, w2, b, eps, den):
+    """Marker score of pixel (i, j) of a BGR window, float32: (w . bgr) / (den (B + G + R) + eps) + b
+    (den 1: a colour model on chromaticity; den 0, eps 1: a brightness model, linear in B, G, R)."""
     B, G, R = np.float32(win[i, j, 0]), np.float32(win[i, j, 1]), np.float32(win[i, j, 2])
-    return (w0 * B + w1 * G + w2 * R) / (B + G + R + eps) + b
+    return (w0 * B + w1 * G + w2 * R) / (den * (B + G + R) + eps) + b
 
 
 @_jit
 def _coverage(score, lo, gain):
     """A pixel's weight in centroids and blob areas, ≈ its coverage by the marker:
-    (score - lo) / (1 - lo) clipped to 0..1, with gain = 1 / (1 - lo) (ColourModel.weight_floor)."""
+    (score - lo) / (1 - lo) clipped to 0..1, with gain = 1 / (1 - lo) (AppearanceModel.weight_floor)."""
     return min(max((score - lo) * gain, 0.0), 1.0)
 
 
@@ -234,13 +235,13 @@ def edge_centre(win, cx, cy, radius, steps, cos, sin, min_rise, step_px, iterati
 
 
 @_jit
-def colour_score(win, w0, w1, w2, b, eps):
-    """Marker score of a BGR window, float32: (w . bgr) / (B + G + R + eps) + b (colour.py)."""
+def colour_score(win, w0, w1, w2, b, eps, den):
+    """Marker score of a BGR window, float32: (w . bgr) / (den (B + G + R) + eps) + b (colour.py)."""
     h, w = win.shape[0], win.shape[1]
     out = np.empty((h, w), np.float32)
     for i in range(h):
         for j in range(w):
-            out[i, j] = _score(win, i, j, w0, w1, w2, b, eps)
+            out[i, j] = _score(win, i, j, w0, w1, w2, b, eps, den)
     return out
 
 
@@ -271,6 +272,46 @@ def centroid(score, x, y, iterations, rad, lo, disc_area):
         x, y = m10 / m00, m01 / m00
         if clipped or (int(np.rint(x)) == ix and int(np.rint(y)) == iy):
             break  # the window would not move
+    return x, y, frac
+
+
+@_jit
+def centroid_split(score, x, y, iterations, rad, lo, disc_area, nbx, nby):
+    """As `centroid`, for a marker touching others: a pixel counts only when it lies nearer to the
+    current estimate than to every neighbour centre (nbx[k], nby[k]; score coordinates), so the
+    discs of touching markers are split at their contact instead of pulling each other's centres."""
+    R = int(np.ceil(rad))
+    h, w = score.shape
+    gain = 1.0 / (1.0 - lo)
+    frac = 0.0
+    nn = nbx.shape[0]
+    for _ in range(iterations):
+        ix, iy = int(np.rint(x)), int(np.rint(y))
+        m00 = m10 = m01 = 0.0
+        for yy in range(max(iy - R, 0), min(iy + R + 1, h)):
+            for xx in range(max(ix - R, 0), min(ix + R + 1, w)):
+                d0 = (xx - x) * (xx - x) + (yy - y) * (yy - y)
+                if (xx - ix) * (xx - ix) + (yy - iy) * (yy - iy) > rad * rad:
+                    continue
+                mine = True
+                for k in range(nn):
+                    if (xx - nbx[k]) * (xx - nbx[k]) + (yy - nby[k]) * (yy - nby[k]) < d0:
+                        mine = False
+                        break
+                if not mine:
+                    continue
+                v = _coverage(score[yy, xx], lo, gain)
+                m00 += v
+                m10 += v * xx
+                m01 += v * yy
+        frac = m00 / disc_area
+        if m00 < 1e-6:
+            return x, y, 0.0
+        nx, ny = m10 / m00, m01 / m00
+        moved = abs(nx - x) + abs(ny - y)
+        x, y = nx, ny
+        if moved < 1e-3:
+            break
     return x, y, frac
 
 
@@ -357,7 +398,7 @@ def colour_mask(win, m0, m1, m2, m3):
 
 
 @_jit
-def blob_moments(win, labels, k, xa, ya, xb, yb, w0, w1, w2, b, eps, lo):
+def blob_moments(win, labels, k, xa, ya, xb, yb, w0, w1, w2, b, eps, den, lo):
     """Soft moments (m00, m10, m01; x, y from (xa, ya)) of component `k` of `labels` grown by one
     pixel (3 x 3), within rows ya..yb-1 and columns xa..xb-1, weighted by the colour coverage; and
     the component's pixel count there."""
@@ -375,7 +416,7 @@ def blob_moments(win, labels, k, xa, ya, xb, yb, w0, w1, w2, b, eps, lo):
                         hit = True
             if not hit:
                 continue
-            v = _coverage(_score(win, i, j, w0, w1, w2, b, eps), lo, gain)
+            v = _coverage(_score(win, i, j, w0, w1, w2, b, eps, den), lo, gain)
             m00 += v
             m10 += v * (j - xa)
             m01 += v * (i - ya)
@@ -449,8 +490,8 @@ def edge_centre_yuv(yp, up, vp, t, x0, y0, n, cx, cy, radius, steps, cos, sin, m
 
 
 @_jit
-def colour_score_yuv(yp, up, vp, t, x0, y0, x1, y1, w0, w1, w2, b, eps):
-    return colour_score(_bgr(yp, up, vp, t, x0, y0, x1, y1), w0, w1, w2, b, eps)
+def colour_score_yuv(yp, up, vp, t, x0, y0, x1, y1, w0, w1, w2, b, eps, den):
+    return colour_score(_bgr(yp, up, vp, t, x0, y0, x1, y1), w0, w1, w2, b, eps, den)
 
 
 def warm_up() -> None:

@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from . import kernels
-from .colour import ColourModel
+from .appearance import AppearanceModel
 
 
 @dataclass(slots=True)
@@ -37,7 +37,7 @@ class Match:
 class TemplateMatcher:
     skip_updated_above = 0.92  # NCC of the seed template above which the updated one is not needed
 
-    def __init__(self, model: ColourModel, frame_bgr: np.ndarray, cx: float, cy: float, half: int | None = None):
+    def __init__(self, model: AppearanceModel, frame_bgr: np.ndarray, cx: float, cy: float, half: int | None = None):
         self.model = model
         self.half = int(half if half is not None else np.ceil(model.radius + 3))
         self.seed_template = self._cut(frame_bgr, cx, cy)

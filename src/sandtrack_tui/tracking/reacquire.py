@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 from scipy.ndimage import find_objects
 
-from .colour import ColourModel
+from .appearance import AppearanceModel
 
 
 @dataclass
@@ -24,7 +24,7 @@ class Blob:
     area: float  # soft marker area, px²
 
 
-def find_blobs(frame_bgr: np.ndarray, model: ColourModel, cx: float, cy: float, hx: float, hy: float,
+def find_blobs(frame_bgr: np.ndarray, model: AppearanceModel, cx: float, cy: float, hx: float, hy: float,
                min_frac: float = 0.4, max_frac: float = 2.5) -> list[Blob]:
     """Blobs of the model's colour and roughly its size whose centre lies within (hx, hy) of (cx, cy)."""
     H, W = frame_bgr.shape[:2]

@@ -1,6 +1,7 @@
 """Project-level tracking API used by the CLI, the TUI and the demo.
 
-- `auto_seed(project, frame)`: propose every blue marker of a frame, paired across cameras.
+- `auto_seed(project, frame)`: propose every marker of a frame that looks like the seeded one (or
+  every blue marker), paired across cameras.
 - `accept_seeds(project, seeds)`: write the accepted proposal as markers and "manual" points.
 - `seed_marker(project, marker, camera, frame, x, y, w, h)`: one operator seed (a click).
 - `track_project(project, ...)`: track forward or backward from the seeds (or from any frame:
@@ -22,6 +23,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import SandtrackError
+from .appearance import learn
 from .chroma import Chroma420Frame, block_replicated
 from .decoding import prefetch
 from .engine import Engine
@@ -87,11 +89,14 @@ def first_common_frame(sources: dict, offsets: dict, ref: str) -> int:
 
 
 def auto_seed(project, frame: int | None = 0, sources: dict | None = None,
-              max_epipolar_px: float = 5.0) -> pd.DataFrame:
-    """Every blue marker in `frame` (first camera's index; the others at the paired frame; None =
-    the first frame all cameras recorded), paired across cameras by epipolar distance when the
-    project holds a calibration. A proposal only: nothing is written. Unpaired detections get
-    their own marker ids (epipolar_px NaN)."""
+              max_epipolar_px: float = 5.0, like: int | None = None) -> pd.DataFrame:
+    """Every marker in `frame` (first camera's index; the others at the paired frame; None = the
+    first frame all cameras recorded) that looks like marker `like` (default: the project's first
+    marker with a manual point; with none, every blue marker), paired across cameras by epipolar
+    distance when the project holds a calibration. Markers that already have a point there are not
+    proposed again. A proposal only: nothing is written. Unpaired detections get their own marker
+    ids (epipolar_px NaN). Columns SEED_COLUMNS + `model`, `contrast`: the appearance model each
+    proposed seed gets (appearance.py) and the contrast it measured."""
     own = sources is None
     sources = sources or project.open_sources()
     try:
@@ -102,13 +107,18 @@ def auto_seed(project, frame: int | None = 0, sources: dict | None = None,
             frame = first_common_frame(sources, offsets, ref)
         if not 0 <= frame < len(sources[ref]):
             raise SandtrackError(f"frame {frame} outside 0..{len(sources[ref]) - 1}")
-        dets, frames = {}, {}
+        dets, frames, images = {}, {}, {}
+        models = reference_models(project, sources, cams, like)
+        points = project.points()
         for c in cams:
             pf = (frame, 0.0) if c == ref else paired_frame(sources, offsets, ref, frame, c)
             if pf is None:
                 continue
             frames[c] = pf[0]
-            dets[c] = detect_markers(sources[c].frame(pf[0]))
+            images[c] = sources[c].frame(pf[0])
+            found = detect_markers(images[c], model=models.get(c))
+            have = points[(points.camera == c) & (points.frame == pf[0]) & points.x_px.notna()]
+            dets[c] = _not_at(found, have[["x_px", "y_px"]].to_numpy(float), 6.0).reset_index(drop=True)
         existing = project.markers()
         next_id = int(existing["id"].max()) + 1 if len(existing) else 1
         rows = []
@@ -132,10 +142,65 @@ def auto_seed(project, frame: int | None = 0, sources: dict | None = None,
                 r = det.loc[i]
                 rows.append((next_id, c, frames[c], r.x_px, r.y_px, r.w, r.h, np.nan))
                 next_id += 1
-        return pd.DataFrame(rows, columns=SEED_COLUMNS)
+        out = pd.DataFrame(rows, columns=SEED_COLUMNS)
+        looks = [_appearance_at(images[r.camera], r.x_px, r.y_px, r.w, r.h) for r in out.itertuples()]
+        out["model"] = [a[0] for a in looks]
+        out["contrast"] = [a[1] for a in looks]
+        return out
     finally:
         if own:
             _close(sources)
+
+
+def _not_at(det: pd.DataFrame, xy: np.ndarray, min_px: float) -> pd.DataFrame:
+    """Detections farther than `min_px` from every point of `xy` (N, 2)."""
+    if det.empty or not len(xy):
+        return det
+    d = np.hypot(det.x_px.to_numpy()[:, None] - xy[None, :, 0], det.y_px.to_numpy()[:, None] - xy[None, :, 1])
+    return det[d.min(axis=1) > min_px]
+
+
+def _appearance_at(img, x: float, y: float, w: float, h: float) -> tuple[str, float]:
+    """(model kind, contrast) the tracker learns from this seed box; ("none", NaN) if it learns none."""
+    try:
+        d = learn(img, x, y, w, h).describe()
+    except SandtrackError:
+        return "none", float("nan")
+    return d["model"], d["contrast"]
+
+
+def reference_models(project, sources: dict, cams: list[str], like: int | None = None) -> dict:
+    """Camera -> the appearance model of marker `like` (default: the lowest marker id with a manual
+    point), learned at its first manual point in that camera, or in another camera when that one has
+    none; {} when there is no such marker (or `like` has no manual point: SandtrackError)."""
+    pts = project.points()
+    man = pts[(pts.status == MANUAL) & pts.x_px.notna()].sort_values(["marker", "frame"])
+    if like is not None:
+        man = man[man.marker == int(like)]
+        if man.empty:
+            raise SandtrackError(f"marker {like} has no manual point to learn its appearance from")
+    if man.empty:
+        return {}
+    marker = int(man.marker.iloc[0])
+    man = man[man.marker == marker]
+    boxes = project.get(BOXES_KEY, {}) or {}
+    models = {}
+    for c in cams:
+        rows = man[man.camera == c]
+        if rows.empty or c not in sources:
+            continue
+        r = rows.iloc[0]
+        img = sources[c].frame(int(r.frame))
+        box = boxes.get(f"{marker}/{c}") or marker_box(img, r.x_px, r.y_px) or (DEFAULT_BOX_PX, DEFAULT_BOX_PX)
+        try:
+            models[c] = learn(img, float(r.x_px), float(r.y_px), box[0], box[1])
+        except SandtrackError as exc:
+            raise SandtrackError(f"marker {marker} ({c}, frame {int(r.frame)}): {exc}") from None
+    if not models:
+        return {}
+    for c in cams:
+        models.setdefault(c, next(iter(models.values())))
+    return models
 
 
 def accept_seeds(project, seeds: pd.DataFrame, description: str = "accept seeds") -> int:
@@ -363,7 +428,8 @@ def track_project(project, markers=None, start: int | None = None, stop: int | N
         for (m, c), t in engine.tracks.items():
             per.setdefault(str(m), {})[c] = {
                 "tracked": t.counts[TRACKED], "occluded": t.counts[OCCLUDED], "lost": t.counts[LOST],
-                "reacquired": t.reacquisitions, "at_rest": t.rest_frames, "last_status": t.status}
+                "reacquired": t.reacquisitions, "at_rest": t.rest_frames, "last_status": t.status,
+                "appearance": t.model.describe()}
         never = [f"marker {m} {c}" for (m, c), t in engine.tracks.items()
                  if t.counts[TRACKED] == 0 and (t.counts[OCCLUDED] + t.counts[LOST]) > 0]
         summary.update(

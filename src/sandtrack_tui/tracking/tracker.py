@@ -17,7 +17,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..errors import SandtrackError
-from .colour import ColourModel, learn
+from .appearance import COLOUR, AppearanceModel, learn
 from .kalman import GATE_D2, ConstantVelocityKF
 from .luma import edge_centre
 from .matcher import Match, TemplateMatcher
@@ -87,7 +87,7 @@ class MarkerTrack:
         w = float(w) if w is not None and np.isfinite(w) and w > 0 else DEFAULT_BOX_PX
         h = float(h) if h is not None and np.isfinite(h) and h > 0 else DEFAULT_BOX_PX
         try:
-            self.model: ColourModel = learn(frame_bgr, x, y, w, h)
+            self.model: AppearanceModel = learn(frame_bgr, x, y, w, h)
         except SandtrackError as exc:
             raise SandtrackError(f"marker {marker} ({camera}, frame {frame_index}): {exc}") from None
         self.matcher = TemplateMatcher(self.model, frame_bgr, x, y)
@@ -162,8 +162,8 @@ class MarkerTrack:
     def _carry(self, frame_bgr, m: Match, frame_index: int | None) -> None:
         """Measure the luma centre of a whole, clearly seen marker; between intra frames, move the
         match to luma centre + the last intra frame's offset (see luma.py)."""
-        if self.intra is None or not self.params.luma_carry or not m.used_centroid:
-            return
+        if self.intra is None or not self.params.luma_carry or not m.used_centroid or self.model.kind != COLOUR:
+            return  # (a brightness model measures the full-resolution luma itself: nothing trails)
         intra = self._is_intra(frame_index)
         if not intra and self._offset is None:
             return  # nothing to carry until the next intra frame
@@ -197,7 +197,8 @@ class MarkerTrack:
     def acceptable(self, m: Match, relax: float = 1.0) -> bool:
         p = self.params
         psr_ok = not math.isfinite(m.psr) or m.psr >= p.min_psr * relax
-        return m.score >= p.min_score * relax and m.colour_frac >= p.min_colour and psr_ok
+        colour_ok = not self.model.has_blob or m.colour_frac >= p.min_colour
+        return m.score >= p.min_score * relax and colour_ok and psr_ok
 
     def verify_at(self, frame_bgr: np.ndarray, x: float, y: float) -> Match | None:
         """Match in a small window around a candidate point (re-acquisition); None if it fails."""
@@ -223,7 +224,8 @@ class MarkerTrack:
                 self.rest_frames += 1
             else:
                 self._since_update += 1
-                clean = m.score >= p.confident_score and m.colour_frac >= p.confident_colour and m.used_centroid
+                clean = m.score >= p.confident_score and (
+                    not self.model.has_blob or (m.colour_frac >= p.confident_colour and m.used_centroid))
                 if frame_bgr is not None and self._since_update >= p.template_every and clean:
                     self.matcher.update_template(frame_bgr, m.x, m.y, p.template_alpha)
                     self._since_update = 0

@@ -40,6 +40,7 @@ class AutoSeedScreen(ModalScreen[pd.DataFrame | None]):
         t.add_column("side px", key="side", width=16)
         t.add_column("front px", key="front", width=16)
         t.add_column("epipolar px", key="epi", width=11)
+        t.add_column("model, contrast", key="model", width=16)
         for m in self.markers:
             rows = self.seeds[self.seeds["marker"] == m]
             cells = {}
@@ -48,8 +49,17 @@ class AutoSeedScreen(ModalScreen[pd.DataFrame | None]):
                 cells[cam] = f"{r['x_px'].iloc[0]:7.1f},{r['y_px'].iloc[0]:7.1f}" if len(r) else "—"
             epi = rows["epipolar_px"].max() if "epipolar_px" in rows else float("nan")
             epi_txt = Text(f"{epi:.2f}" if epi == epi else "—", style="red" if epi == epi and epi > 2 else "")
-            t.add_row(self._mark(m), str(m), cells["side"], cells["front"], epi_txt, key=str(m))
+            t.add_row(self._mark(m), str(m), cells["side"], cells["front"], epi_txt, self._model(rows), key=str(m))
         t.focus()
+
+    @staticmethod
+    def _model(rows: pd.DataFrame) -> Text:
+        """The appearance model the seeds get and their lowest contrast, e.g. "dark 11.2"."""
+        if "model" not in rows or not len(rows):
+            return Text("—")
+        kinds = "/".join(sorted(set(rows["model"].astype(str))))
+        c = rows["contrast"].min() if "contrast" in rows else float("nan")
+        return Text(f"{kinds} {c:.1f}" if c == c else kinds, style="red" if kinds == "none" else "")
 
     def _mark(self, m) -> Text:
         return Text("[x]", style="green") if self.use[m] else Text("[ ]", style="dim")

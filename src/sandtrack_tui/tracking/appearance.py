@@ -1,0 +1,221 @@
+"""Appearance model of one marker, chosen from its seed box: what makes it stand out from its surround.
+
+A marker is a contrast point. The seed box (the marker with some sand around it) is compared with
+a ring of sand just outside the box, and the first of these that clearly separates the two is kept:
+
+- ``colour``: the marker's chromaticity differs from the sand's (blue, red, fluorescent markers):
+  a Fisher discriminant on chromaticity (colour.py). Brightness does not enter, so the marker's
+  shaded side and its contact shadow on the sand do not move its centre.
+- ``dark`` / ``bright``: the marker is darker or lighter than the sand (black, white, grey beads,
+  retro-reflective markers, any grey-level video): the brightness (BT.601 luma) scaled so the sand
+  scores 0 and the marker 1 (brightness.py).
+- ``texture``: the box holds structure the ring does not (a pattern, a corner), but no uniform blob:
+  matched as a brightness template only; no centroid, no blob search.
+
+Every model scores pixels by one formula, score = (w . bgr) / (den (B + G + R) + eps) + b (den 1
+for chromaticity, 0 for brightness, so "score >= t" is a linear test on B, G, R in both), which is
+what the compiled kernels, the 4:2:0 window reader and the blob search use. For the models with a
+blob (colour, dark, bright) the clipped score of a pixel is its coverage by the marker, the weight
+of the centroid.
+
+A box with no contrast of any kind gives one line saying what was measured and what to do.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+
+from ..errors import SandtrackError
+from . import kernels
+
+COLOUR, DARK, BRIGHT, TEXTURE = "colour", "dark", "bright", "texture"
+KINDS = (COLOUR, DARK, BRIGHT, TEXTURE)
+MIN_SEPARATION = 0.2  # marker median score minus the sand's 99.5th percentile, in marker-contrast units
+
+
+@dataclass
+class AppearanceModel:
+    w: np.ndarray  # (3,) weights on B, G, R (or on their chromaticity)
+    b: float  # offset: score = (w . bgr) / (den (B + G + R) + eps) + b
+    threshold: float  # score at or above which a pixel counts as marker
+    disc_area: float  # marker pixels in the seed (px², soft)
+    radius: float  # equivalent disc radius (px)
+    sand_spread: float  # std of sand scores around the seed
+    kind: str = COLOUR
+    den: float = 1.0
+    eps: float = 3.0
+    floor: float | None = None  # weight floor (see weight_floor); None: the colour model's rule
+    contrast: float = float("nan")  # marker minus sand, in units of the sand's own spread
+    levels: tuple = field(default_factory=tuple)  # (marker, sand) in the model's natural unit, for reports
+
+    @property
+    def has_blob(self) -> bool:
+        """True when the marker is a blob whose clipped score is a coverage (colour, dark, bright)."""
+        return self.kind != TEXTURE
+
+    def score(self, bgr: np.ndarray) -> np.ndarray:
+        """Per-pixel score, float32: ~0 on sand, ~1 on the marker."""
+        if not bgr.size:
+            return np.zeros(bgr.shape[:2], dtype=np.float32)
+        return kernels.colour_score(bgr, *self._score_coeffs)
+
+    def score_window(self, frame, x0: int, y0: int, x1: int, y1: int) -> np.ndarray:
+        """score() of the window [y0:y1, x0:x1] of a frame (inside it), also of a frame still in its
+        4:2:0 planes (yuv.py), without converting the window separately."""
+        yuv = getattr(frame, "yuv", None)
+        if yuv is not None and x1 > x0 and y1 > y0:
+            return kernels.colour_score_yuv(*yuv, x0, y0, x1, y1, *self._score_coeffs)
+        return self.score(frame[y0:y1, x0:x1])
+
+    @cached_property
+    def _score_coeffs(self) -> tuple:
+        """(w0, w1, w2, b, eps, den) as float32, as the kernels take them."""
+        return (*np.float32(self.w), np.float32(self.b), np.float32(self.eps), np.float32(self.den))
+
+    @property
+    def weight_floor(self) -> float:
+        """Score from which a pixel counts towards a centroid or a blob's area: its weight is
+        (score - floor) / (1 - floor), clipped to 0..1 (≈ its coverage by the marker)."""
+        return self.floor if self.floor is not None else min(0.5 * self.threshold, 0.15)
+
+    def mask_box(self, frame, x0: int, y0: int, x1: int, y1: int) -> tuple:
+        """(mask, found, bx0, by0, bx1, by1): uint8 0/1 per pixel of the window [y0:y1, x0:x1] of a
+        frame, score >= threshold, and the box of its ones in window coordinates. For 8-bit pixels the
+        test is linear, (w + c den) . bgr + c eps >= 0 with c = b - threshold (the denominator is
+        positive); a frame still in its 4:2:0 planes (yuv.py) computes it without converting the window."""
+        linear_mask = getattr(frame, "linear_mask", None)
+        if linear_mask is not None:
+            return linear_mask(self._mask_coeffs, x0, y0, x1, y1)
+        bgr = frame[y0:y1, x0:x1]
+        if bgr.dtype == np.uint8 and bgr.size:
+            return kernels.colour_mask(bgr, *self._mask_coeffs)
+        mask = (self.score(bgr) >= self.threshold).astype(np.uint8)
+        rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+        if not len(rows):
+            return mask, False, 0, 0, 0, 0
+        return mask, True, int(cols[0]), int(rows[0]), int(cols[-1]) + 1, int(rows[-1]) + 1
+
+    @cached_property
+    def _mask_coeffs(self) -> tuple:
+        c = self.b - self.threshold
+        return (*np.float32(self.w + c * self.den), np.float32(c * self.eps))
+
+    def blob_moments(self, bgr: np.ndarray, labels: np.ndarray, k: int, xa: int, ya: int, xb: int, yb: int):
+        """(area, m10, m01, pixels): pixel weights (see weight_floor) summed over component k of
+        `labels` grown by one pixel, its first moments from (xa, ya), within rows ya..yb-1 and columns
+        xa..xb-1 of `bgr`, and the component's pixel count there."""
+        return kernels.blob_moments(bgr, labels, k, xa, ya, xb, yb, *self._score_coeffs, self.weight_floor)
+
+    def describe(self) -> dict:
+        """What the model is and what it measured, for reports (`track --json`, the seeding list)."""
+        out = {"model": self.kind, "contrast": round(float(self.contrast), 1), "radius_px": round(self.radius, 2)}
+        if self.levels:
+            out["marker_level"], out["sand_level"] = (round(float(v), 3) for v in self.levels)
+        return out
+
+
+def describe_text(desc: dict) -> str:
+    """One line from AppearanceModel.describe(), e.g. "dark (luma 38 on 151), contrast 11.2"."""
+    what = desc["model"]
+    if what in (DARK, BRIGHT) and "marker_level" in desc:
+        what += f" (luma {desc['marker_level']:.0f} on {desc['sand_level']:.0f})"
+    return f"{what}, contrast {desc['contrast']:.1f}"
+
+
+def learn(frame, cx: float, cy: float, w: float, h: float) -> AppearanceModel:
+    """Learn the appearance model of the marker in a seed box centred at (cx, cy), w x h px.
+    `frame`: BGR or grey, 8 or 16 bit. Raises SandtrackError with what was measured when the box
+    holds nothing that stands out from the sand around it."""
+    from . import brightness, colour
+
+    seed = SeedPatch.cut(frame, cx, cy, w, h)
+    model, colour_sep = colour.learn_colour(seed)
+    if model is not None:
+        return model
+    model, bright_sep = brightness.learn_brightness(seed)
+    if model is not None:
+        return model
+    model = brightness.learn_texture(seed)
+    if model is not None:
+        return model
+    lum_in, lum_ring = seed.luma[seed.inner], seed.luma[seed.ring]
+    raise SandtrackError(
+        f"no marker found in the {w:.0f}x{h:.0f} px seed box: its colour is not distinct from the sand "
+        f"(separation {colour_sep:.2f}, needs {MIN_SEPARATION}) nor its brightness (luma "
+        f"{np.median(lum_in):.0f}±{_spread(lum_in):.0f} inside, {np.median(lum_ring):.0f}±{_spread(lum_ring):.0f} "
+        f"around; separation {bright_sep:.2f}); centre the box on the marker with about its own size of sand "
+        f"around it, or seed it in a frame where it stands out")
+
+
+def _spread(v: np.ndarray) -> float:
+    return float(1.4826 * np.median(np.abs(v - np.median(v)))) if len(v) else float("nan")
+
+
+@dataclass
+class SeedPatch:
+    """The pixels around a seed box: `bgr` (N, 3) float64, masks `inner` (the box) and `ring` (sand
+    just outside it), pixel coordinates `xx`, `yy`, the box centre and size."""
+
+    bgr: np.ndarray
+    inner: np.ndarray
+    ring: np.ndarray
+    xx: np.ndarray
+    yy: np.ndarray
+    cx: float
+    cy: float
+    w: float
+    h: float
+
+    @classmethod
+    def cut(cls, frame, cx: float, cy: float, w: float, h: float) -> SeedPatch:
+        from ..video import to_bgr8
+
+        H, W = frame.shape[:2]
+        if not (np.isfinite(cx) and np.isfinite(cy)) or not (0 <= cx < W and 0 <= cy < H):
+            raise SandtrackError(f"seed point ({cx:.1f}, {cy:.1f}) lies outside the {W}x{H} image")
+        if not (w >= 3 and h >= 3):
+            raise SandtrackError(f"seed box {w}x{h} px is too small (at least 3x3)")
+        half_in = 0.5 * max(w, h)
+        margin = max(4.0, 0.5 * half_in)
+        R = int(np.ceil(half_in + margin))
+        x0, x1 = int(round(cx)) - R, int(round(cx)) + R + 1
+        y0, y1 = int(round(cy)) - R, int(round(cy)) + R + 1
+        win = to_bgr8(frame[max(y0, 0):min(y1, H), max(x0, 0):min(x1, W)])
+        patch = win.reshape(-1, 3).astype(np.float64)
+        yy, xx = np.mgrid[max(y0, 0):min(y1, H), max(x0, 0):min(x1, W)]
+        dx, dy = np.abs(xx.ravel() - cx), np.abs(yy.ravel() - cy)
+        inner = (dx <= 0.5 * w) & (dy <= 0.5 * h)
+        ring = (np.maximum(dx, dy) >= half_in + 1.5)
+        if inner.sum() < 4 or ring.sum() < 12:
+            raise SandtrackError("seed box lies too close to the image border to learn the marker's appearance")
+        return cls(patch, inner, ring, xx.ravel(), yy.ravel(), float(cx), float(cy), float(w), float(h))
+
+    @cached_property
+    def luma(self) -> np.ndarray:
+        from .chroma import LUMA_BGR
+
+        return self.bgr @ LUMA_BGR.astype(np.float64)
+
+    def centre_component(self, selected: np.ndarray) -> np.ndarray:
+        """`selected` (a mask over the inner pixels) reduced to its connected part at the box centre,
+        when it splits into several parts of some size (a loose box holding more than one marker).
+        Parts of 1-2 pixels (noise) are kept."""
+        import cv2
+
+        xi, yi = self.xx[self.inner], self.yy[self.inner]
+        if not selected.any():
+            return selected
+        x0, y0 = xi.min(), yi.min()
+        img = np.zeros((yi.max() - y0 + 1, xi.max() - x0 + 1), np.uint8)
+        img[yi[selected] - y0, xi[selected] - x0] = 1
+        n, labels, stats, cents = cv2.connectedComponentsWithStats(img, connectivity=8)
+        big = [k for k in range(1, n) if stats[k, cv2.CC_STAT_AREA] >= 3]
+        if len(big) <= 1:
+            return selected
+        d = [np.hypot(cents[k, 0] + x0 - self.cx, cents[k, 1] + y0 - self.cy) for k in big]
+        keep = big[int(np.argmin(d))]
+        lab = labels[yi - y0, xi - x0]
+        return selected & ((lab == keep) | ~np.isin(lab, big))
