@@ -3,12 +3,14 @@
 A marker is a contrast point. The seed box (the marker with some sand around it) is compared with
 a ring of sand just outside the box, and the first of these that clearly separates the two is kept:
 
-- ``colour``: the marker's chromaticity differs from the sand's (blue, red, fluorescent markers):
-  a Fisher discriminant on chromaticity (colour.py). Brightness does not enter, so the marker's
-  shaded side and its contact shadow on the sand do not move its centre.
+- ``colour``: the marker has a colour of its own that differs from the sand's (blue, red,
+  fluorescent markers): a Fisher discriminant on chromaticity (colour.py). Brightness does not
+  enter, so the marker's shaded side and its contact shadow on the sand do not move its centre.
 - ``dark`` / ``bright``: the marker is darker or lighter than the sand (black, white, grey beads,
   retro-reflective markers, any grey-level video): the brightness (BT.601 luma) scaled so the sand
-  scores 0 and the marker 1 (brightness.py).
+  scores 0 and the marker 1 (brightness.py). A grey marker (white, grey, black: no colour of its
+  own) gets this model whenever its brightness stands out, even on coloured sand; otherwise colour
+  comes first.
 - ``texture``: the box holds structure the ring does not (a pattern, a corner), but no uniform blob:
   matched as a brightness template only; no centroid, no blob search.
 
@@ -26,6 +28,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from functools import cached_property
 
+import cv2
 import numpy as np
 
 from ..errors import SandtrackError
@@ -33,7 +36,9 @@ from . import kernels
 
 COLOUR, DARK, BRIGHT, TEXTURE = "colour", "dark", "bright", "texture"
 KINDS = (COLOUR, DARK, BRIGHT, TEXTURE)
+_CLOSE = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
 MIN_SEPARATION = 0.2  # marker median score minus the sand's 99.5th percentile, in marker-contrast units
+MARKER_MEDIAN = 0.75  # a window whose median scores this much is mostly marker (a crowd): its sand level is unknown
 
 
 @dataclass
@@ -50,6 +55,10 @@ class AppearanceModel:
     floor: float | None = None  # weight floor (see weight_floor); None: the colour model's rule
     contrast: float = float("nan")  # marker minus sand, in units of the sand's own spread
     levels: tuple = field(default_factory=tuple)  # (marker, sand) in the model's natural unit, for reports
+    # The marker stands out in brightness too (a brightness model would separate it): a shift of the
+    # brightness around it is its own motion (rest.py). Not so for a white marker on beige sand, whose
+    # shaded half is as bright as the sand: its window's brightness is the sand's texture, which stays.
+    luma_follows: bool = True
 
     @property
     def has_blob(self) -> bool:
@@ -61,6 +70,23 @@ class AppearanceModel:
         if not bgr.size:
             return np.zeros(bgr.shape[:2], dtype=np.float32)
         return kernels.colour_score(bgr, *self._score_coeffs)
+
+    def prepared(self, score: np.ndarray) -> np.ndarray:
+        """A brightness model's score window as the matcher reads it. Brightness depends on the light:
+        in a shadow (the tool's, a furrow's) the sand and the marker are darker by the same factor k.
+        The window's median (its sand, unless markers fill most of it) gives k, and the score is that
+        of the window's brightness divided by k: shadows do not look like a dark
+        marker, and a marker in a shadow still scores 1. Then small gaps inside the marker are filled
+        (morphological closing): the specular highlight of a dark bead, the dark pole of a bright one
+        are marker too. Colour and texture scores are returned as they are."""
+        if self.kind not in (DARK, BRIGHT) or min(score.shape) < 3:
+            return score
+        b0 = float(np.median(score))
+        if abs(b0) > 0.05 and b0 < MARKER_MEDIAN:
+            level_d, level_s = self.levels
+            k = min(max(1.0 + b0 * (level_d - level_s) / level_s, 0.25), 2.0)
+            score = (score - np.float32(b0)) * np.float32(1.0 / k)
+        return np.maximum(score, cv2.morphologyEx(score, cv2.MORPH_CLOSE, _CLOSE))
 
     def score_window(self, frame, x0: int, y0: int, x1: int, y1: int) -> np.ndarray:
         """score() of the window [y0:y1, x0:x1] of a frame (inside it), also of a frame still in its
@@ -81,18 +107,21 @@ class AppearanceModel:
         (score - floor) / (1 - floor), clipped to 0..1 (≈ its coverage by the marker)."""
         return self.floor if self.floor is not None else min(0.5 * self.threshold, 0.15)
 
-    def mask_box(self, frame, x0: int, y0: int, x1: int, y1: int) -> tuple:
+    def mask_box(self, frame, x0: int, y0: int, x1: int, y1: int, threshold: float | None = None) -> tuple:
         """(mask, found, bx0, by0, bx1, by1): uint8 0/1 per pixel of the window [y0:y1, x0:x1] of a
-        frame, score >= threshold, and the box of its ones in window coordinates. For 8-bit pixels the
-        test is linear, (w + c den) . bgr + c eps >= 0 with c = b - threshold (the denominator is
-        positive); a frame still in its 4:2:0 planes (yuv.py) computes it without converting the window."""
+        frame, score >= threshold (default: the model's), and the box of its ones in window
+        coordinates. For 8-bit pixels the test is linear, (w + c den) . bgr + c eps >= 0 with
+        c = b - threshold (the denominator is positive); a frame still in its 4:2:0 planes (yuv.py)
+        computes it without converting the window."""
+        t = self.threshold if threshold is None else threshold
+        coeffs = self._mask_coeffs if threshold is None else self._coeffs_for(t)
         linear_mask = getattr(frame, "linear_mask", None)
         if linear_mask is not None:
-            return linear_mask(self._mask_coeffs, x0, y0, x1, y1)
+            return linear_mask(coeffs, x0, y0, x1, y1)
         bgr = frame[y0:y1, x0:x1]
         if bgr.dtype == np.uint8 and bgr.size:
-            return kernels.colour_mask(bgr, *self._mask_coeffs)
-        mask = (self.score(bgr) >= self.threshold).astype(np.uint8)
+            return kernels.colour_mask(bgr, *coeffs)
+        mask = (self.score(bgr) >= t).astype(np.uint8)
         rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
         if not len(rows):
             return mask, False, 0, 0, 0, 0
@@ -100,7 +129,10 @@ class AppearanceModel:
 
     @cached_property
     def _mask_coeffs(self) -> tuple:
-        c = self.b - self.threshold
+        return self._coeffs_for(self.threshold)
+
+    def _coeffs_for(self, threshold: float) -> tuple:
+        c = self.b - threshold
         return (*np.float32(self.w + c * self.den), np.float32(c * self.eps))
 
     def blob_moments(self, bgr: np.ndarray, labels: np.ndarray, k: int, xa: int, ya: int, xb: int, yb: int):
@@ -133,21 +165,44 @@ def learn(frame, cx: float, cy: float, w: float, h: float) -> AppearanceModel:
 
     seed = SeedPatch.cut(frame, cx, cy, w, h)
     model, colour_sep = colour.learn_colour(seed)
-    if model is not None:
+    bright, bright_sep = brightness.learn_brightness(seed)
+    grey = model is not None and colour.achromatic(seed, model)
+    if bright is not None and (model is None or grey):
+        return bright  # a white, grey or black marker: its brightness is what it is
+    if model is not None and not grey:
+        model.luma_follows = bright is not None
         return model
-    model, bright_sep = brightness.learn_brightness(seed)
-    if model is not None:
-        return model
-    model = brightness.learn_texture(seed)
-    if model is not None:
+    texture = brightness.learn_texture(seed)
+    if texture is not None and (model is None or brightness.two_tone(seed)):
+        return texture
+    if model is not None:  # a grey marker on coloured sand, its shaded side as bright as the sand
+        model.luma_follows = False
         return model
     lum_in, lum_ring = seed.luma[seed.inner], seed.luma[seed.ring]
+    seps = ", ".join(f"{what} separation {v:.2f}" for what, v in (("colour", colour_sep), ("brightness", bright_sep))
+                     if np.isfinite(v))
     raise SandtrackError(
-        f"no marker found in the {w:.0f}x{h:.0f} px seed box: its colour is not distinct from the sand "
-        f"(separation {colour_sep:.2f}, needs {MIN_SEPARATION}) nor its brightness (luma "
-        f"{np.median(lum_in):.0f}±{_spread(lum_in):.0f} inside, {np.median(lum_ring):.0f}±{_spread(lum_ring):.0f} "
-        f"around; separation {bright_sep:.2f}); centre the box on the marker with about its own size of sand "
-        f"around it, or seed it in a frame where it stands out")
+        f"no marker found in the {w:.0f}x{h:.0f} px seed box: nothing in it stands out from the sand around it "
+        f"(luma {np.median(lum_in):.0f}±{_spread(lum_in):.0f} inside, {np.median(lum_ring):.0f}±"
+        f"{_spread(lum_ring):.0f} around{'; ' + seps if seps else ''}; {MIN_SEPARATION} needed); centre a larger "
+        f"box on the marker (about twice its size), or seed it in another frame where it stands out")
+
+
+def _first_gap(mask: np.ndarray, px: int, py: int, rays: int = 32) -> float | None:
+    """Lower quartile over rays from (px, py) of the distance at which `mask` first ends (rays that
+    leave the image without meeting a gap are left out); None when too few rays meet one."""
+    h, w = mask.shape
+    hits = []
+    for a in np.linspace(0, 2 * np.pi, rays, endpoint=False):
+        ca, sa = np.cos(a), np.sin(a)
+        for d in np.arange(0.5, max(h, w), 0.25):
+            x, y = int(round(px + d * ca)), int(round(py + d * sa))
+            if not (0 <= x < w and 0 <= y < h):
+                break
+            if not mask[y, x]:
+                hits.append(d)
+                break
+    return float(np.percentile(hits, 25)) if len(hits) >= rays // 4 else None
 
 
 def _spread(v: np.ndarray) -> float:
@@ -199,23 +254,41 @@ class SeedPatch:
 
         return self.bgr @ LUMA_BGR.astype(np.float64)
 
-    def centre_component(self, selected: np.ndarray) -> np.ndarray:
-        """`selected` (a mask over the inner pixels) reduced to its connected part at the box centre,
-        when it splits into several parts of some size (a loose box holding more than one marker).
-        Parts of 1-2 pixels (noise) are kept."""
-        import cv2
-
+    def centre_component(self, selected: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(chosen, others): `selected` (a mask over the inner pixels) reduced to its connected part at
+        the box centre, when it splits into several parts of some size (a loose box holding more
+        than one marker; parts of 1-2 pixels, noise, are kept); and the other parts grown by a pixel
+        (other markers, left out of the marker's area)."""
         xi, yi = self.xx[self.inner], self.yy[self.inner]
+        none = np.zeros_like(selected)
         if not selected.any():
-            return selected
+            return selected, none
         x0, y0 = xi.min(), yi.min()
         img = np.zeros((yi.max() - y0 + 1, xi.max() - x0 + 1), np.uint8)
         img[yi[selected] - y0, xi[selected] - x0] = 1
         n, labels, stats, cents = cv2.connectedComponentsWithStats(img, connectivity=8)
         big = [k for k in range(1, n) if stats[k, cv2.CC_STAT_AREA] >= 3]
-        if len(big) <= 1:
-            return selected
+        if not big:
+            return selected, none
         d = [np.hypot(cents[k, 0] + x0 - self.cx, cents[k, 1] + y0 - self.cy) for k in big]
         keep = big[int(np.argmin(d))]
-        lab = labels[yi - y0, xi - x0]
-        return selected & ((lab == keep) | ~np.isin(lab, big))
+        own = labels == keep
+        # Touching markers (a dense layer) are one connected part: the marker's own disc is the one
+        # around the distance-transform peak nearest the centre, of the radius at which rays from it
+        # first meet sand (the lower quartile: rays through the contacts with neighbours meet none).
+        dt = cv2.distanceTransform(own.astype(np.uint8), cv2.DIST_L2, 5)
+        peaks = (dt >= cv2.dilate(dt, np.ones((3, 3), np.uint8))) & (dt >= 0.6 * dt.max()) & own
+        ys, xs = np.nonzero(peaks)
+        if len(xs):
+            k = int(np.argmin(np.hypot(xs + x0 - self.cx, ys + y0 - self.cy)))
+            px, py = int(xs[k]), int(ys[k])
+            rd = _first_gap(own, px, py)
+            if rd is not None and own.sum() > 1.3 * np.pi * rd**2:
+                gy, gx = np.mgrid[0:own.shape[0], 0:own.shape[1]]
+                own &= np.hypot(gx - px, gy - py) <= rd + 0.5
+        lab_own = own[yi - y0, xi - x0]
+        other = (img.astype(bool) & ~own).astype(np.uint8)
+        other[~np.isin(labels, big)] = 0  # noise pixels are kept with the marker
+        grown = cv2.dilate(other, np.ones((3, 3), np.uint8))[yi - y0, xi - x0] > 0
+        noise = ~np.isin(labels[yi - y0, xi - x0], big)
+        return selected & (lab_own | noise), grown & ~lab_own

@@ -17,6 +17,7 @@ import numpy as np
 from .appearance import COLOUR, MIN_SEPARATION, AppearanceModel
 
 EPS = 3.0  # added to B + G + R: keeps the chromaticity of near-black pixels finite
+MIN_LUMA_FRACTION = 0.25  # a marker darker than this share of the sand's brightness is left to brightness
 
 
 def chromaticity(bgr: np.ndarray) -> np.ndarray:
@@ -34,6 +35,20 @@ def chroma_blueness(bgr: np.ndarray) -> np.ndarray:
     """Blueness of the chromaticity, float32 in about -0.5..1: independent of shading and shadows."""
     f = bgr.astype(np.float32)
     return (f[..., 0] - 0.5 * (f[..., 1] + f[..., 2])) / (f.sum(axis=-1) + EPS)
+
+
+GREY_CHROMA = 0.04  # a marker whose mean chromaticity is this close to grey (1/3 each) has no colour of its own
+
+
+def achromatic(seed, model) -> bool:
+    """The marker a model learned from `seed` scores (its pixels at or above the threshold in the box)
+    is grey: white, grey or black, with no colour of its own."""
+    inner = seed.bgr[seed.inner]
+    scores = model.score(np.clip(inner, 0, 255).astype(np.uint8)[None])[0]
+    disc = inner[scores >= model.threshold]
+    if len(disc) < 3:
+        return False
+    return bool(np.abs(chromaticity(disc.mean(axis=0)) - 1 / 3).max() < GREY_CHROMA)
 
 
 def learn_colour(seed) -> tuple[AppearanceModel | None, float]:
@@ -68,10 +83,12 @@ def learn_colour(seed) -> tuple[AppearanceModel | None, float]:
         if abs(t_new - t) < 1e-6:
             break
         t = t_new
-    chosen = seed.centre_component(p_in >= t)
+    chosen, others = seed.centre_component(p_in >= t)
     disc = patch[inner][chosen]
     if len(disc) < 3:
         return None, float("nan")
+    if np.median(seed.luma[inner][chosen]) < MIN_LUMA_FRACTION * np.median(seed.luma[ring]):
+        return None, float("nan")  # a black marker has no colour: its chromaticity is noise
     # Fisher discriminant between disc and sand.
     mu_d, mu_sand = disc.mean(axis=0), sand.mean(axis=0)
     Sw = np.cov(sand.T) + (np.cov(disc.T) if len(disc) > 3 else 0) + np.eye(3) * 1e-4
@@ -90,11 +107,20 @@ def learn_colour(seed) -> tuple[AppearanceModel | None, float]:
     threshold = float(np.clip(max(0.45, sand_hi + 0.1), 0.3, 0.7))
     # Soft marker area: the box's clipped scores, less what the sand among them scores on its own
     # (its noise clipped at 0 is positive on average), so the area does not grow with the box.
-    rest = patch[inner][~chosen] @ wv + b
+    rest = patch[inner][~chosen & ~others] @ wv + b
     area = float(np.clip(s_disc, 0, 1).sum() + np.clip(rest, 0, 1).sum()
                  - len(rest) * np.clip(s_sand, 0, 1).mean())
     area = max(area, 3.0)
+    radius = float(np.sqrt(area / np.pi))
     spread = float(np.std(s_sand))
-    return AppearanceModel(w=wv, b=b, threshold=threshold, disc_area=area, radius=float(np.sqrt(area / np.pi)),
-                           sand_spread=spread, kind=COLOUR, den=1.0, eps=EPS,
+    floor = None
+    if 3 * spread > 0.15:
+        # A marker of weak colour (white on beige sand): weights start above the sand's own noise (3
+        # spreads), or noisy sand pixels weigh in every centroid; the marker area is then counted with
+        # the same weights, as the tracker counts it.
+        floor = min(3 * spread, 0.5)
+        weight = lambda v: np.clip((v - floor) / (1 - floor), 0, 1)  # noqa: E731
+        area = max(float(weight(s_disc).sum() + weight(rest).sum() - len(rest) * weight(s_sand).mean()), 3.0)
+    return AppearanceModel(w=wv, b=b, threshold=threshold, disc_area=area, radius=radius,
+                           sand_spread=spread, kind=COLOUR, den=1.0, eps=EPS, floor=floor,
                            contrast=float(np.median(s_disc) - np.median(s_sand)) / max(spread, 1e-6)), separation

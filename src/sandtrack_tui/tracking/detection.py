@@ -20,7 +20,7 @@ from . import kernels
 
 COLUMNS = ["x_px", "y_px", "w", "h", "area", "contrast"]
 MIN_FRAC = 0.45  # a blob's marker area, in markers, to count as one
-MAX_MARKERS = 12  # blobs of more markers than this are left alone (a large object of the marker's colour)
+MAX_MARKERS = 400  # blobs of more markers than this are left alone (a large object of the marker's colour)
 
 
 def detect_like(frame_bgr, model, min_frac: float = MIN_FRAC) -> pd.DataFrame:
@@ -38,9 +38,6 @@ def detect_like(frame_bgr, model, min_frac: float = MIN_FRAC) -> pd.DataFrame:
     weights = np.clip((score - floor) / (1.0 - floor), 0.0, 1.0)
     H, W = score.shape
     rows = []
-    smooth = None
-    empty = np.zeros(0)
-    pad = int(np.ceil(r)) + 2
     for k in range(1, n):
         x, y, w, h, npx = stats[k]
         if npx < 2:
@@ -60,37 +57,56 @@ def detect_like(frame_bgr, model, min_frac: float = MIN_FRAC) -> pd.DataFrame:
             cx, cy = float((wts * xx).sum() / tot), float((wts * yy).sum() / tot)
             rows.append((cx, cy, w + 4, h + 4, area, contrast))
             continue
-        if smooth is None:
-            kern = np.zeros((2 * pad + 1, 2 * pad + 1), np.float32)
-            cv2.circle(kern, (pad, pad), max(int(round(r)), 1), 1.0, -1)
-            smooth = cv2.filter2D(weights, cv2.CV_32F, kern / kern.sum(), borderType=cv2.BORDER_CONSTANT)
-        peaks = _peaks(smooth, labels, k, x, y, w, h, int(round(count)), r)
-        sub_x0, sub_y0 = max(x - pad, 0), max(y - pad, 0)
-        sub = score[sub_y0:min(y + h + pad, H), sub_x0:min(x + w + pad, W)]
-        px = np.array([p[0] - sub_x0 for p in peaks], np.float64)
-        py = np.array([p[1] - sub_y0 for p in peaks], np.float64)
-        for i in range(len(peaks)):
-            others_x, others_y = (np.delete(px, i), np.delete(py, i)) if len(peaks) > 1 else (empty, empty)
-            cx, cy, frac = kernels.centroid_split(sub, float(px[i]), float(py[i]), 3, r + 1.5, floor,
-                                                  model.disc_area, others_x, others_y)
+        side = 2 * np.ceil(r) + 5
+        for cx, cy, frac in split_blob(score, labels == k, model, int(round(count)), (x, y, w, h)):
             if frac >= min_frac:
-                side = 2 * np.ceil(r) + 5
-                rows.append((cx + sub_x0, cy + sub_y0, side, side, frac * model.disc_area, contrast))
+                rows.append((cx, cy, side, side, frac * model.disc_area, contrast))
     return pd.DataFrame(rows, columns=COLUMNS)
 
 
-def _peaks(smooth: np.ndarray, labels: np.ndarray, k: int, x: int, y: int, w: int, h: int, n: int,
-           r: float) -> list[tuple[int, int]]:
-    """Up to `n` strongest local maxima of `smooth` on component k, at least ~r apart."""
-    box = smooth[y:y + h, x:x + w]
-    on = labels[y:y + h, x:x + w] == k
+def split_blob(score: np.ndarray, on: np.ndarray, model, count: int, box: tuple | None = None) -> list[tuple]:
+    """A blob of `count` touching markers (pixels `on` of the score image) split into its markers:
+    the strongest peaks of the score smoothed by a marker-sized disc, at least ~a radius apart, each
+    centred by the coverage centroid of its own share (kernels.centroid_split). [(x, y, coverage /
+    marker area)] in the score's coordinates. `box`: (x, y, w, h) of the blob, if known."""
+    r = model.radius
+    floor = model.weight_floor
+    H, W = score.shape
+    if box is None:
+        ys, xs = np.nonzero(on)
+        if not len(xs):
+            return []
+        box = (int(xs.min()), int(ys.min()), int(xs.max() - xs.min() + 1), int(ys.max() - ys.min() + 1))
+    x, y, w, h = box
+    pad = int(np.ceil(r)) + 2
+    sx0, sy0 = max(x - pad, 0), max(y - pad, 0)
+    sub = np.ascontiguousarray(score[sy0:min(y + h + pad, H), sx0:min(x + w + pad, W)])
+    weights = np.clip((sub - floor) / (1.0 - floor), 0.0, 1.0)
+    kern = np.zeros((2 * pad + 1, 2 * pad + 1), np.float32)
+    cv2.circle(kern, (pad, pad), max(int(round(r)), 1), 1.0, -1)
+    smooth = cv2.filter2D(weights, cv2.CV_32F, kern / kern.sum(), borderType=cv2.BORDER_CONSTANT)
+    sub_on = np.zeros(sub.shape, bool)
+    sub_on[y - sy0:y - sy0 + h, x - sx0:x - sx0 + w] = on[y:y + h, x:x + w]
+    peaks = _peaks(smooth, sub_on, count, r)
+    px = np.array([p[0] for p in peaks], np.float64)
+    py = np.array([p[1] for p in peaks], np.float64)
+    out = []
+    for i in range(len(peaks)):
+        cx, cy, frac = kernels.centroid_split(sub, float(px[i]), float(py[i]), 3, r + 1.5, floor, model.disc_area,
+                                              np.delete(px, i), np.delete(py, i))
+        out.append((cx + sx0, cy + sy0, frac))
+    return out
+
+
+def _peaks(smooth: np.ndarray, on: np.ndarray, n: int, r: float) -> list[tuple[int, int]]:
+    """Up to `n` strongest local maxima of `smooth` on the pixels `on`, at least ~r apart."""
     size = max(int(2 * round(0.8 * r)) + 1, 3)
-    local = (box >= cv2.dilate(box, np.ones((size, size), np.uint8))) & on & (box > 0)
+    local = (smooth >= cv2.dilate(smooth, np.ones((size, size), np.uint8))) & on & (smooth > 0)
     ys, xs = np.nonzero(local)
-    order = np.argsort(-box[ys, xs])
+    order = np.argsort(-smooth[ys, xs])
     chosen: list[tuple[int, int]] = []
     for i in order:
-        px, py = int(xs[i]) + x, int(ys[i]) + y
+        px, py = int(xs[i]), int(ys[i])
         if all((px - qx) ** 2 + (py - qy) ** 2 >= (1.2 * r) ** 2 for qx, qy in chosen):
             chosen.append((px, py))
         if len(chosen) >= n:

@@ -324,13 +324,41 @@ def _parabola(a, b, c):
 
 
 @_jit
+def _touching_peaks(res, br, bc, peak, radius):
+    """Other markers touching the matched one: local maxima of the NCC surface `res` (3 x 3) at
+    1.6-2.7 marker radii from the peak (row br, column bc), of at least max(0.5, 0.6 x peak); their
+    (columns, rows) in `res` coordinates. (Touching markers' centres are ~2 radii apart.)"""
+    nr, nc = res.shape
+    reach = int(np.ceil(2.7 * radius))
+    lo2, hi2 = (1.6 * radius) ** 2, (2.7 * radius) ** 2
+    level = max(0.5, 0.6 * peak)
+    xs = np.empty(16)
+    ys = np.empty(16)
+    n = 0
+    for r in range(max(br - reach, 1), min(br + reach + 1, nr - 1)):
+        for c in range(max(bc - reach, 1), min(bc + reach + 1, nc - 1)):
+            d2 = (r - br) * (r - br) + (c - bc) * (c - bc)
+            v = res[r, c]
+            if d2 < lo2 or d2 > hi2 or v < level:
+                continue
+            if (v < res[r - 1, c - 1] or v < res[r - 1, c] or v < res[r - 1, c + 1] or v < res[r, c - 1]
+                    or v < res[r, c + 1] or v < res[r + 1, c - 1] or v < res[r + 1, c] or v < res[r + 1, c + 1]):
+                continue
+            if n < 16:
+                xs[n] = c
+                ys[n] = r
+                n += 1
+    return xs[:n], ys[:n]
+
+
+@_jit
 def match_peak(res, score, c_lo, c_hi, r_lo, r_hi, ox, oy, s00, s01, s11, gate, half, excl,
                rad, lo, disc_area, radius):
     """Best NCC peak of `res` in the box rows r_lo..r_hi, columns c_lo..c_hi (and, when gate > 0,
     inside the gate ellipse d2 <= gate of the offsets (c + ox, r + oy) with the inverse innovation
     covariance s), refined to sub-pixel by parabolas, its peak-to-sidelobe ratio, then the colour
-    centroid of `score` around it. Returns (found, x, y, peak, psr, coverage, used_centroid) with x, y in
-    `score` coordinates."""
+    centroid of `score` around it (split from touching markers' shares). Returns (found, x, y, peak, psr,
+    coverage, used_centroid, touching) with x, y in `score` coordinates."""
     best, br, bc = -np.inf, -1, -1
     for r in range(r_lo, r_hi + 1):
         for c in range(c_lo, c_hi + 1):
@@ -347,17 +375,27 @@ def match_peak(res, score, c_lo, c_hi, r_lo, r_hi, ox, oy, s00, s01, s11, gate, 
                     if s00 * dx * dx + 2 * s01 * dx * dy + s11 * dy * dy <= gate and res[r, c] > best:
                         best, br, bc = res[r, c], r, c
             if br < 0:
-                return False, 0.0, 0.0, 0.0, 0.0, 0.0, False
+                return False, 0.0, 0.0, 0.0, 0.0, 0.0, False, False
     nr, nc = res.shape
     peak = float(res[br, bc])
     sx = _parabola(float(res[br, bc - 1]), peak, float(res[br, bc + 1])) if 0 < bc < nc - 1 else 0.0
     sy = _parabola(float(res[br - 1, bc]), peak, float(res[br + 1, bc])) if 0 < br < nr - 1 else 0.0
-    # Peak-to-sidelobe ratio: (peak - mean) / std of the correlation outside a window around the peak.
+    nbx, nby = _touching_peaks(res, br, bc, peak, radius)
+    # Peak-to-sidelobe ratio: (peak - mean) / std of the correlation outside a window around the peak
+    # (and around the peaks of touching markers: a neighbour is another marker, not a sidelobe).
     n_in = s1 = s2 = 0.0
     for r in range(nr):
         inside_r = br - excl <= r <= br + excl
         for c in range(nc):
             if inside_r and bc - excl <= c <= bc + excl:
+                n_in += 1
+                continue
+            skip = False
+            for k in range(nbx.shape[0]):
+                if abs(r - nby[k]) <= excl and abs(c - nbx[k]) <= excl:
+                    skip = True
+                    break
+            if skip:
                 n_in += 1
                 continue
             v = float(res[r, c])
@@ -371,11 +409,15 @@ def match_peak(res, score, c_lo, c_hi, r_lo, r_hi, ox, oy, s00, s01, s11, gate, 
         sd = max(s2 / n - mean * mean, 0.0) ** 0.5
         psr = (peak - mean) / max(sd, 1e-3)
     ncc_x, ncc_y = bc + half + sx, br + half + sy
-    cx, cy, frac = centroid(score, ncc_x, ncc_y, 2, rad, lo, disc_area)
+    split = nbx.shape[0] > 0
+    if split:
+        cx, cy, frac = centroid_split(score, ncc_x, ncc_y, 3, rad, lo, disc_area, nbx + half, nby + half)
+    else:
+        cx, cy, frac = centroid(score, ncc_x, ncc_y, 2, rad, lo, disc_area)
     used = frac >= 0.75 and np.hypot(cx - ncc_x, cy - ncc_y) <= 0.5 * radius
     if used:
-        return True, cx, cy, peak, psr, frac, True
-    return True, ncc_x, ncc_y, peak, psr, frac, False
+        return True, cx, cy, peak, psr, frac, True, split
+    return True, ncc_x, ncc_y, peak, psr, frac, False, split
 
 
 @_jit

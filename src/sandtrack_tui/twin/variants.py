@@ -50,8 +50,10 @@ SAND_TONES = {
     "dark": (0.17, 0.21, 0.26),
     "wet": (0.27, 0.38, 0.50),
 }
-# Windows of the true cameras holding the markers (sample pixels: side x 715-1106, y 450-734).
-WINDOW_CENTRE = {"side": (910.0, 590.0), "front": (920.0, 560.0)}
+# Centres of the windows of the true cameras holding the markers (the sample's markers: side x 715-1106,
+# y 450-734; the dense layer: side x 752-831, y 486-706, front x 828-1027, y 475-530).
+WINDOW_CENTRE = {"scripted": {"side": (910.0, 590.0), "front": (920.0, 560.0)},
+                 "dense": {"side": (792.0, 596.0), "front": (928.0, 502.0)}}
 VISIBLE_MIN_FRACTION = 0.5
 
 
@@ -81,17 +83,18 @@ VARIANTS = {v.name: v for v in (
     Variant("white", style="white"),
     Variant("black", style="black"),
     Variant("glass", style="glass", radius_mm=3.0, note="grey glass beads, 6 mm"),
-    Variant("light-sand", style="red", sand="light"),
+    Variant("light-sand", style="blue", sand="light"),
     Variant("dark-sand", style="white", sand="dark"),
-    Variant("wet-sand", style="blue", sand="wet"),
+    Variant("wet-sand", style="red", sand="wet"),
     Variant("dense", style="black", layout="dense", radius_mm=3.0, zoom=1.25, speed_mm_s=200.0, output="tiff16",
             note="56 touching black 6 mm beads, 16-bit grey TIFF frames"),
     Variant("fast", style="blue", speed_mm_s=250.0, shutter=0.6,
             note="tool at 250 mm/s: markers up to ~25 px per frame, blurred over 0.6 of the frame time"),
     Variant("large", style="red", zoom=1.65, size=(640, 448), note="15 px markers"),
-    Variant("shake", style="white", zoom=1.3, speed_mm_s=150.0, shutter=0.5, shake_px=1.5, pan_px=0.5,
+    Variant("shake", style="white", sand="dark", zoom=1.3, speed_mm_s=150.0, shutter=0.5, shake_px=1.5, pan_px=0.5,
             cameras=("side",), output="jpeg",
-            note="pale 12 px markers, blurred, hand-held camera panning 0.5 px per frame and shaking, JPEG frames"),
+            note="pale 12 px markers on dark sand, blurred, hand-held camera panning 0.5 px per frame and shaking, "
+                 "JPEG frames"),
 )}
 LAST_ROW_Z = {"scripted": 650.0, "dense": 545.0}
 
@@ -107,14 +110,16 @@ def frame_count(v: Variant) -> int:
 
 # -- geometry -------------------------------------------------------------------------------------
 
-def window_camera(cam: Camera, size: tuple, zoom: float, margin: int = 0) -> tuple[Camera, tuple]:
-    """The camera seeing a `size` window (plus `margin` px around) of `cam`'s image, zoomed about its
-    principal point; returns it and the window's origin in the zoomed image."""
+def window_camera(cam: Camera, size: tuple, zoom: float, margin: int = 0, layout: str = "scripted"
+                  ) -> tuple[Camera, tuple]:
+    """The camera seeing a `size` window (plus `margin` px around) of `cam`'s image around the
+    layout's markers, zoomed about its principal point; returns it and the window's origin in the
+    zoomed image."""
     w, h = size
     K = cam.matrix.copy()
     K[0, 0] *= zoom
     K[1, 1] *= zoom
-    cx, cy = WINDOW_CENTRE[cam.name]
+    cx, cy = WINDOW_CENTRE[layout][cam.name]
     zx, zy = cam.matrix[0, 2] + zoom * (cx - cam.matrix[0, 2]), cam.matrix[1, 2] + zoom * (cy - cam.matrix[1, 2])
     x0, y0 = int(round(zx - w / 2)) - margin, int(round(zy - h / 2)) - margin
     K[0, 2] -= x0
@@ -127,7 +132,7 @@ def window_calibration(v: Variant) -> Calibration:
     cal = true_calibration()
     cams = {}
     for name in v.cameras:
-        cams[name], _ = window_camera(cal.cameras[name], v.size, v.zoom)
+        cams[name], _ = window_camera(cal.cameras[name], v.size, v.zoom, layout=v.layout)
     return Calibration(cams, cal.world_from_rig, report={"source": f"sandtrack twin variant {v.name}: true cameras"})
 
 
@@ -231,7 +236,7 @@ def _render_camera(v: Variant, camera: str, seed: int, out: Path) -> list[tuple]
     shake = _shake_path(v, seed)
     margin = int(np.ceil(np.abs(shake[:, :2]).max() + abs(shake[:, 2]).max() * max(v.size) + 4)) if shake.any() \
         else 0
-    cam, _ = window_camera(world_cameras()[camera], v.size, v.zoom, margin)
+    cam, _ = window_camera(world_cameras()[camera], v.size, v.zoom, margin, v.layout)
     tone = np.array(SAND_TONES[v.sand], np.float32)
     tex = Textures(seed, sand_bgr=tone)
     view = CameraView(cam, tex, SandShader(tex), seed)
