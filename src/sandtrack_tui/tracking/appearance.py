@@ -30,6 +30,7 @@ from functools import cached_property
 
 import cv2
 import numpy as np
+from scipy.ndimage import binary_fill_holes
 
 from ..errors import SandtrackError
 from . import kernels
@@ -37,6 +38,7 @@ from . import kernels
 COLOUR, DARK, BRIGHT, TEXTURE = "colour", "dark", "bright", "texture"
 KINDS = (COLOUR, DARK, BRIGHT, TEXTURE)
 _CLOSE = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
+_SQUARE3 = np.ones((3, 3), np.uint8)
 MIN_SEPARATION = 0.2  # marker median score minus the sand's 99.5th percentile, in marker-contrast units
 MARKER_MEDIAN = 0.75  # a window whose median scores this much is mostly marker (a crowd): its sand level is unknown
 
@@ -279,10 +281,13 @@ class SeedPatch:
         dt = cv2.distanceTransform(own.astype(np.uint8), cv2.DIST_L2, 5)
         peaks = (dt >= cv2.dilate(dt, np.ones((3, 3), np.uint8))) & (dt >= 0.6 * dt.max()) & own
         ys, xs = np.nonzero(peaks)
-        if len(xs):
+        crowded = own[0].any() or own[-1].any() or own[:, 0].any() or own[:, -1].any()  # runs out of the box
+        if len(xs) and crowded:
             k = int(np.argmin(np.hypot(xs + x0 - self.cx, ys + y0 - self.cy)))
             px, py = int(xs[k]), int(ys[k])
-            rd = _first_gap(own, px, py)
+            # (a dusty marker's sand specks are not gaps: closed and filled first)
+            solid = binary_fill_holes(cv2.morphologyEx(own.astype(np.uint8), cv2.MORPH_CLOSE, _SQUARE3))
+            rd = _first_gap(solid, px, py)
             if rd is not None and own.sum() > 1.3 * np.pi * rd**2:
                 gy, gx = np.mgrid[0:own.shape[0], 0:own.shape[1]]
                 own &= np.hypot(gx - px, gy - py) <= rd + 0.5
