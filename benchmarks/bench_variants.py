@@ -3,9 +3,10 @@
 Each variant (marker style, sand tone, dense identical beads, fast and blurred, large, shaken and
 panned camera) is rendered once into the cache (`sandtrack demo`'s cache folder, keyed on the
 renderer's source; not into git), then tracked as a user would: a project on its videos or image
-folders (with the true cameras when both views are still), each marker seeded at its first visible
-frame in each camera by a click 1.8 px off its centre, snapped (`snap_to_marker`) with the box
-`marker_box` gives, then `track_project` forward. Scored against the exact truth like the sample
+folders (with the true cameras when both views are still), seeded as a user would: the first
+marker clicked in each camera 1.8 px off its centre, snapped (`snap_to_marker`) with the box
+`marker_box` gives, then auto-seed finds every marker like it in that frame (`auto_seed`, paired
+across the cameras by epipolar distance), then `track_project` forward. Scored against the exact truth like the sample
 (groundtruth.score_tracking): mean / p95 error on visible tracked frames, false locks (> 3 px),
 hidden frames flagged, flagged frames truly hidden; plus the share of visible frames tracked,
 identity switches (a `tracked` point within 3 px of another marker's true centre) and the
@@ -34,7 +35,7 @@ from sandtrack_tui.camera import Calibration  # noqa: E402
 from sandtrack_tui.demo import cache_dir, renderer_version  # noqa: E402
 from sandtrack_tui.groundtruth import identity_switches, match_marker_ids, score_tracking  # noqa: E402
 from sandtrack_tui.store import Project  # noqa: E402
-from sandtrack_tui.tracking.run import accept_seeds, track_project  # noqa: E402
+from sandtrack_tui.tracking.run import accept_seeds, auto_seed, track_project  # noqa: E402
 from sandtrack_tui.tracking.seeding import marker_box, snap_to_marker  # noqa: E402
 from sandtrack_tui.twin.variants import VARIANTS, render_variant  # noqa: E402
 from sandtrack_tui.video import FrameSource  # noqa: E402
@@ -62,18 +63,31 @@ def _truth(folder: Path, cams) -> dict:
     return out
 
 
-def _seeds(videos: dict, truth: dict) -> pd.DataFrame:
+def _click(videos: dict, truth: dict, marker: int, frame: int = 0) -> pd.DataFrame:
+    """One marker seeded as an operator does it: a click CLICK_OFF px off its centre, snapped, with
+    the box marker_box gives."""
     rows = []
     for cam, t in truth.items():
+        r = t[(t.marker == marker) & (t.frame == frame)].iloc[0]
         with FrameSource(videos[cam], cache_mb=64) as src:
-            for m, g in t[t.visible].sort_values("frame").groupby("marker"):
-                r = g.iloc[0]
-                img = src.frame(int(r.frame))
-                click = (r.x_px + CLICK_OFF[0], r.y_px + CLICK_OFF[1])
-                snapped = snap_to_marker(img, *click) or click
-                box = marker_box(img, *snapped) or (16.0, 16.0)
-                rows.append((int(m), cam, int(r.frame), snapped[0], snapped[1], box[0], box[1], np.nan))
+            img = src.frame(frame)
+        click = (r.x_px + CLICK_OFF[0], r.y_px + CLICK_OFF[1])
+        snapped = snap_to_marker(img, *click) or click
+        box = marker_box(img, *snapped) or (16.0, 16.0)
+        rows.append((1, cam, frame, snapped[0], snapped[1], box[0], box[1], np.nan))
     return pd.DataFrame(rows, columns=["marker", "camera", "frame", "x_px", "y_px", "w", "h", "epipolar_px"])
+
+
+def _seed(proj, videos: dict, truth: dict) -> dict:
+    """The first marker clicked in each camera, then auto-seed: every marker like it in frame 0
+    (paired across the cameras by epipolar distance when calibrated). Returns how it went."""
+    first = int(min(t[(t.frame == 0) & t.visible].marker.min() for t in truth.values()))
+    accept_seeds(proj, _click(videos, truth, first))
+    proposal = auto_seed(proj, frame=0)
+    accept_seeds(proj, proposal)
+    n_true = int(sum(t[(t.frame == 0) & t.visible].marker.nunique() for t in truth.values()))
+    return {"seeded_points": int(len(proposal)) + len(truth), "markers_visible_at_seed": n_true,
+            "autoseed_models": ",".join(f"{k}:{n}" for k, n in proposal["model"].value_counts().items())}
 
 
 def run_variant(name: str, seed: int = 0, keep: dict | None = None) -> dict:
@@ -89,8 +103,7 @@ def run_variant(name: str, seed: int = 0, keep: dict | None = None) -> dict:
         if cal_file.is_file():
             proj.set_calibration(Calibration.load(cal_file))
         proj.set("sync_offset_s", 0.0)
-        seeds = _seeds(videos, truth)
-        accept_seeds(proj, seeds)
+        seeding = _seed(proj, videos, truth)
         c0 = time.process_time()
         summary = track_project(proj)
         cpu = time.process_time() - c0
@@ -101,7 +114,7 @@ def run_variant(name: str, seed: int = 0, keep: dict | None = None) -> dict:
     if keep is not None:
         keep.update(points=points, truth=truth, ids=ids, summary=summary)
     out = {"variant": name, "cameras": len(cams), "markers": int(truth[cams[0]].marker.nunique()),
-           "frames": info["frames"], "stereo": summary["stereo"]}
+           "frames": info["frames"], "stereo": summary["stereo"], **seeding}
     out.update(score_tracking(points, t, ids))
     out.update(identity_switches(points, t, ids))
     kinds: dict = {}

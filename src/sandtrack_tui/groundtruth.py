@@ -12,6 +12,7 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pandas as pd
 
@@ -162,6 +163,28 @@ def identity_switches(points: pd.DataFrame, truth: SampleTruth, id_map: dict[int
             visible_tracked += int(vis.frame.isin(p[p.marker == mk].frame).sum())
     return {"identity_switches": switches,
             "visible_tracked_pct": 100.0 * visible_tracked / visible_n if visible_n else float("nan")}
+
+
+def board_points_from_corners(corners: pd.DataFrame, camera, points_m: np.ndarray, min_corners: int = 6) -> dict:
+    """Pixels of points on a flat board (`points_m` (N, 2), board coordinates in metres) in each frame,
+    from that frame's detected board corners (`corners`: frame, obj_loc_x, obj_loc_y, img_loc_x,
+    img_loc_y, as Caliscope's xy.csv): a homography fitted to the undistorted corners, its points
+    distorted again with `camera`'s lens. Frames with fewer than `min_corners` corners are left out.
+    Returns {frame: (N, 2) pixels}."""
+    out = {}
+    K = camera.matrix
+    for frame, g in corners.groupby("frame"):
+        if len(g) < min_corners:
+            continue
+        img = camera.undistort(g[["img_loc_x", "img_loc_y"]].to_numpy(float))
+        H, _ = cv2.findHomography(g[["obj_loc_x", "obj_loc_y"]].to_numpy(float), img, 0)
+        if H is None:
+            continue
+        und = cv2.perspectiveTransform(np.asarray(points_m, float).reshape(-1, 1, 2), H).reshape(-1, 2)
+        rays = np.hstack([(und - K[:2, 2]) / np.diag(K)[:2], np.ones((len(und), 1))])
+        px, _ = cv2.projectPoints(rays.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, camera.distortion)
+        out[int(frame)] = px.reshape(-1, 2)
+    return out
 
 
 # -- 3D ------------------------------------------------------------------------------------------

@@ -159,15 +159,21 @@ def describe_text(desc: dict) -> str:
     return f"{what}, contrast {desc['contrast']:.1f}"
 
 
-def learn(frame, cx: float, cy: float, w: float, h: float) -> AppearanceModel:
+def learn(frame, cx: float, cy: float, w: float, h: float, centred: bool = True) -> AppearanceModel:
     """Learn the appearance model of the marker in a seed box centred at (cx, cy), w x h px.
-    `frame`: BGR or grey, 8 or 16 bit. Raises SandtrackError with what was measured when the box
-    holds nothing that stands out from the sand around it."""
+    `frame`: BGR or grey, 8 or 16 bit. `centred`: the box is centred on the marker (a seed), so a
+    blob model must cover the box's centre (a box centred on a pattern, such as a corner between
+    dark and light squares, gets a texture model, not the model of a blob beside its centre); not
+    so for a box around a click that may be off the marker. Raises SandtrackError with what was
+    measured when the box holds nothing that stands out from the sand around it."""
     from . import brightness, colour
 
     seed = SeedPatch.cut(frame, cx, cy, w, h)
     model, colour_sep = colour.learn_colour(seed)
     bright, bright_sep = brightness.learn_brightness(seed)
+    if centred:
+        model = model if model is None or seed.centre_scores(model) else None
+        bright = bright if bright is None or seed.centre_scores(bright) else None
     grey = model is not None and colour.achromatic(seed, model)
     if bright is not None and (model is None or grey):
         return bright  # a white, grey or black marker: its brightness is what it is
@@ -249,6 +255,14 @@ class SeedPatch:
         if inner.sum() < 4 or ring.sum() < 12:
             raise SandtrackError("seed box lies too close to the image border to learn the marker's appearance")
         return cls(patch, inner, ring, xx.ravel(), yy.ravel(), float(cx), float(cy), float(w), float(h))
+
+    def centre_scores(self, model: AppearanceModel) -> bool:
+        """The model scores the box's centre (within 1.5 px) as marker."""
+        near = np.hypot(self.xx - self.cx, self.yy - self.cy) <= 1.5
+        if not near.any():
+            return True
+        px = np.clip(self.bgr[near], 0, 255).astype(np.uint8)[None]
+        return bool(np.median(model.score(px)[0]) >= model.threshold)
 
     @cached_property
     def luma(self) -> np.ndarray:

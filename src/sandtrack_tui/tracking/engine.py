@@ -22,6 +22,8 @@ from .reacquire import find_blobs, unexplained
 from .stereo import StereoCheck
 from .tracker import MarkerTrack, Observation
 
+JUMP_FRAMES = 2  # frames after a miss during which a track is searched a largest move per frame unseen
+
 
 @dataclass
 class _Proposal:
@@ -254,6 +256,7 @@ class Engine:
         explained += [xy for k, xy in forced.items() if k[1] == cam]
         cands: dict[tuple, list] = {}  # track key -> [(d2, blob id, blob)]
         jumpers: set = set()  # tracks searched beyond their gate (any rival is then ambiguous)
+        windows: dict = {}  # track key -> (x, y, hx, hy) searched
         seen: list = []  # one blob seen through several tracks' windows is one blob
         for t in tracks:
             key = (t.marker, cam)
@@ -270,7 +273,8 @@ class Engine:
             # Beyond its gate (pushed hard, carried away while hidden, or the view jumped) a blob takes
             # the track only when no other candidate is in sight (any rival is ambiguous).
             p = t.params
-            reach = p.max_jump_px * (t.misses + 1)
+            # (the first frames of a miss only: later the gate, widened while hidden, takes over)
+            reach = p.max_jump_px * (t.misses + 1) if t.misses <= JUMP_FRAMES else 0.0
             if band_from is not None:
                 # The other view pins the marker to a line: search a wider window, along the band only.
                 wide = max(hx, hy, 4 * t.model.radius + 10)
@@ -281,6 +285,7 @@ class Engine:
                 hx = hy = min(reach, p.max_search_px)
             jump = max(hx, hy) > max(t.search_halfsize()) and t.model.has_blob
             # Beyond the gate the marker may be a streak: its pixels count from half the threshold.
+            windows[key] = (px, py, hx, hy)
             blobs = find_blobs(img, t.model, px, py, hx, hy,
                                threshold=0.5 * t.model.threshold if jump else None)
             blobs = unexplained(blobs, np.array(explained).reshape(-1, 2), 1.5 * t.model.radius + 1)
@@ -299,7 +304,7 @@ class Engine:
             cands[key] = [(float(d), self._blob_id(seen, b, t.model.radius), b)
                           for d, b, k in zip(d2, blobs, keep, strict=True) if k]
         n = 0
-        for key, blob in self._assign(cam, int(frames[cam][0]), cands, jumpers).items():
+        for key, blob in self._assign(cam, int(frames[cam][0]), cands, jumpers, windows).items():
             m = self.tracks[key].verify_at(img, blob.x, blob.y, int(frames[cam][0]) if key in jumpers else None)
             if m is not None:
                 props[key] = _Proposal(m, reattach=True, jump=key in jumpers)
@@ -314,11 +319,12 @@ class Engine:
         seen.append((b.x, b.y))
         return len(seen) - 1
 
-    def _assign(self, cam, frame, cands: dict, jumpers=frozenset()) -> dict:
+    def _assign(self, cam, frame, cands: dict, jumpers=frozenset(), windows=None) -> dict:
         """Tracks to blobs, most likely pair first; a pair is taken only if neither the track nor the
         blob has a rival nearly as likely (likelihood ratio > e^3 ≈ 20): ambiguity is left alone. A
         track searched beyond its gate (`jumpers`) takes a blob outside its gate only when neither the
-        track nor the blob has any rival."""
+        track nor the blob has any rival, and the blob lies in no other searching track's window
+        (`windows`: that track may be the blob's marker even if it did not see the blob there)."""
         out = {}
         cands = {k: sorted(v, key=lambda c: c[0]) for k, v in cands.items() if v}
         blocked_tracks, blocked_blobs = set(), set()
@@ -341,6 +347,9 @@ class Engine:
                            for c in lst if c[1] == bid]
             far = key in jumpers and d2 > self.tracks[key].params.gate_d2
             near = [r for r in rival_blob + rival_track if r - d2 < self.ambiguity_d2 or far]
+            if far and windows:
+                near += [d2 for k, (wx, wy, hx, hy) in windows.items()
+                         if k != key and abs(blob.x - wx) <= hx and abs(blob.y - wy) <= hy]
             blocked_tracks.add(key)
             blocked_blobs.add(bid)
             if near:

@@ -146,6 +146,8 @@ def auto_seed(project, frame: int | None = 0, sources: dict | None = None,
         looks = [_appearance_at(images[r.camera], r.x_px, r.y_px, r.w, r.h) for r in out.itertuples()]
         out["model"] = [a[0] for a in looks]
         out["contrast"] = [a[1] for a in looks]
+        if models:  # like a seeded marker: a detection whose own box shows no marker is not one
+            out = out[out["model"] != "none"].reset_index(drop=True)
         return out
     finally:
         if own:
@@ -172,7 +174,8 @@ def _appearance_at(img, x: float, y: float, w: float, h: float) -> tuple[str, fl
 def reference_models(project, sources: dict, cams: list[str], like: int | None = None) -> dict:
     """Camera -> the appearance model of marker `like` (default: the lowest marker id with a manual
     point), learned at its first manual point in that camera, or in another camera when that one has
-    none; {} when there is no such marker (or `like` has no manual point: SandtrackError)."""
+    none or its seed shows no marker; {} when there is no such marker (SandtrackError when `like` has
+    no manual point, or none of its seeds shows a marker)."""
     pts = project.points()
     man = pts[(pts.status == MANUAL) & pts.x_px.notna()].sort_values(["marker", "frame"])
     if like is not None:
@@ -184,7 +187,7 @@ def reference_models(project, sources: dict, cams: list[str], like: int | None =
     marker = int(man.marker.iloc[0])
     man = man[man.marker == marker]
     boxes = project.get(BOXES_KEY, {}) or {}
-    models = {}
+    models, failed = {}, ""
     for c in cams:
         rows = man[man.camera == c]
         if rows.empty or c not in sources:
@@ -195,8 +198,10 @@ def reference_models(project, sources: dict, cams: list[str], like: int | None =
         try:
             models[c] = learn(img, float(r.x_px), float(r.y_px), box[0], box[1])
         except SandtrackError as exc:
-            raise SandtrackError(f"marker {marker} ({c}, frame {int(r.frame)}): {exc}") from None
+            failed = f"marker {marker} ({c}, frame {int(r.frame)}): {exc}"
     if not models:
+        if failed:
+            raise SandtrackError(failed)
         return {}
     for c in cams:
         models.setdefault(c, next(iter(models.values())))

@@ -106,7 +106,7 @@ def _learn_near(frame_bgr, x: float, y: float, radius: float) -> AppearanceModel
     """A model learned from a box of the click's uncertainty (plus room for the marker) around it."""
     box = 2 * float(radius) + 8
     try:
-        return learn(frame_bgr, x, y, box, box)
+        return learn(frame_bgr, x, y, box, box, centred=False)
     except SandtrackError:
         return None
 
