@@ -84,7 +84,7 @@ def _x_corner(img: np.ndarray, centre: np.ndarray, side: float) -> bool:
     return abs(m[0] - m[3]) < 30 and abs(m[1] - m[2]) < 30 and abs(m[0] - m[1]) > 50
 
 
-def _seeds(source, truth: dict, pts: np.ndarray, kinds: np.ndarray) -> list[tuple]:
+def _seeds(source, truth: dict, pts: np.ndarray, kinds: np.ndarray, wanted=("square", "corner")) -> list[tuple]:
     """(point index, frame, x, y, box) for the squares and X-corners in the first frame with truth."""
     f0 = min(truth)
     img = source.frame(f0)
@@ -92,6 +92,8 @@ def _seeds(source, truth: dict, pts: np.ndarray, kinds: np.ndarray) -> list[tupl
     side = float(np.median([np.hypot(*(px[i] - px[i + 1])) for i in range(COLS - 1)]))
     out = []
     for i, (p, kind) in enumerate(zip(px, kinds, strict=True)):
+        if kind not in wanted:
+            continue
         if kind == "square" and _plain(img, p, side):
             out.append((i, f0, p[0] + CLICK_OFF[0], p[1] + CLICK_OFF[1], side))
         elif kind == "corner" and _x_corner(img, p, side):
@@ -99,12 +101,12 @@ def _seeds(source, truth: dict, pts: np.ndarray, kinds: np.ndarray) -> list[tupl
     return out
 
 
-def track_camera(video: Path, cam_id: int, tmp: Path, label: str) -> pd.DataFrame:
-    """Points (index, kind, frame, status, error_px) of one camera's contrast points tracked in `video`
-    (a video or an image folder)."""
-    truth, pts, kinds = truth_points(cam_id)
+def track_camera(video: Path, cam_id: int, tmp: Path, label: str, kinds=("square", "corner")) -> pd.DataFrame:
+    """Points (index, kind, frame, status, error_px) of one camera's contrast points (`kinds`) tracked
+    in `video` (a video or an image folder)."""
+    truth, pts, point_kinds = truth_points(cam_id)
     with FrameSource(video) as src:
-        seeds = _seeds(src, truth, pts, kinds)
+        seeds = _seeds(src, truth, pts, point_kinds, kinds)
     proj = Project.create(tmp / f"real_{label}_{cam_id}.sandtrack", {"side": video})
     for k, (_point, f, x, y, side) in enumerate(seeds, start=1):
         seed_marker(proj, k, "side", f, x, y, side, side)
@@ -121,7 +123,7 @@ def track_camera(video: Path, cam_id: int, tmp: Path, label: str) -> pd.DataFram
         t = truth.get(int(r.frame))
         err = float(np.hypot(r.x_px - t[i][0], r.y_px - t[i][1])) if t is not None and np.isfinite(r.x_px) \
             else float("nan")
-        rows.append((cam_id, i, kinds[i], int(r.frame), r.status, err, t is not None))
+        rows.append((cam_id, i, point_kinds[i], int(r.frame), r.status, err, t is not None))
     models = {m: v["side"]["appearance"]["model"] for m, v in summary["per_marker"].items()}
     df = pd.DataFrame(rows, columns=["camera", "point", "kind", "frame", "status", "error_px", "has_truth"])
     df.attrs["models"] = models

@@ -197,8 +197,9 @@ def learn(frame, cx: float, cy: float, w: float, h: float, centred: bool = True)
 
 
 def _first_gap(mask: np.ndarray, px: int, py: int, rays: int = 32) -> float | None:
-    """Lower quartile over rays from (px, py) of the distance at which `mask` first ends (rays that
-    leave the image without meeting a gap are left out); None when too few rays meet one."""
+    """Median over rays from (px, py) of the distance at which `mask` first ends (rays that leave the
+    image without meeting a gap, through the contacts with touching markers, are left out); None
+    when too few rays meet one."""
     h, w = mask.shape
     hits = []
     for a in np.linspace(0, 2 * np.pi, rays, endpoint=False):
@@ -210,7 +211,7 @@ def _first_gap(mask: np.ndarray, px: int, py: int, rays: int = 32) -> float | No
             if not mask[y, x]:
                 hits.append(d)
                 break
-    return float(np.percentile(hits, 25)) if len(hits) >= rays // 4 else None
+    return float(np.median(hits)) if len(hits) >= rays // 4 else None
 
 
 def _spread(v: np.ndarray) -> float:
@@ -291,7 +292,7 @@ class SeedPatch:
         own = labels == keep
         # Touching markers (a dense layer) are one connected part: the marker's own disc is the one
         # around the distance-transform peak nearest the centre, of the radius at which rays from it
-        # first meet sand (the lower quartile: rays through the contacts with neighbours meet none).
+        # first meet sand (the median: rays through the contacts with neighbours meet none in the box).
         dt = cv2.distanceTransform(own.astype(np.uint8), cv2.DIST_L2, 5)
         peaks = (dt >= cv2.dilate(dt, np.ones((3, 3), np.uint8))) & (dt >= 0.6 * dt.max()) & own
         ys, xs = np.nonzero(peaks)

@@ -4,9 +4,10 @@ Brightness (``dark`` / ``bright``): the marker's luma against the sand ring's. T
 side on which the box holds more pixels far outside the sand's own spread; the box's pixels are
 split into marker and sand by 2-means along it; the score is luma scaled so the sand's mean scores
 0 and the marker's 1. Unlike chromaticity, brightness sees the marker's shading and its contact
-shadow (a shadow is darker sand): the weight floor is set at half the marker's contrast, so sand
-darkened by up to half of it weighs nothing and a pixel's weight still grows with its coverage
-(symmetrically around the marker, so the centroid keeps the centre).
+shadow (a shadow is darker sand): for a dark marker the weight floor is set at half the marker's
+contrast, so sand darkened by up to half of it weighs nothing and a pixel's weight still grows with
+its coverage (symmetrically around the marker, so the centroid keeps the centre). A bright marker's
+"1" is its shaded part (its dimmest tenth), so its lit side does not pull the centre.
 
 Texture: the box's brightness varies well beyond the ring's (a pattern, a corner, a marker of two
 tones) without a blob: the score is the luma scaled by the box's spread, for template matching only.
@@ -103,7 +104,10 @@ def learn_brightness(seed: SeedPatch) -> tuple[AppearanceModel | None, float]:
     chosen, others = seed.centre_component(p_in >= t)
     if chosen.sum() < 3:
         return None, float("nan")
-    level_d, level_s = float(inside[chosen].mean()), float(sand.mean())
+    # A bright marker is lit on one side and shaded on the other: its level is that of its shaded
+    # part (its dimmest tenth), so the whole marker weighs alike and the centre is its outline's.
+    level_d = float(inside[chosen].mean() if sign < 0 else np.percentile(inside[chosen], 10))
+    level_s = float(sand.mean())
     contrast = level_d - level_s
     if abs(contrast) < 1.0:
         return None, float("nan")
@@ -114,7 +118,10 @@ def learn_brightness(seed: SeedPatch) -> tuple[AppearanceModel | None, float]:
     if separation < MIN_SEPARATION:
         return None, separation
     threshold = float(np.clip(max(0.45, sand_hi + 0.1), 0.3, 0.7))
-    floor = max(BRIGHTNESS_FLOOR, min(sand_hi, threshold - 0.05))
+    # Darker sand (a shadow) looks like a dark marker, not like a bright one: only a dark marker's
+    # weights start as high as half its contrast.
+    floor = max(BRIGHTNESS_FLOOR, min(sand_hi, threshold - 0.05)) if sign < 0 else max(min(0.5 * threshold, 0.15),
+                                                                                       min(sand_hi, 0.5))
     # Soft area with the floor's weights (as the centroid counts them), less the sand's own share.
     weight = lambda s: np.clip((s - floor) / (1 - floor), 0, 1)  # noqa: E731
     rest = (inside[~chosen & ~others] - level_s) / contrast
