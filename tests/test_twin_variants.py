@@ -73,7 +73,8 @@ def test_dense_identical_beads_in_16_bit_grey_tiff(tmp_path):
     with FrameSource(tmp_path / "experiment" / "side") as src:
         img = src.frame(0)
     lum = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
-    assert np.median(lum[t[:, 1].round().astype(int), t[:, 0].round().astype(int)]) < 60  # dark beads there
+    centres = lum[t[:, 1].round().astype(int), t[:, 0].round().astype(int)]
+    assert np.median(centres) < 0.6 * np.median(lum)  # dark beads there, on lighter sand
     assert 10 < np.median(d.min(axis=1)) < 16  # ~13 px beads, touching
 
 
