@@ -12,6 +12,7 @@ is moved with the view and searched again.
 from __future__ import annotations
 
 import math
+import statistics
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -128,9 +129,14 @@ class Engine:
         seen = [t for t in tracks if not t.coasting]
         if prev is None or not seen:
             return
-        missed = [t for t in seen if (t.marker, cam) not in props]
-        moves = [(props[(t.marker, cam)].match.x - t.kf.xy[0], props[(t.marker, cam)].match.y - t.kf.xy[1])
-                 for t in seen if (t.marker, cam) in props]
+        missed, moves = [], []
+        for t in seen:
+            p = props.get((t.marker, cam))
+            if p is None:
+                missed.append(t)
+            elif not p.match.rest:  # (a marker at rest did not move)
+                x, y = t.kf.xy
+                moves.append((p.match.x - x, p.match.y - y))
         if len(missed) < 0.5 * len(seen) and not _alike(moves):
             return
         shift = image_shift(prev, img)
@@ -379,7 +385,7 @@ def _alike(moves: list, min_px: float = 2.0, spread_px: float = 1.5) -> bool:
     `spread_px` of their median: the view moved, or everything was carried alike."""
     if len(moves) < 2:
         return False
-    mx, my = float(np.median([m[0] for m in moves])), float(np.median([m[1] for m in moves]))
+    mx, my = statistics.median(m[0] for m in moves), statistics.median(m[1] for m in moves)
     if math.hypot(mx, my) < min_px:
         return False
     return all(math.hypot(m[0] - mx, m[1] - my) <= spread_px for m in moves)
