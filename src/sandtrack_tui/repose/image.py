@@ -3,8 +3,11 @@
 The outline (`silhouette.heap_outline`) is split at the apex into the left and right flank. Per flank
 the toe level is the outline's height at its outer end, the heap height is toe minus apex, and only the
 straight middle part is fitted: outline points between `band` = (0.2, 0.8) of that height, leaving out
-the toe and the rounded top as the usual standards do. The fit is a robust line (`fit.robust_line`);
-its lower and upper halves are fitted too, to show whether the flank is straight.
+the toe and the rounded top as the usual standards do. The fit is a robust line (`fit.robust_line`),
+first over the band's upper half, then extended down the band in steps of 5 % of the height while the
+outline's median there stays within max(3 px, 2.5 x its scatter) of the line: from a camera above the
+heap the plate's rim curves away below the flank and is left out (the band used is reported). The
+fitted part's lower and upper halves are fitted too, to show whether the flank is straight.
 
 Geometry
 - Without a calibration the image is taken as a square-pixel view with level rows: the angle is the
@@ -36,6 +39,10 @@ from .silhouette import Outline, heap_outline
 BAND = (0.2, 0.8)
 TOE_FRACTION = 0.02  # outermost share of a flank's columns whose median height is its toe level
 MIN_HEIGHT_PX = 12
+MIN_BAND_POINTS = 12
+STRAIGHT_STEP = 0.05  # the band is extended downwards in steps of this share of the height
+STRAIGHT_PX = 3.0  # ... while the outline's median there stays this close to the line,
+STRAIGHT_SIGMAS = 2.5  # or this many times the outline's scatter about it
 TILT_WARN_DEG = 1.5
 
 
@@ -53,6 +60,7 @@ class Flank:
     slope: float
     x_range_px: tuple[float, float]
     toe_px: tuple[float, float]  # outer end of the flank (x, y)
+    band: tuple[float, float]  # part of the height fitted (the lower limit rises where the outline curves)
 
     def to_dict(self) -> dict:
         return dict(self.__dict__)
@@ -125,16 +133,38 @@ def _angle(fit: LineFit, geometry: CameraGeometry | None) -> tuple[float, float]
     return ang, float(np.sqrt(max(grad @ fit.cov @ grad, 0.0)))
 
 
-def _fit_flank(side: str, x, y, xu, yu, toe_y: float, apex_y: float, band, geometry) -> Flank:
-    height = toe_y - apex_y
+def _band_fit(xu, yu, y, toe_y: float, height: float, lo: float, hi: float, side: str):
+    """Robust line over the outline points between lo and hi of the height: first chosen by their own
+    rows, then again by column, where that first line lies in the band (a cut on the outline's own rows
+    drops its high points at the top of the band and its low ones at the bottom, and flattens the fit)."""
     rel = (toe_y - y) / height
-    sel = (rel >= band[0]) & (rel <= band[1])
-    if sel.sum() < 12:
-        raise SandtrackError(f"the {side} flank has only {int(sel.sum())} outline points in the fitted band")
-    fit = robust_line(xu[sel], yu[sel])
+    for _ in range(2):
+        sel = (rel >= lo) & (rel <= hi)
+        if sel.sum() < MIN_BAND_POINTS:
+            raise SandtrackError(f"the {side} flank has only {int(sel.sum())} outline points in the fitted band")
+        fit = robust_line(xu[sel], yu[sel])
+        rel = (toe_y - (fit.intercept + fit.slope * xu)) / height
+    return fit, (rel >= lo) & (rel <= hi), rel
+
+
+def _fit_flank(side: str, x, y, xu, yu, toe_y: float, apex_y: float, band, geometry) -> Flank:
+    """The flank's straight part: the upper half of the band first, then down the band in steps while the
+    outline stays on the line (a camera above the heap sees the plate's rim curve away below the flank)."""
+    height = toe_y - apex_y
+    lo, hi = band
+    used = 0.5 * (lo + hi)
+    fit, sel, rel = _band_fit(xu, yu, y, toe_y, height, used, hi, side)
+    for step in np.arange(used - STRAIGHT_STEP, lo - 1e-9, -STRAIGHT_STEP):
+        seg = (rel >= step) & (rel < used)
+        if seg.sum() >= 3:
+            off = float(np.median(yu[seg] - (fit.intercept + fit.slope * xu[seg])))
+            if abs(off) > max(STRAIGHT_PX, STRAIGHT_SIGMAS * fit.scale):
+                break
+        used = float(step)
+        fit, sel, rel = _band_fit(xu, yu, y, toe_y, height, used, hi, side)
     ang, sig = _angle(fit, geometry)
     halves = []
-    mid = 0.5 * (band[0] + band[1])
+    mid = 0.5 * (used + hi)
     for part in (sel & (rel < mid), sel & (rel >= mid)):
         try:
             halves.append(_angle(robust_line(xu[part], yu[part]), geometry)[0])
@@ -143,7 +173,8 @@ def _fit_flank(side: str, x, y, xu, yu, toe_y: float, apex_y: float, band, geome
     outer = x[0] if side == "left" else x[-1]
     xs = xu[sel]
     return Flank(side, ang, sig, int(sel.sum()), int(fit.inliers.sum()), fit.scale, halves[0], halves[1],
-                 fit.intercept, fit.slope, (float(xs.min()), float(xs.max())), (float(outer), float(toe_y)))
+                 fit.intercept, fit.slope, (float(xs.min()), float(xs.max())), (float(outer), float(toe_y)),
+                 (round(used, 3), hi))
 
 
 def measure_outline(outline: Outline, side: str = "both", band=BAND, geometry: CameraGeometry | None = None,

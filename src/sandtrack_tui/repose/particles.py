@@ -30,6 +30,7 @@ BAND = (0.2, 0.8)
 SLICES = 16
 MIN_PARTICLES = 200
 CELL_DIAMETERS = 2.0  # grid cell for the surface particles: every cell holds a particle of the top layer
+NORMAL_PASSES = 2
 
 
 @dataclass
@@ -120,6 +121,28 @@ def surface_particles(uvh: np.ndarray, cell: float) -> np.ndarray:
     return order[last]
 
 
+def flank_surface(uvh: np.ndarray, axis: tuple[float, float], angle_rad: float, cell: float) -> np.ndarray:
+    """Indices of the outermost particle in each cell of a grid laid along the flank: coordinates down
+    the slope (s) and across it (arc length), outermost = furthest along the flank's outward normal.
+    On the flank's own plane the choice does not depend on how far down the slope a cell is."""
+    du, dv = uvh[:, 0] - axis[0], uvh[:, 1] - axis[1]
+    r = np.hypot(du, dv)
+    phi = np.arctan2(dv, du) + np.pi
+    h = uvh[:, 2]
+    c, s_ = np.cos(angle_rad), np.sin(angle_rad)
+    down = r * c - h * s_
+    out = r * s_ + h * c
+    i_s = np.floor((down - down.min()) / cell).astype(np.int64)
+    r_mid = np.maximum((i_s + 0.5) * cell, cell)  # radius of the band of cells, for their arc width
+    n_arc = np.maximum(np.floor(2 * np.pi * r_mid / cell), 1.0)
+    i_a = np.floor(phi / (2 * np.pi) * n_arc).astype(np.int64)
+    key = i_s * (int(n_arc.max()) + 1) + i_a
+    order = np.lexsort((out, key))
+    last = np.ones(len(order), bool)
+    last[:-1] = key[order][1:] != key[order][:-1]
+    return order[last]
+
+
 def _fit_cone(u, v, h, start, scale):
     from scipy.optimize import least_squares
 
@@ -156,6 +179,17 @@ def measure_particles(xyz_mm: np.ndarray, up: str | None = None, slices: int = S
     crest = s[rel >= 0.9]
     start = [top, 1.0, float(np.median(crest[:, 0])), float(np.median(crest[:, 1]))]
     a, t, cu, cv = _fit_cone(s[in_band, 0], s[in_band, 1], s[in_band, 2], start, diameter / 2)
+    for _ in range(NORMAL_PASSES):  # the same, with the cells laid along the flank
+        surf = flank_surface(uvh, (cu, cv), float(np.arctan(abs(t))), CELL_DIAMETERS * diameter)
+        s = uvh[surf]
+        # the band by distance from the axis (where the cone is 0.2-0.8 high), not by each particle's own
+        # height: cutting on the fitted variable would drop the high outliers at the top and the low ones at
+        # the bottom and flatten every fit
+        rel = (a - abs(t) * np.hypot(s[:, 0] - cu, s[:, 1] - cv) - base) / height
+        in_band = (rel >= band[0]) & (rel <= band[1])
+        a, t, cu, cv = _fit_cone(s[in_band, 0], s[in_band, 1], s[in_band, 2], [a, t, cu, cv], diameter / 2)
+    rel = (a - abs(t) * np.hypot(s[:, 0] - cu, s[:, 1] - cv) - base) / height
+    in_band = (rel >= band[0]) & (rel <= band[1])
     cone_angle = float(np.degrees(np.arctan(abs(t))))
     r = np.hypot(s[:, 0] - cu, s[:, 1] - cv)
     az = np.degrees(np.arctan2(s[:, 1] - cv, s[:, 0] - cu)) % 360.0

@@ -18,12 +18,12 @@ def _f(v, fmt=".2f", none="-") -> str:
 
 def image_text(r: ImageResult, width: int = 60, plot: bool = True) -> str:
     lines = [f"{r.source}: angle of repose {r.angle_deg:.2f} deg ± {r.sigma_deg:.2f} "
-             f"({'mean of both flanks' if len(r.flanks) == 2 else 'one flank'}; {r.geometry}; "
-             f"fitted between {r.band[0]:.0%} and {r.band[1]:.0%} of the height)",
-             "  flank   angle   ±1σ   lower half  upper half  points  inliers  rms px"]
+             f"({'mean of both flanks' if len(r.flanks) == 2 else 'one flank'}; {r.geometry})",
+             "  flank   angle   ±1σ   lower half  upper half  band       points  inliers  rms px"]
     for f in r.flanks.values():
         lines.append(f"  {f.side:<6} {f.angle_deg:6.2f}  {f.sigma_deg:5.2f}  {_f(f.lower_deg):>10}  "
-                     f"{_f(f.upper_deg):>10}  {f.points:6d}  {f.inliers:7d}  {f.rms_px:6.2f}")
+                     f"{_f(f.upper_deg):>10}  {f.band[0]:.2f}-{f.band[1]:.2f}  {f.points:6d}  {f.inliers:7d}  "
+                     f"{f.rms_px:6.2f}")
     size = f"heap {r.height_px:.0f} px high"
     if r.height_mm is not None:
         size += f" ({r.height_mm:.1f} mm)"

@@ -12,8 +12,9 @@
    boundary.
 3. The outline is the top edge of the mask per image column, refined to a fraction of a pixel:
    across the edge each pixel is taken as a mix of the background just above and the heap just
-   below, and the edge lies where the summed background fractions put it. This does not depend on
-   how bright either side is, so a flank that darkens along its length is not tilted.
+   below (`subpixel_edges`), and the edge lies where the summed background fractions put it. This
+   does not depend on how bright either side is, so a flank that darkens along its length, or meets
+   a shadow on the backdrop, is not tilted.
 """
 
 from __future__ import annotations
@@ -31,8 +32,10 @@ DARK_LEVEL = 4.0  # added to every channel: near-black pixels have no meaningful
 TEXTURE_WEIGHT = 10.0  # low: the edges of shadows and of the plate have local contrast too
 OPEN_FRACTION = 0.01  # masks are opened with a disk of this share of the image's long side
 MIN_AREA_FRACTION = 0.002
-EDGE_WIN = 4  # +- rows mixed across the edge
-EDGE_REF = 5  # rows averaged for the pure colours on either side
+EDGE_WIN = 5  # +- rows mixed across the edge
+EDGE_REF_NEAR, EDGE_REF_FAR = 6, 12  # rows of pure background above / heap below the edge
+EDGE_POOL = 10  # +- columns pooled for the two sides' colour statistics
+MIN_SEPARATION = 16.0  # squared Mahalanobis distance between the sides (4 standard deviations)
 
 
 @dataclass
@@ -142,29 +145,50 @@ def refine_mask(img: np.ndarray, small_mask: np.ndarray, s: float, iterations: i
     return _largest(_open((gc == cv2.GC_FGD) | (gc == cv2.GC_PR_FGD), max(h, w))), (x0, y0)
 
 
+def _pooled(a: np.ndarray, half: int) -> np.ndarray:
+    """Sums over the neighbouring columns j - half .. j + half (along axis 0)."""
+    c = np.concatenate([np.zeros((1,) + a.shape[1:]), np.cumsum(a, axis=0)])
+    j = np.arange(len(a))
+    return c[np.minimum(j + half + 1, len(a))] - c[np.maximum(j - half, 0)]
+
+
 def subpixel_edges(img: np.ndarray, x: np.ndarray, top: np.ndarray) -> np.ndarray:
-    """Sub-pixel top edge per column (see module docstring); the pixel edge top - 0.5 where the two
-    sides do not differ enough to tell."""
-    f = img.astype(np.float32)
+    """Sub-pixel top edge per column (see module docstring): pixel edge ``top - 0.5`` where the two sides
+    cannot be told apart.
+
+    Each pixel across the edge is projected on Fisher's discriminant between the background above (rows
+    6-12 above the mask's edge) and the heap below (rows 6-12 under it), both pooled over +-10
+    neighbouring columns, in chromaticity and log intensity: the projection, between 0 (background) and 1
+    (heap), is the pixel's heap fraction, and the edge lies below the top of the window by the sum of the
+    background fractions. The weights follow what separates the two sides here: where a shadow on the
+    backdrop is as dark as the sand it is the colour, so the flank's dark rim (grazing light) still counts
+    as sand."""
+    r, g, log_i = _chroma(img)
+    feat = np.dstack([r * 100.0, g * 100.0, log_i]).astype(np.float64)
     h = img.shape[0]
     xi, ti = x.astype(int), top.astype(int)
     out = ti - 0.5
-    ok = (ti - EDGE_WIN - EDGE_REF >= 0) & (ti + EDGE_WIN + EDGE_REF < h)
-    if not ok.any():
+    ok = (ti - EDGE_REF_FAR >= 0) & (ti + EDGE_REF_FAR < h)
+    if ok.sum() < 3:
         return out
     xs, ts = xi[ok], ti[ok]
-    rows = ts[:, None] + np.arange(-EDGE_WIN - EDGE_REF, EDGE_WIN + EDGE_REF + 1)[None, :]
-    col = f[rows, xs[:, None]]  # (n, window, 3)
-    bg = col[:, :EDGE_REF].mean(1)
-    fg = col[:, -EDGE_REF:].mean(1)
-    mid = col[:, EDGE_REF:EDGE_REF + 2 * EDGE_WIN + 1]
-    dv = fg - bg
-    n2 = (dv * dv).sum(1)
-    frac = np.clip(((mid - bg[:, None]) * dv[:, None]).sum(2) / np.maximum(n2, 1e-9)[:, None], 0.0, 1.0)
-    edge = ts - EDGE_WIN - 0.5 + (1.0 - frac).sum(1)
-    contrast = n2 > 100.0  # colour difference of 10 levels at least
+    win = feat[ts[:, None] + np.arange(-EDGE_REF_FAR, EDGE_REF_FAR + 1)[None, :], xs[:, None]]  # (n, rows, 3)
+    stats = []
+    for side in (win[:, :EDGE_REF_FAR - EDGE_REF_NEAR + 1], win[:, EDGE_REF_FAR + EDGE_REF_NEAR:]):
+        count = _pooled(np.full(len(side), side.shape[1], float), EDGE_POOL)
+        mean = _pooled(side.sum(axis=1), EDGE_POOL) / count[:, None]
+        second = _pooled(np.einsum("nki,nkj->nij", side, side), EDGE_POOL) / count[:, None, None]
+        stats.append((mean, second - np.einsum("ni,nj->nij", mean, mean)))
+    (mb, cb), (ms, cs) = stats
+    dmu = ms - mb
+    w = np.linalg.solve(0.5 * (cb + cs) + 1e-4 * np.eye(3)[None], dmu[..., None])[..., 0]
+    separation = (dmu * w).sum(axis=1)  # squared Mahalanobis distance between the two sides
+    mid = win[:, EDGE_REF_FAR - EDGE_WIN:EDGE_REF_FAR + EDGE_WIN + 1]
+    frac = np.clip(((mid - mb[:, None]) * w[:, None]).sum(axis=2) / np.maximum(separation, 1e-12)[:, None], 0.0, 1.0)
+    edge = ts - EDGE_WIN - 0.5 + (1.0 - frac).sum(axis=1)
+    good = separation > MIN_SEPARATION
     res = out[ok]
-    res[contrast] = edge[contrast]
+    res[good] = edge[good]
     out[ok] = res
     return out
 
