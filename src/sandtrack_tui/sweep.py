@@ -165,18 +165,16 @@ def fit_surface(x: np.ndarray, y: np.ndarray, names: list[str], response: str) -
     ok = np.isfinite(y)
     x, y = x[ok], y[ok]
     levels = [len(np.unique(np.round(x[:, i], 9))) for i in range(x.shape[1])]
-    for kind in ("quadratic", "linear + interactions", "linear"):
+    for kind in ("quadratic", "linear + interactions", "linear"):  # the largest model the runs support
         terms, powers = _terms(names, levels, kind)
-        if len(y) >= len(terms) + 2:
+        s = Surface(response, terms, powers, np.zeros(len(terms)), 0, 0, 0, 0, len(y), kind)
+        A = s.design(x)
+        if len(y) >= len(terms) + 2 and np.linalg.matrix_rank(A) == len(terms):
             break
     else:
-        raise SandtrackError(f"{response}: {len(y)} runs are too few for even a linear fit in {len(names)} "
-                             "parameters")
-    s = Surface(response, terms, powers, np.zeros(len(terms)), 0, 0, 0, 0, len(y), kind)
-    A = s.design(x)
+        raise SandtrackError(f"{response}: {len(y)} runs do not support even a linear fit in {len(names)} "
+                             "parameters (too few runs, or parameters that vary together)")
     coef, *_ = np.linalg.lstsq(A, y, rcond=None)
-    if np.linalg.matrix_rank(A) < len(terms):
-        raise SandtrackError(f"{response}: the runs do not separate the {kind} model's terms (a degenerate design)")
     res = y - A @ coef
     sse, sst = float(res @ res), float(((y - y.mean()) ** 2).sum())
     n, p = len(y), len(terms)

@@ -26,7 +26,8 @@ def register(sub) -> None:
     d.add_argument("--dem-units", choices=["m", "cm", "mm"], help="length unit (default: from the data)")
     d.add_argument("--dt", type=float, help="DEM time step (s), for dumps without ITEM: TIME (else times are steps)")
     d.add_argument("--type", dest="types", help="particle types to keep, e.g. 1 or 1,2 (default: all)")
-    d.add_argument("--slices", type=int, default=16, help="radial slices (default 16)")
+    d.add_argument("--slices", type=int, help="radial slices (default 16, fewer for a small heap: about 30 "
+                   "surface particles in each)")
     p.add_argument("--band", default="0.2,0.8", metavar="LO,HI",
                    help="part of the heap's height fitted, from the base (default 0.2,0.8: toe and top left out)")
     p.add_argument("--plot", metavar="PNG", help="write a figure of the result")

@@ -106,7 +106,8 @@ def load_result(path: str | Path) -> dict:
 
 
 def measure_dem(path, up: str | None = None, units: str | None = None, dt: float | None = None,
-                types: list[int] | None = None, slices: int = 16, band=BAND, progress=None, should_stop=None):
+                types: list[int] | None = None, slices: int | None = None, band=BAND, progress=None,
+                should_stop=None):
     """A DEM file: a DumpResult for one output step, a SeriesResult (kind "dump") for several."""
     from ..dem import read_dem
 
@@ -154,7 +155,7 @@ def _dump_has_time(path) -> bool:
 def measure_path(path, *, side: str = "both", band=BAND, calibration=None, camera: str | None = None,
                  scale_mm_per_px: float | None = None, every_s: float | None = None, up: str | None = None,
                  units: str | None = None, dt: float | None = None, types: list[int] | None = None,
-                 slices: int = 16, progress=None, should_stop=None, _in_folder: bool = False):
+                 slices: int | None = None, progress=None, should_stop=None, _in_folder: bool = False):
     """Measure any supported input (see module docstring)."""
     kind = kind_of(path)
     image_kw = {"side": side, "band": band, "calibration": calibration, "camera": camera,

@@ -5,9 +5,10 @@ the toe level is the outline's height at its outer end, the heap height is toe m
 straight middle part is fitted: outline points between `band` = (0.2, 0.8) of that height, leaving out
 the toe and the rounded top as the usual standards do. The fit is a robust line (`fit.robust_line`),
 first over the band's upper half, then extended down the band in steps of 5 % of the height while the
-outline's median there stays within max(3 px, 2.5 x its scatter) of the line: from a camera above the
-heap the plate's rim curves away below the flank and is left out (the band used is reported). The
-fitted part's lower and upper halves are fitted too, to show whether the flank is straight.
+outline's median there stays within 1.5 % of the heap's height (or 2.5 x its scatter) of the line:
+from a camera above the heap the plate's rim curves away below the flank and is left out (the band
+used is reported). The fitted part's lower and upper halves are fitted too, to show whether the
+flank is straight.
 
 Geometry
 - Without a calibration the image is taken as a square-pixel view with level rows: the angle is the
@@ -41,7 +42,7 @@ TOE_FRACTION = 0.02  # outermost share of a flank's columns whose median height 
 MIN_HEIGHT_PX = 12
 MIN_BAND_POINTS = 12
 STRAIGHT_STEP = 0.05  # the band is extended downwards in steps of this share of the height
-STRAIGHT_PX = 3.0  # ... while the outline's median there stays this close to the line,
+STRAIGHT_FRACTION = 0.015  # ... while the outline's median there stays this share of the height from the line,
 STRAIGHT_SIGMAS = 2.5  # or this many times the outline's scatter about it
 TILT_WARN_DEG = 1.5
 
@@ -158,7 +159,7 @@ def _fit_flank(side: str, x, y, xu, yu, toe_y: float, apex_y: float, band, geome
         seg = (rel >= step) & (rel < used)
         if seg.sum() >= 3:
             off = float(np.median(yu[seg] - (fit.intercept + fit.slope * xu[seg])))
-            if abs(off) > max(STRAIGHT_PX, STRAIGHT_SIGMAS * fit.scale):
+            if abs(off) > max(STRAIGHT_FRACTION * height, STRAIGHT_SIGMAS * fit.scale):
                 break
         used = float(step)
         fit, sel, rel = _band_fit(xu, yu, y, toe_y, height, used, hi, side)

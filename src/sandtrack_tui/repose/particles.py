@@ -10,7 +10,8 @@
 3. The heap's axis is found by fitting a cone ``h = a - tan(angle) * distance from the axis`` to the
    surface particles between `band` = (0.2, 0.8) of the heap's height (soft-L1 loss): the rounded
    top and the toe, with any spilled particles, are left out.
-4. Radial slices: around that axis the surface is cut into `slices` equal sectors; in each, the
+4. Radial slices: around that axis the surface is cut into `slices` equal sectors (default: 16, fewer
+   for a small heap, so that each holds about 30 surface particles in the band); in each, the
    surface particles' height against their distance from the axis is fitted by a robust line
    (`fit.robust_line`) on the same band; the slice's angle is that line's angle to the base plane.
    The angle of repose is the mean over the slices, with their standard deviation (the heap's own
@@ -31,6 +32,7 @@ SLICES = 16
 MIN_PARTICLES = 200
 CELL_DIAMETERS = 2.0  # grid cell for the surface particles: every cell holds a particle of the top layer
 NORMAL_PASSES = 2
+POINTS_PER_SLICE = 30
 
 
 @dataclass
@@ -153,7 +155,7 @@ def _fit_cone(u, v, h, start, scale):
     return sol.x
 
 
-def measure_particles(xyz_mm: np.ndarray, up: str | None = None, slices: int = SLICES, band=BAND,
+def measure_particles(xyz_mm: np.ndarray, up: str | None = None, slices: int | None = None, band=BAND,
                       radius_mm: np.ndarray | None = None, source: str = "dump",
                       time: float | None = None) -> DumpResult:
     """Angle of repose of one snapshot of a heap (see module docstring)."""
@@ -161,7 +163,7 @@ def measure_particles(xyz_mm: np.ndarray, up: str | None = None, slices: int = S
     xyz = xyz[np.isfinite(xyz).all(axis=1)]
     if len(xyz) < MIN_PARTICLES:
         raise SandtrackError(f"{source}: {len(xyz)} particles: too few for a heap (at least {MIN_PARTICLES})")
-    if slices < 3:
+    if slices is not None and slices < 3:
         raise SandtrackError("at least 3 slices")
     k, sign = parse_up(up) if up else detect_up(xyz)
     others = [i for i in range(3) if i != k]
@@ -193,6 +195,8 @@ def measure_particles(xyz_mm: np.ndarray, up: str | None = None, slices: int = S
     cone_angle = float(np.degrees(np.arctan(abs(t))))
     r = np.hypot(s[:, 0] - cu, s[:, 1] - cv)
     az = np.degrees(np.arctan2(s[:, 1] - cv, s[:, 0] - cu)) % 360.0
+    if slices is None:  # as many as keep about POINTS_PER_SLICE surface particles in each
+        slices = int(np.clip(in_band.sum() // POINTS_PER_SLICE, 4, SLICES))
     width = 360.0 / slices
     out: list[Slice] = []
     warnings: list[str] = []

@@ -21,6 +21,7 @@ Grain-scale roughness (zero mean, ~``rough_mm``) makes the outline ragged as on 
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import cv2
@@ -68,6 +69,16 @@ class Heap:
         return float(max(self.base_radius(1.0), self.base_radius(-1.0)))
 
 
+@functools.lru_cache(maxsize=4)
+def _roughness_tile(seed: int) -> np.ndarray:
+    """Unit-RMS grain-scale roughness, a periodic 1024 x 1024 tile (512 mm at 0.5 mm)."""
+    from .textures import _noise
+
+    rng = np.random.default_rng(7919 + seed)
+    r = 0.8 * _noise(rng, (1024, 1024), 1.5) + 0.6 * _noise(rng, (1024, 1024), 5.0)
+    return (r / r.std()).astype(np.float32)
+
+
 @dataclass
 class HeapSurface:
     """The heap's height field with its roughness: h(X, Z) in mm, vectorised."""
@@ -77,12 +88,7 @@ class HeapSurface:
     _rough: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self):
-        from .textures import _noise
-
-        rng = np.random.default_rng(7919 + self.heap.rough_seed)
-        n = 1024  # 512 mm tile
-        r = 0.8 * _noise(rng, (n, n), 1.5) + 0.6 * _noise(rng, (n, n), 5.0)
-        self._rough = (r / r.std() * self.heap.rough_mm).astype(np.float32)
+        self._rough = _roughness_tile(self.heap.rough_seed) * np.float32(self.heap.rough_mm)
 
     def rough(self, X, Z):
         """Bilinear lookup in the periodic roughness tile."""

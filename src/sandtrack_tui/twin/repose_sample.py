@@ -91,8 +91,8 @@ def _camera_file(path: Path, shot: Shot) -> None:
                         "world": "origin on the plate at the heap's axis, Y up"}).save(path)
 
 
-def _dump(path: Path, heap: Heap, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    P, rad = heap_particles(heap, seed=seed)
+def _dump(path: Path, heap: Heap, seed: int, diameter: float) -> tuple[np.ndarray, np.ndarray]:
+    P, rad = heap_particles(heap, seed=seed, diameter_mm=diameter)
     write_liggghts_dump(path, [(200000, P, rad)])
     return P, rad
 
@@ -103,7 +103,8 @@ def _mean_slice_angle(heap: Heap) -> float:
     return float(np.degrees(np.arctan(heap.slope(np.cos(phi)))).mean())
 
 
-def render_repose(out_dir: str | Path, seed: int = 0, log=lambda msg: None) -> dict:
+def render_repose(out_dir: str | Path, seed: int = 0, log=lambda msg: None, quick: bool = False) -> dict:
+    """Render the preset; `quick`: the same files small and coarse (tests of the file layout)."""
     from .textures import Textures
     from .writer import AUDIO_RATE, Mp4Writer
 
@@ -119,16 +120,21 @@ def render_repose(out_dir: str | Path, seed: int = 0, log=lambda msg: None) -> d
     t0 = time.perf_counter()
     tex = Textures(seed)
     truth: list[dict] = []
-    level = Shot(**LEVEL)
+    size = dict(width=480, height=270) if quick else {}
+    diameter = 9.0 if quick else 5.0
+    level = Shot(**LEVEL, **size)
     _camera_file(rep / "camera.toml", level)
+    from .rig import pixel_rays
+
+    level_rays = pixel_rays(level.camera())  # one tripod position for every level photo
     angles = _angles(seed)
     for k, ((_, backdrop, back_z, lamp), angle) in enumerate(zip(PHOTOS, angles, strict=True)):
         heap = _heap(angle, seed=seed + k)
-        shot = Shot(**LEVEL, backdrop_bgr=backdrop, backdrop_z_mm=back_z, lamp_mm=lamp)
+        shot = Shot(**LEVEL, **size, backdrop_bgr=backdrop, backdrop_z_mm=back_z, lamp_mm=lamp)
         name = f"heap_{k + 1:02d}"
-        cv2.imwrite(str(rep / f"{name}.jpg"), render_heap(heap, shot, seed + k, tex),
+        cv2.imwrite(str(rep / f"{name}.jpg"), render_heap(heap, shot, seed + k, tex, level_rays),
                     [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
-        P, _ = _dump(rep / f"{name}.liggghts", heap, seed + k)
+        P, _ = _dump(rep / f"{name}.liggghts", heap, seed + k, diameter)
         write_exchange_csv(rep / f"{name}.csv", 2.0, P)
         truth += [{"file": f"repose/{name}.jpg", "angle_deg": angle, "angle_left_deg": angle,
                    "angle_right_deg": angle, "kind": "photo", "camera": "repose/camera.toml"},
@@ -136,9 +142,10 @@ def render_repose(out_dir: str | Path, seed: int = 0, log=lambda msg: None) -> d
                   {"file": f"repose/{name}.csv", "angle_deg": angle, "kind": "csv"}]
         log(f"  {name}: {angle:g} deg ({time.perf_counter() - t0:.0f} s)")
     heap = _heap(*ASYM, seed=seed + 10)
-    cv2.imwrite(str(rep / "heap_asym.jpg"), render_heap(heap, Shot(**LEVEL, lamp_mm=(-350.0, 450.0, 450.0)),
-                                                        seed + 10, tex), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
-    _dump(rep / "heap_asym.liggghts", heap, seed + 10)
+    asym = Shot(**LEVEL, **size, lamp_mm=(-350.0, 450.0, 450.0))
+    cv2.imwrite(str(rep / "heap_asym.jpg"), render_heap(heap, asym, seed + 10, tex, level_rays),
+                [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+    _dump(rep / "heap_asym.liggghts", heap, seed + 10, diameter)
     truth += [{"file": "repose/heap_asym.jpg", "angle_deg": heap.angle_deg, "angle_left_deg": ASYM[0],
                "angle_right_deg": ASYM[1], "kind": "photo", "camera": "repose/camera.toml"},
               {"file": "repose/heap_asym.liggghts", "angle_deg": _mean_slice_angle(heap), "angle_left_deg": ASYM[0],
@@ -146,7 +153,7 @@ def render_repose(out_dir: str | Path, seed: int = 0, log=lambda msg: None) -> d
                "note": "angle_deg: the flank angle averaged over the azimuth (what the mean of radial slices finds)"}]
     high_angle = angles[3]
     heap = _heap(high_angle, seed=seed + 3)
-    high = Shot(**HIGH, lamp_mm=(-300.0, 500.0, 400.0))
+    high = Shot(**HIGH, **size, lamp_mm=(-300.0, 500.0, 400.0))
     _camera_file(rep / "camera_high.toml", high)
     cv2.imwrite(str(rep / "heap_high.jpg"), render_heap(heap, high, seed + 11, tex),
                 [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
@@ -156,11 +163,10 @@ def render_repose(out_dir: str | Path, seed: int = 0, log=lambda msg: None) -> d
     log(f"  photos and dumps done ({time.perf_counter() - t0:.0f} s); settling video")
     # the settling heap: video and multi-step dump
     a0, a1, ts0, ts1, duration = SETTLE
-    vshot = Shot(**LEVEL, width=960, height=540, backdrop_bgr=LIGHT_GREY, lamp_mm=(-400.0, 380.0, 420.0))
-    from .rig import pixel_rays
-
+    vshot = Shot(**LEVEL, width=240 if quick else 960, height=136 if quick else 540, backdrop_bgr=LIGHT_GREY,
+                 lamp_mm=(-400.0, 380.0, 420.0))
     rays = pixel_rays(vshot.camera())
-    n = int(round(duration * VIDEO_FPS))
+    n = 4 if quick else int(round(duration * VIDEO_FPS))
     times = np.arange(n) / VIDEO_FPS
     silent = np.zeros(int(duration * AUDIO_RATE), np.float32)
 
@@ -180,7 +186,7 @@ def render_repose(out_dir: str | Path, seed: int = 0, log=lambda msg: None) -> d
     steps = []
     for k, t in enumerate(np.arange(0.0, duration + 1e-9, 0.5)):
         ang = float(_settle_angle(t))
-        P, rad = heap_particles(_heap(ang, height=settle_height(ang)), seed=seed + 30 + k)
+        P, rad = heap_particles(_heap(ang, height=settle_height(ang)), seed=seed + 30 + k, diameter_mm=diameter)
         steps.append((int(round(t / DT_S)), P, rad))
     write_liggghts_dump(rep / "settling.liggghts", steps)
     curve = [[round(float(t), 3), round(float(_settle_angle(t)), 4)] for t in times]
