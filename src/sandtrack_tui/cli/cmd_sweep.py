@@ -35,7 +35,8 @@ def register(sub) -> None:
     d.add_argument("--offset-mm", default="0,0,0", help="DEM origin in rig coordinates for trajectories, mm")
     d.add_argument("--dt", type=float, help="DEM time step (s) for dumps without ITEM: TIME")
     d.add_argument("--up", help="the DEM's up axis for heaps (default: detected)")
-    d.add_argument("--workers", type=int, default=2, help="processes measuring the runs (default 2)")
+    d.add_argument("--workers", type=int, default=1,
+                   help="processes measuring the runs (default 1; more pay off for large dumps)")
     p.add_argument("--out", metavar="CSV", help="write the ranked table")
     p.add_argument("--plot", metavar="PNG", help="write the ranking, fit and effects as a figure")
     add_json_flag(p)

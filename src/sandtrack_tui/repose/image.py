@@ -304,10 +304,9 @@ def measure_video(path: str | Path, every_s: float | None = None, max_samples: i
         for k, i in enumerate(idx):
             if should_stop is not None and should_stop():
                 break
-            t = float(src.times[i]) if hasattr(src, "times") else i / src.fps
-            times.append(t)
+            times.append(float(src.times_s[i] - src.times_s[0]))
             try:
-                r = measure_image(src.frame(i), source=f"{path}#{i}", **kw)
+                r = measure_image(src.frame(i), source=f"{path} frame {i}", **kw)
                 ang.append(r.angle_deg)
                 left.append(r.flanks["left"].angle_deg if "left" in r.flanks else np.nan)
                 right.append(r.flanks["right"].angle_deg if "right" in r.flanks else np.nan)

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from ..compare import text_plot
+from ..errors import SandtrackError
 from . import FolderResult
 from .image import ImageResult, SeriesResult
 from .particles import DumpResult
@@ -175,7 +176,7 @@ def plot(result, path: str | Path, image: np.ndarray | None = None) -> Path:
         ax.set_ylabel("angle (deg)")
         ax.set_title(f"mean {result.angle_deg:.2f}° (SD {result.sd_deg:.2f})")
     else:
-        raise ValueError("nothing to plot for a saved result")
+        raise SandtrackError("a saved result has nothing to plot")
     fig.savefig(out, dpi=100)
     plt.close(fig)
     return out
