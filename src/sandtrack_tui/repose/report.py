@@ -77,8 +77,10 @@ def series_text(r: SeriesResult, width: int = 60, plot: bool = True, rows: int =
         lines.append("  not measured: " + ", ".join(f"{k} ({v})" for k, v in r.failures.items()))
     idx = np.unique(np.linspace(0, len(r.time_s) - 1, min(rows, len(r.time_s))).round().astype(int))
     lines.append(f"  {'time (' + unit + ')':>12}  angle   left   right")
+    tfmt = "12.0f" if unit == "step" else "12.3f"
     for i in idx:
-        lines.append(f"  {r.time_s[i]:12.3f}  {_f(r.angle_deg[i]):>5}  {_f(r.left_deg[i]):>5}  {_f(r.right_deg[i]):>5}")
+        lines.append(f"  {r.time_s[i]:{tfmt}}  {_f(r.angle_deg[i]):>5}  {_f(r.left_deg[i]):>5}  "
+                     f"{_f(r.right_deg[i]):>5}")
     if plot and ok.sum() >= 2:
         series = [("angle", r.time_s[ok], r.angle_deg[ok])]
         lines.append(text_plot(series, width, 8, y_label="angle (deg)", x_label=f"time ({unit})"))
