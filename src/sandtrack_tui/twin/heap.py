@@ -283,18 +283,3 @@ def render_heap(heap: Heap, shot: Shot, seed: int = 0, textures=None, rays=None)
     img = col * 255.0 + rng.normal(0.0, 2.0, col.shape)
     return np.clip(np.round(img), 0, 255).astype(np.uint8)
 
-
-def heap_coverage(heap: Heap, shot: Shot, box: tuple[int, int, int, int], supersample: int = 4) -> np.ndarray:
-    """Fraction of each pixel of `box` (x0, y0, x1, y1) that sees the heap: the exact silhouette, for tests."""
-    cam = shot.camera()
-    x0, y0, x1, y1 = box
-    k = supersample
-    off = (np.arange(k) + 0.5) / k - 0.5
-    ys, xs = np.mgrid[y0:y1, x0:x1].astype(float)
-    px = (xs[..., None, None] + off[None, None, None, :]).repeat(k, axis=2)
-    py = (ys[..., None, None] + off[None, None, :, None]).repeat(k, axis=3)
-    C, d = pixel_rays(cam, px.ravel(), py.ravel())
-    surface = HeapSurface(heap)
-    lo, hi = _cylinder_span(C, d, heap.max_radius() + 1.0, heap.height_mm + 4 * heap.rough_mm + 1.0)
-    _, hit = march(surface, C, d, lo, hi, step_mm=0.5, bisect=0)
-    return hit.reshape(y1 - y0, x1 - x0, k * k).mean(axis=2)
