@@ -73,10 +73,13 @@ def make_frames(folder: Path) -> Path:
 
 
 def make_project(folder: Path, name: str = "synthetic", frames: Path | None = None,
-                 calibrated: bool = False) -> Project:
-    """A project in `folder` linking the frames in `frames` (rendered into `folder` if not given)."""
+                 calibrated: bool = False, synced: bool = True) -> Project:
+    """A project in `folder` linking the frames in `frames` (rendered into `folder` if not given).
+    synced: the cameras' sync offset (0: the rendered cameras are frame-locked) is stored, as if set in F2."""
     frames = frames or make_frames(folder)
     proj = Project.create(folder / f"{name}.sandtrack", {"side": frames / "side", "front": frames / "front"})
+    if synced:
+        proj.set("sync_offset_s", 0.0)
     if calibrated:
         proj.set_calibration(calibration())
     return proj

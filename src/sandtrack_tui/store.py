@@ -39,6 +39,7 @@ import pandas as pd
 from .errors import SandtrackError
 
 SCHEMA_VERSION = 3
+LABEL_MAX = 16  # characters of a marker label
 STATUSES = ("tracked", "occluded", "lost", "manual", "interpolated", "imported")
 POINT_COLUMNS = ["frame", "camera", "marker", "x_px", "y_px", "status", "score", "psr", "colour_frac"]
 _POINT_VALUES = POINT_COLUMNS[3:]
@@ -340,6 +341,11 @@ class Project:
     def sync_offset_s(self) -> float:
         return float(self.get("sync_offset_s", 0.0))
 
+    def sync_confirmed(self) -> bool:
+        """True once a sync offset was stored (measured, typed in, or 0 set on purpose); before that
+        `sync_offset_s` is a default of 0, which is wrong for cameras started by hand."""
+        return self.get("sync_offset_s") is not None
+
     def calibration(self):
         from .camera import Calibration
 
@@ -378,7 +384,20 @@ class Project:
         return self._write(fn)
 
     def rename_marker(self, marker_id: int, label: str) -> None:
-        self.add_marker(label, marker_id)
+        """Give a marker a new label (the name shown everywhere; its id stays), as one undoable edit."""
+        label = str(label).strip()
+        if not label or len(label) > LABEL_MAX or not label.isprintable():
+            raise SandtrackError(f"a marker label is 1-{LABEL_MAX} printable characters, not {label!r}")
+
+        def fn():
+            old = self.conn.execute("SELECT label FROM markers WHERE id=?", (marker_id,)).fetchone()
+            if old is None:
+                raise SandtrackError(f"no marker {marker_id}")
+            eid = self._new_edit("marker", f"rename marker {old[0]} to {label}")
+            self._log_row(eid, 0, "markers", str(marker_id), json.dumps(old[0]), json.dumps(label))
+            self.conn.execute("UPDATE markers SET label=? WHERE id=?", (label, marker_id))
+
+        self._write(fn)
 
     def delete_marker(self, marker_id: int) -> None:
         """Delete a marker and all its points (undoable)."""
@@ -630,6 +649,22 @@ class _Edit:
 
         self.project._write(fn)
         return len(keys)
+
+    def delete_marker(self, marker_id: int) -> None:
+        """Remove a marker's row (its points are this edit's business) as part of this edit."""
+        conn = self.project.conn
+
+        def fn():
+            if self.edit_id is None:
+                self.edit_id = self.project._new_edit(self.kind, self.description)
+            old = conn.execute("SELECT label FROM markers WHERE id=?", (int(marker_id),)).fetchone()
+            if old is None:
+                return
+            self.project._log_row(self.edit_id, self.seq, "markers", str(int(marker_id)), json.dumps(old[0]), None)
+            self.seq += 1
+            conn.execute("DELETE FROM markers WHERE id=?", (int(marker_id),))
+
+        self.project._write(fn)
 
 
 def _existing_values(conn, records) -> dict:

@@ -191,24 +191,91 @@ class Overlays:
     marks: list[MarkerMark] = field(default_factory=list)
     cursor: tuple[float, float] | None = None
     search: tuple[float, float, float, float] | None = None  # x, y, half_w, half_h (source px)
-    epipolar: np.ndarray | None = None  # (N, 2) source px along the selected marker's epipolar line
+    # the selected marker's epipolar curves from the other views: (N, 2) source px each, with a colour
+    epipolar: list[tuple[np.ndarray, tuple[int, int, int]]] = field(default_factory=list)
+
+
+@dataclass
+class LabelRequest:
+    """A marker id to place: `anchor` is the marker's cell, `box` the cells it must stay clear of
+    (the marker itself, or its whole box when zoomed in), `first` the spot tried first."""
+
+    text: str
+    style: Style
+    anchor: tuple[int, int]  # (row, col)
+    box: tuple[int, int, int, int]  # rows r0..r1, cols c0..c1 (inclusive)
+    first: tuple[int, int] | None = None
+    colour: tuple[int, int, int] = SELECTED_RGB
+
+
+# Spots tried around a marker, nearest first: beside, above, below, then diagonals; further rings after.
+_RING1 = ((0, 1), (0, -1), (-1, 0), (1, 0), (-1, 1), (1, 1), (-1, -1), (1, -1))
+MAX_LEADER_CELLS = 12
+
+
+def place_labels(requests: list[LabelRequest], rows: int, cols: int) -> list[tuple[LabelRequest, int, int, bool]]:
+    """Place every label inside the view where it covers no marker (nor a zoomed-in marker's box) and
+    no other label, with a free cell between it and any other label on its row, so that two ids never
+    read as one. A label with no room beside its marker goes further out (`far`: the caller draws a
+    leader line). Returns (request, row, col, far) per placed label, in the order given; a label is
+    left out only when no free spot exists within MAX_LEADER_CELLS cells of its marker."""
+    blocked = np.zeros((rows, cols), bool)
+    for q in requests:
+        r0, r1, c0, c1 = q.box
+        blocked[max(r0, 0):max(min(r1 + 1, rows), 0), max(c0, 0):max(min(c1 + 1, cols), 0)] = True
+    labelled = np.zeros((rows, cols), bool)
+    placed = []
+    for q in requests:
+        n = len(q.text)
+        for r, c, far in _spots(q, n):
+            if not (0 <= r < rows and c >= 0 and c + n <= cols):
+                continue
+            if blocked[r, c:c + n].any() or labelled[r, max(c - 1, 0):min(c + n + 1, cols)].any():
+                continue
+            labelled[r, c:c + n] = True
+            placed.append((q, r, c, far))
+            break
+    return placed
+
+
+def _spots(q: LabelRequest, n: int):
+    """Candidate (row, col, far) of a label's first cell, nearest to its marker (or box) first."""
+    if q.first is not None:
+        yield (*q.first, False)
+    r0, r1, c0, c1 = q.box
+    ar, ac = q.anchor
+    for dr, dc in _RING1:  # just outside the box, on each side
+        row = r0 - 1 if dr < 0 else r1 + 1 if dr > 0 else ar
+        col = c1 + 1 if dc > 0 else c0 - n if dc < 0 else ac - n // 2
+        yield row, col, False
+    for k in range(2, MAX_LEADER_CELLS + 1):  # rings further out (a row is as tall as two columns are wide)
+        h = (k + 1) // 2
+        for dr in range(-h, h + 1):
+            row = r0 + dr if dr <= 0 else r1 + dr
+            yield row, c1 + k, True
+            yield row, c0 - k - n + 1, True
+        for dc in range(-k, k + 1):
+            yield r0 - h, ac + dc - n // 2, True
+            yield r1 + h, ac + dc - n // 2, True
 
 
 def draw_overlays(rgb: np.ndarray, tf: ViewTransform, ov: Overlays) -> dict[tuple[int, int], tuple[str, Style]]:
-    """Draw boxes, crosshair, search window and epipolar line into `rgb` (in place); return the
-    text labels as {(row, col): (char, style)}."""
+    """Draw boxes, crosshair, search window and epipolar curves into `rgb` (in place); return the
+    text labels as {(row, col): (char, style)}: every marker's id, none over another id or a marker,
+    with a leader line where an id had to move away from its marker."""
     labels: dict[tuple[int, int], tuple[str, Style]] = {}
-    if ov.epipolar is not None and len(ov.epipolar) >= 2:
-        u, v = tf.source_to_display(ov.epipolar[:, 0], ov.epipolar[:, 1])
+    for curve, colour in ov.epipolar:
+        if curve is None or len(curve) < 2:
+            continue
+        u, v = tf.source_to_display(curve[:, 0], curve[:, 1])
         ok = np.isfinite(u) & np.isfinite(v) & (np.abs(u) < 1e5) & (np.abs(v) < 1e5)
         pts = np.round(np.stack([u[ok], v[ok]], axis=1)).astype(np.int32)
         if len(pts) >= 2:
-            cv2.polylines(rgb, [pts.reshape(-1, 1, 2)], False, EPIPOLAR_RGB, 1, cv2.LINE_8)
+            cv2.polylines(rgb, [pts.reshape(-1, 1, 2)], False, colour, 1, cv2.LINE_8)
     if ov.search is not None:
         x, y, hw, hh = ov.search
         _rect(rgb, tf, x - hw, y - hh, x + hw, y + hh, SEARCH_RGB)
-    requests = []  # (priority, label, style, candidate cells) for the ids, placed after drawing
-    marker_cells = set()
+    requests = []
     for m in ov.marks:
         if not (np.isfinite(m.x) and np.isfinite(m.y)):
             continue
@@ -217,34 +284,28 @@ def draw_overlays(rgb: np.ndarray, tf: ViewTransform, ov: Overlays) -> dict[tupl
                       bold=m.selected, reverse=m.selected)
         hs = max(m.half_size_px, 1.5 * tf.s)
         mc, mr = tf.source_to_cell(m.x, m.y)
-        marker_cells.add((mr, mc))
         if hs / tf.s < 2.5 and not m.selected:
             # zoomed out, boxes of neighbouring markers would merge: a status bar under the marker
             u, v = tf.source_to_display(m.x, m.y)
             u, v = int(round(float(u))), int(round(float(v)))
             for du in (-1, 0, 1):
                 _put(rgb, u + du, v + 2, colour)
-            n = len(m.label)
-            spots = [(mr, mc + 1), (mr, mc - n), (mr - 1, mc), (mr + 1, mc)]
-            requests.append((1, m.label, style, spots))
+            requests.append((1, LabelRequest(m.label, style, (mr, mc), (mr, mr, mc, mc), colour=colour)))
             continue
         _rect(rgb, tf, m.x - hs, m.y - hs, m.x + hs, m.y + hs, SELECTED_RGB if m.selected else colour)
         if m.selected:
             _rect(rgb, tf, m.x - hs - tf.s, m.y - hs - tf.s, m.x + hs + tf.s, m.y + hs + tf.s, colour)
-        col, row = tf.source_to_cell(m.x + hs, m.y - hs)
-        requests.append((0, m.label, style, [(row - 1 if row > 0 else row, col + 1)]))
-    # ids: boxed (and selected) markers first; a crowded id is left out rather than drawn over another
-    # id or over a marker (the timeline and the table name every marker anyway)
-    for prio, text, style, spots in sorted(requests, key=lambda r: r[0]):
-        for r0, c0 in spots:
-            cells = [(r0, c0 + k) for k in range(len(text))]
-            if not all(0 <= r < tf.rows and 0 <= c < tf.cols for r, c in cells):
-                continue
-            if prio and any(cell in labels or cell in marker_cells for cell in cells):
-                continue
-            for cell, ch in zip(cells, text, strict=True):
-                labels[cell] = (ch, style)
-            break
+        col0, row0 = tf.source_to_cell(m.x - hs, m.y - hs)
+        col1, row1 = tf.source_to_cell(m.x + hs, m.y + hs)
+        first = (row0 - 1 if row0 > 0 else row0, col1 + 1)
+        requests.append((0, LabelRequest(m.label, style, (mr, mc), (row0, row1, col0, col1), first, colour)))
+    # boxed (and selected) markers first: their ids sit at the box's corner as far as possible
+    ordered = [q for _prio, q in sorted(requests, key=lambda r: (r[0], r[1].anchor))]
+    for q, row, col, far in place_labels(ordered, tf.rows, tf.cols):
+        if far:
+            _leader(rgb, q, row, col)
+        for k, ch in enumerate(q.text):
+            labels[(row, col + k)] = (ch, q.style)
     if ov.cursor is not None:
         u, v = tf.source_to_display(*ov.cursor)
         u, v = int(round(float(u))), int(round(float(v)))
@@ -252,6 +313,14 @@ def draw_overlays(rgb: np.ndarray, tf: ViewTransform, ov: Overlays) -> dict[tupl
             for du, dv in ((d, 0), (-d, 0), (0, d), (0, -d)):
                 _put(rgb, u + du, v + dv, CURSOR_RGB)
     return labels
+
+
+def _leader(rgb: np.ndarray, q: LabelRequest, row: int, col: int) -> None:
+    """A thin line from a marker to its id placed away from it (display pixels: one per column, two per
+    row); the part under the id's cells is hidden by the id."""
+    ar, ac = q.anchor
+    end = (int(np.clip(ac, col, col + len(q.text) - 1)), 2 * row + 1)
+    cv2.line(rgb, (ac, 2 * ar + 1), end, tuple(int(v * 0.7) for v in q.colour), 1, cv2.LINE_8)
 
 
 def _t(rgb) -> tuple[int, int, int]:

@@ -65,3 +65,61 @@ class Confirm(ModalScreen[bool]):
 
     def action_no(self) -> None:
         self.dismiss(False)
+
+
+class AskText(ModalScreen[str | None]):
+    """Ask for a line of text; `check(text)` returns a problem to show, or None to accept it."""
+
+    DEFAULT_CSS = """
+    AskText { align: center middle; }
+    AskText > Vertical { width: 60; height: auto; border: round $accent; padding: 0 1; background: $surface; }
+    AskText Label { width: 100%; }
+    """
+    BINDINGS = [Binding("escape", "cancel", "cancel")]
+
+    def __init__(self, question: str, default: str = "", check=None, number: bool = False):
+        super().__init__()
+        self.question, self.default, self.check, self.number = question, default, check, number
+
+    def compose(self) -> ComposeResult:
+        with Vertical():
+            yield Label(self.question)
+            yield Input(value=self.default, type="number" if self.number else "text", id="text")
+            yield Label("", id="problem")
+
+    def on_input_submitted(self, event: Input.Submitted) -> None:
+        text = event.value.strip()
+        problem = self.check(text) if self.check is not None else None
+        if problem:
+            self.query_one("#problem", Label).update(f"[red]{problem}[/]")
+            return
+        self.dismiss(text)
+
+    def action_cancel(self) -> None:
+        self.dismiss(None)
+
+
+class SyncFirst(ModalScreen[str | None]):
+    """Tracking asked for while the cameras were never synced: sync now, track anyway, or cancel."""
+
+    DEFAULT_CSS = """
+    SyncFirst { align: center middle; }
+    SyncFirst > Vertical { width: 76; height: auto; border: round $warning; padding: 0 1; background: $surface; }
+    """
+    BINDINGS = [Binding("s,enter", "choose('sync')", "sync now"), Binding("t", "choose('anyway')", "track anyway"),
+                Binding("escape,c", "choose('')", "cancel")]
+
+    def __init__(self, cameras: str):
+        super().__init__()
+        self.cameras = cameras
+
+    def compose(self) -> ComposeResult:
+        with Vertical():
+            yield Label(f"[b]The cameras are not synced yet[/] ({self.cameras}). Tracking with an offset of 0 "
+                        "pairs frames taken at different times: once the markers move, the stereo check throws "
+                        "good views away and markers are lost.")
+            yield Label("[b]s[/] / enter: run the audio sync now, then track    [b]t[/]: track anyway (cameras "
+                        "that start together)    [b]escape[/]: cancel")
+
+    def action_choose(self, choice: str) -> None:
+        self.dismiss(choice or None)
