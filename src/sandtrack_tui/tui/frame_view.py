@@ -197,8 +197,8 @@ class Overlays:
 
 @dataclass
 class LabelRequest:
-    """A marker id to place: `anchor` is the marker's cell, `box` the cells it must stay clear of
-    (the marker itself, or its whole box when zoomed in), `first` the spot tried first."""
+    """A marker id to place: `anchor` is the marker's cell, `box` the cells around the bead (the spots
+    beside it are just outside), `first` the spot tried first."""
 
     text: str
     style: Style
@@ -210,36 +210,44 @@ class LabelRequest:
 
 # Spots tried around a marker, nearest first: beside, above, below, then diagonals; further rings after.
 _RING1 = ((0, 1), (0, -1), (-1, 0), (1, 0), (-1, 1), (1, 1), (-1, -1), (1, -1))
-MAX_LEADER_CELLS = 12
 
 
-def place_labels(requests: list[LabelRequest], rows: int, cols: int) -> list[tuple[LabelRequest, int, int, bool]]:
-    """Place every label inside the view where it covers no marker (nor a zoomed-in marker's box) and
-    no other label, with a free cell between it and any other label on its row, so that two ids never
-    read as one. A label with no room beside its marker goes further out (`far`: the caller draws a
-    leader line). Returns (request, row, col, far) per placed label, in the order given; a label is
-    left out only when no free spot exists within MAX_LEADER_CELLS cells of its marker."""
-    blocked = np.zeros((rows, cols), bool)
-    for q in requests:
-        r0, r1, c0, c1 = q.box
-        blocked[max(r0, 0):max(min(r1 + 1, rows), 0), max(c0, 0):max(min(c1 + 1, cols), 0)] = True
+def place_labels(requests: list[LabelRequest], rows: int, cols: int,
+                 blocked: np.ndarray | None = None) -> list[tuple[LabelRequest, int, int, bool]]:
+    """Place every label inside the view where it covers no marker (`blocked` cells; by default the
+    requests' boxes) and no other label, with a free cell between it and any other label on its row, so
+    that two ids never read as one. A label sits beside its marker only where no other marker is
+    nearer; otherwise it goes further out (`far`: the caller draws a leader line to it). Returns
+    (request, row, col, far) per placed label, in the order given; a label is left out only when the
+    view has no free spot for it at all."""
+    if blocked is None:
+        blocked = np.zeros((rows, cols), bool)
+        for q in requests:
+            r0, r1, c0, c1 = q.box
+            blocked[max(r0, 0):max(min(r1 + 1, rows), 0), max(c0, 0):max(min(c1 + 1, cols), 0)] = True
+    anchors = np.array([q.anchor for q in requests], float).reshape(-1, 2)
     labelled = np.zeros((rows, cols), bool)
     placed = []
-    for q in requests:
+    for k, q in enumerate(requests):
         n = len(q.text)
-        for r, c, far in _spots(q, n):
+        for r, c, far in _spots(q, n, max(rows, cols)):
             if not (0 <= r < rows and c >= 0 and c + n <= cols):
                 continue
             if blocked[r, c:c + n].any() or labelled[r, max(c - 1, 0):min(c + n + 1, cols)].any():
                 continue
+            if not far and len(anchors) > 1:
+                # a row is about as tall as two columns are wide
+                d = np.hypot(2.0 * (anchors[:, 0] - r), anchors[:, 1] - (c + (n - 1) / 2))
+                if d.argmin() != k and d.min() < d[k]:
+                    continue  # it would read as another marker's id
             labelled[r, c:c + n] = True
             placed.append((q, r, c, far))
             break
     return placed
 
 
-def _spots(q: LabelRequest, n: int):
-    """Candidate (row, col, far) of a label's first cell, nearest to its marker (or box) first."""
+def _spots(q: LabelRequest, n: int, reach: int):
+    """Candidate (row, col, far) of a label's first cell, nearest to its marker first, out to `reach` cells."""
     if q.first is not None:
         yield (*q.first, False)
     r0, r1, c0, c1 = q.box
@@ -248,7 +256,7 @@ def _spots(q: LabelRequest, n: int):
         row = r0 - 1 if dr < 0 else r1 + 1 if dr > 0 else ar
         col = c1 + 1 if dc > 0 else c0 - n if dc < 0 else ac - n // 2
         yield row, col, False
-    for k in range(2, MAX_LEADER_CELLS + 1):  # rings further out (a row is as tall as two columns are wide)
+    for k in range(2, reach + 1):  # rings further out (a row is as tall as two columns are wide)
         h = (k + 1) // 2
         for dr in range(-h, h + 1):
             row = r0 + dr if dr <= 0 else r1 + dr
@@ -257,6 +265,22 @@ def _spots(q: LabelRequest, n: int):
         for dc in range(-k, k + 1):
             yield r0 - h, ac + dc - n // 2, True
             yield r1 + h, ac + dc - n // 2, True
+
+
+def bead_cells(tf: ViewTransform, x: float, y: float, radius: float, out: np.ndarray) -> tuple[int, int, int, int]:
+    """Mark in `out` the cells a bead of `radius` source px at (x, y) covers (cells are s wide and 2s
+    tall); returns their bounding box (r0, r1, c0, c1), which may reach outside the view."""
+    c0, r0 = tf.source_to_cell(x - radius, y - radius)
+    c1, r1 = tf.source_to_cell(x + radius, y + radius)
+    rows, cols = out.shape
+    ra, rb, ca, cb = max(r0, 0), min(r1, rows - 1), max(c0, 0), min(c1, cols - 1)
+    if ra <= rb and ca <= cb:
+        rr, cc = np.mgrid[ra:rb + 1, ca:cb + 1]
+        # distance from the bead's centre to each cell's rectangle
+        dx = np.maximum(np.abs(tf.x0 + (cc + 0.5) * tf.s - x) - 0.5 * tf.s, 0.0)
+        dy = np.maximum(np.abs(tf.y0 + (2 * rr + 1) * tf.s - y) - tf.s, 0.0)
+        out[rr, cc] |= np.hypot(dx, dy) <= radius
+    return r0, r1, c0, c1
 
 
 def draw_overlays(rgb: np.ndarray, tf: ViewTransform, ov: Overlays) -> dict[tuple[int, int], tuple[str, Style]]:
@@ -276,6 +300,7 @@ def draw_overlays(rgb: np.ndarray, tf: ViewTransform, ov: Overlays) -> dict[tupl
         x, y, hw, hh = ov.search
         _rect(rgb, tf, x - hw, y - hh, x + hw, y + hh, SEARCH_RGB)
     requests = []
+    blocked = np.zeros((tf.rows, tf.cols), bool)
     for m in ov.marks:
         if not (np.isfinite(m.x) and np.isfinite(m.y)):
             continue
@@ -284,24 +309,28 @@ def draw_overlays(rgb: np.ndarray, tf: ViewTransform, ov: Overlays) -> dict[tupl
                       bold=m.selected, reverse=m.selected)
         hs = max(m.half_size_px, 1.5 * tf.s)
         mc, mr = tf.source_to_cell(m.x, m.y)
+        # the cells of the bead itself (about half its box), which no id may cover
+        br0, br1, bc0, bc1 = bead_cells(tf, m.x, m.y, 0.5 * m.half_size_px, blocked)
+        labelled = tf.contains(m.x, m.y)  # a marker outside the view gets no id
         if hs / tf.s < 2.5 and not m.selected:
             # zoomed out, boxes of neighbouring markers would merge: a status bar under the marker
             u, v = tf.source_to_display(m.x, m.y)
             u, v = int(round(float(u))), int(round(float(v)))
             for du in (-1, 0, 1):
                 _put(rgb, u + du, v + 2, colour)
-            requests.append((1, LabelRequest(m.label, style, (mr, mc), (mr, mr, mc, mc), colour=colour)))
+            if labelled:
+                requests.append((1, LabelRequest(m.label, style, (mr, mc), (br0, br1, bc0, bc1), colour=colour)))
             continue
         _rect(rgb, tf, m.x - hs, m.y - hs, m.x + hs, m.y + hs, SELECTED_RGB if m.selected else colour)
         if m.selected:
             _rect(rgb, tf, m.x - hs - tf.s, m.y - hs - tf.s, m.x + hs + tf.s, m.y + hs + tf.s, colour)
-        col0, row0 = tf.source_to_cell(m.x - hs, m.y - hs)
-        col1, row1 = tf.source_to_cell(m.x + hs, m.y + hs)
-        first = (row0 - 1 if row0 > 0 else row0, col1 + 1)
-        requests.append((0, LabelRequest(m.label, style, (mr, mc), (row0, row1, col0, col1), first, colour)))
+        if labelled:
+            col1, row0 = tf.source_to_cell(m.x + hs, m.y - hs)
+            first = (row0 - 1 if row0 > 0 else row0, col1 + 1)  # the box's top right corner
+            requests.append((0, LabelRequest(m.label, style, (mr, mc), (br0, br1, bc0, bc1), first, colour)))
     # boxed (and selected) markers first: their ids sit at the box's corner as far as possible
     ordered = [q for _prio, q in sorted(requests, key=lambda r: (r[0], r[1].anchor))]
-    for q, row, col, far in place_labels(ordered, tf.rows, tf.cols):
+    for q, row, col, far in place_labels(ordered, tf.rows, tf.cols, blocked):
         if far:
             _leader(rgb, q, row, col)
         for k, ch in enumerate(q.text):
