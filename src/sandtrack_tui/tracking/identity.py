@@ -52,36 +52,37 @@ def match_proposals(proposals: pd.DataFrame, known: pd.DataFrame, motion_px_per_
     (at most max_gate_px); a camera only one of them has does not count for or against."""
     if proposals.empty or known.empty:
         return {}
-    pids = sorted(proposals["marker"].unique().tolist())
-    mids = sorted(known["marker"].unique().tolist())
-    by_pid = {p: g for p, g in proposals.groupby("marker")}
-    by_mid = {m: {r.camera: r for r in g.itertuples(index=False)} for m, g in known.groupby("marker")}
+    pids = np.array(sorted(proposals["marker"].unique()))
+    mids = np.array(sorted(known["marker"].unique()))
+    total = np.zeros((len(pids), len(mids)))
+    shared = np.zeros((len(pids), len(mids)), int)
+    feasible = np.ones((len(pids), len(mids)), bool)
+    for cam in sorted(set(proposals["camera"]) & set(known["camera"])):
+        p = proposals[proposals["camera"] == cam].drop_duplicates("marker")
+        k = known[known["camera"] == cam].drop_duplicates("marker")
+        d = np.hypot(p["x_px"].to_numpy(float)[:, None] - k["x_px"].to_numpy(float)[None, :],
+                     p["y_px"].to_numpy(float)[:, None] - k["y_px"].to_numpy(float)[None, :])
+        gate = np.minimum(_half_bead(p, default_diameter_px)[:, None]
+                          + motion_px_per_frame * k["gap_frames"].to_numpy(float)[None, :], max_gate_px)
+        sub = np.ix_(np.searchsorted(pids, p["marker"].to_numpy()), np.searchsorted(mids, k["marker"].to_numpy()))
+        total[sub] += d
+        shared[sub] += 1
+        feasible[sub] &= d <= gate
     big = 1e9
-    cost = np.full((len(pids), len(mids)), big)
-    for i, p in enumerate(pids):
-        for j, m in enumerate(mids):
-            dists = []
-            for r in by_pid[p].itertuples(index=False):
-                k = by_mid[m].get(r.camera)
-                if k is None:
-                    continue
-                d = float(np.hypot(r.x_px - k.x_px, r.y_px - k.y_px))
-                if d > _gate(r, k.gap_frames, motion_px_per_frame, max_gate_px, default_diameter_px):
-                    dists = None
-                    break
-                dists.append(d)
-            if dists:
-                cost[i, j] = float(np.mean(dists))
+    cost = np.where(feasible & (shared > 0), total / np.maximum(shared, 1), big)
     rows, cols = linear_sum_assignment(cost)
     return {int(pids[r]): (int(mids[c]), float(cost[r, c])) for r, c in zip(rows, cols, strict=True)
             if cost[r, c] < big}
 
 
-def _gate(blob, gap_frames: float, motion: float, cap: float, default_diameter: float) -> float:
-    size = [v for v in (getattr(blob, "w", np.nan), getattr(blob, "h", np.nan)) if np.isfinite(v)]
-    # detection boxes hold the blob plus 2 px of sand on each side
-    diameter = max(float(np.mean(size)) - 4.0, 1.0) if size else default_diameter
-    return min(max(0.5 * diameter, 2.0) + motion * float(gap_frames), cap)
+def _half_bead(blobs: pd.DataFrame, default_diameter: float) -> np.ndarray:
+    """Half of each blob's diameter, at least 2 px (detection boxes hold the blob plus 2 px of sand on
+    each side; without a box, `default_diameter`)."""
+    size = blobs.reindex(columns=["w", "h"]).to_numpy(float)
+    n = np.isfinite(size).sum(axis=1)
+    mean = np.where(n > 0, np.where(np.isfinite(size), size, 0.0).sum(axis=1) / np.maximum(n, 1), np.nan)
+    diameter = np.where(np.isfinite(mean), np.maximum(mean - 4.0, 1.0), default_diameter)
+    return np.maximum(0.5 * diameter, 2.0)
 
 
 def number_proposals(proposals: pd.DataFrame, matches: dict[int, tuple[int, float]], next_id: int) -> pd.DataFrame:

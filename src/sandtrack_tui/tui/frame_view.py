@@ -208,7 +208,7 @@ class LabelRequest:
     colour: tuple[int, int, int] = SELECTED_RGB
 
 
-# Spots tried around a marker, nearest first: beside, above, below, then diagonals; further rings after.
+# Spots tried around a marker, nearest first: beside, above, below, then diagonals; further out after.
 _RING1 = ((0, 1), (0, -1), (-1, 0), (1, 0), (-1, 1), (1, 1), (-1, -1), (1, -1))
 
 
@@ -217,9 +217,9 @@ def place_labels(requests: list[LabelRequest], rows: int, cols: int,
     """Place every label inside the view where it covers no marker (`blocked` cells; by default the
     requests' boxes) and no other label, with a free cell between it and any other label on its row, so
     that two ids never read as one. A label sits beside its marker only where no other marker is
-    nearer; otherwise it goes further out (`far`: the caller draws a leader line to it). Returns
-    (request, row, col, far) per placed label, in the order given; a label is left out only when the
-    view has no free spot for it at all."""
+    nearer; otherwise it goes further out, to the nearest free spot (`far`: the caller draws a leader
+    line to it). Returns (request, row, col, far) per placed label, in the order given; a label is
+    left out only when the view has no free spot for it at all."""
     if blocked is None:
         blocked = np.zeros((rows, cols), bool)
         for q in requests:
@@ -230,41 +230,68 @@ def place_labels(requests: list[LabelRequest], rows: int, cols: int,
     placed = []
     for k, q in enumerate(requests):
         n = len(q.text)
-        for r, c, far in _spots(q, n, max(rows, cols)):
-            if not (0 <= r < rows and c >= 0 and c + n <= cols):
-                continue
-            if blocked[r, c:c + n].any() or labelled[r, max(c - 1, 0):min(c + n + 1, cols)].any():
-                continue
-            if not far and len(anchors) > 1:
-                # a row is about as tall as two columns are wide
-                d = np.hypot(2.0 * (anchors[:, 0] - r), anchors[:, 1] - (c + (n - 1) / 2))
-                if d.argmin() != k and d.min() < d[k]:
-                    continue  # it would read as another marker's id
-            labelled[r, c:c + n] = True
-            placed.append((q, r, c, far))
-            break
+        if n > cols:
+            continue
+        # free[r, c]: a label of n cells can start at (r, c): nothing blocked under it, no label under it
+        # or right beside it
+        near_label = labelled.copy()
+        near_label[:, 1:] |= labelled[:, :-1]
+        near_label[:, :-1] |= labelled[:, 1:]
+        bad = np.zeros((rows, cols + 1), np.int32)
+        np.cumsum(blocked | near_label, axis=1, out=bad[:, 1:])
+        free = (bad[:, n:] - bad[:, :-n]) == 0
+        spot = _near_spot(q, n, k, free, anchors)
+        far = spot is None
+        if far:
+            spot = _far_spot(q, n, free)
+        if spot is None:
+            continue
+        r, c = spot
+        labelled[r, c:c + n] = True
+        placed.append((q, r, c, far))
     return placed
 
 
-def _spots(q: LabelRequest, n: int, reach: int):
-    """Candidate (row, col, far) of a label's first cell, nearest to its marker first, out to `reach` cells."""
-    if q.first is not None:
-        yield (*q.first, False)
+def _near_spot(q: LabelRequest, n: int, k: int, free: np.ndarray, anchors: np.ndarray):
+    """The first free spot beside the marker (`first`, then just outside its box on each side) where
+    no other marker is nearer to the label than its own."""
     r0, r1, c0, c1 = q.box
     ar, ac = q.anchor
-    for dr, dc in _RING1:  # just outside the box, on each side
-        row = r0 - 1 if dr < 0 else r1 + 1 if dr > 0 else ar
-        col = c1 + 1 if dc > 0 else c0 - n if dc < 0 else ac - n // 2
-        yield row, col, False
-    for k in range(2, reach + 1):  # rings further out (a row is as tall as two columns are wide)
-        h = (k + 1) // 2
-        for dr in range(-h, h + 1):
-            row = r0 + dr if dr <= 0 else r1 + dr
-            yield row, c1 + k, True
-            yield row, c0 - k - n + 1, True
-        for dc in range(-k, k + 1):
-            yield r0 - h, ac + dc - n // 2, True
-            yield r1 + h, ac + dc - n // 2, True
+    spots = [q.first] if q.first is not None else []
+    for dr, dc in _RING1:
+        spots.append((r0 - 1 if dr < 0 else r1 + 1 if dr > 0 else ar,
+                      c1 + 1 if dc > 0 else c0 - n if dc < 0 else ac - n // 2))
+    for r, c in spots:
+        if not (0 <= r < free.shape[0] and 0 <= c < free.shape[1]) or not free[r, c]:
+            continue
+        if len(anchors) > 1:
+            # a row is about as tall as two columns are wide
+            d = np.hypot(2.0 * (anchors[:, 0] - r), anchors[:, 1] - (c + (n - 1) / 2))
+            if d.min() < d[k]:
+                continue  # it would read as another marker's id
+        return r, c
+    return None
+
+
+_OFFSETS: dict[tuple[int, int, int], tuple[np.ndarray, np.ndarray]] = {}
+
+
+def _far_spot(q: LabelRequest, n: int, free: np.ndarray):
+    """The free spot whose label centre is nearest to the marker (rows count twice), anywhere in view."""
+    rows, width = free.shape
+    key = (rows, width, n)
+    if key not in _OFFSETS:
+        dr, dc = np.mgrid[-rows:rows + 1, -width - n:width + n + 1]
+        order = np.argsort(np.hypot(2.0 * dr, dc + (n - 1) / 2).ravel(), kind="stable")
+        _OFFSETS[key] = dr.ravel()[order], dc.ravel()[order]
+        if len(_OFFSETS) > 64:
+            _OFFSETS.pop(next(iter(_OFFSETS)))
+    dr, dc = _OFFSETS[key]
+    r, c = q.anchor[0] + dr, q.anchor[1] + dc
+    inside = (r >= 0) & (r < rows) & (c >= 0) & (c < width)
+    r, c = r[inside], c[inside]
+    hit = np.flatnonzero(free[r, c])
+    return (int(r[hit[0]]), int(c[hit[0]])) if len(hit) else None
 
 
 def bead_cells(tf: ViewTransform, x: float, y: float, radius: float, out: np.ndarray) -> tuple[int, int, int, int]:

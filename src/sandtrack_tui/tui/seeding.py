@@ -128,7 +128,7 @@ class SeedingMixin:
                 proj.close()
 
         self.run_task("auto-seed", job,
-                      on_result=lambda seeds: self.push_screen(AutoSeedScreen(seeds), self._accept_seeds))
+                      on_result=lambda seeds: self.push_screen(AutoSeedScreen(seeds, self.cameras), self._accept_seeds))
 
     def _accept_seeds(self, seeds) -> None:
         if seeds is None or len(seeds) == 0:
