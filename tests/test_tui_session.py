@@ -3,6 +3,7 @@ merge and rename), projects of one and of three cameras, ids that never overlap,
 
 from __future__ import annotations
 
+import contextlib
 import math
 from types import SimpleNamespace
 
@@ -184,7 +185,7 @@ async def test_merge_two_ids_of_one_bead_and_rename_are_undoable(tmp_path, frame
         await pilot.pause()
         await pilot.press("r")
         await pilot.pause()
-        app.screen.query_one("#text").value = "A1"
+        app.screen.query_one("#answer").value = "A1"
         await pilot.press("enter")
         await pilot.pause()
         await pilot.press("escape")
@@ -215,7 +216,7 @@ async def test_one_camera_project_tracks_in_2d_with_a_scale_from_a_known_length(
         app.cursor["side"] = (340.0, 280.0)
         await pilot.press("c")
         await pilot.pause()
-        app.screen.query_one("#text").value = "150"
+        app.screen.query_one("#answer").value = "150"
         await pilot.press("enter")
         await pilot.pause()
         assert project.get("scale")["side"]["mm_per_px"] == pytest.approx(0.5)
@@ -284,14 +285,21 @@ def label_runs(labels: dict) -> list[str]:
     return runs
 
 
-@aio
-async def test_ids_never_overlap_at_any_zoom(tmp_path, frames):
+@contextlib.asynccontextmanager
+async def crowd_in_front_view(tmp_path, frames):
+    """The app on a crowd of markers, the front view active: (app, pilot, marker positions)."""
     project = new_project(tmp_path, frames)
     pos = crowd(project)
     app = SandtrackApp(project)
     async with app.run_test(size=SIZE) as pilot:
         await settle(pilot, app)
         await pilot.press("tab")
+        yield app, pilot, pos
+
+
+@aio
+async def test_ids_never_overlap_at_any_zoom(tmp_path, frames):
+    async with crowd_in_front_view(tmp_path, frames) as (app, pilot, pos):
         app.cursor["front"] = pos[5]
         for zoom in range(6):  # 1x .. 32x
             await settle(pilot, app)
@@ -308,12 +316,7 @@ async def test_ids_never_overlap_at_any_zoom(tmp_path, frames):
 async def test_marker_list_picks_out_of_a_crowd(tmp_path, frames):
     from sandtrack_tui.tui.screens.picker import MarkerPicker
 
-    project = new_project(tmp_path, frames)
-    pos = crowd(project)
-    app = SandtrackApp(project)
-    async with app.run_test(size=SIZE) as pilot:
-        await settle(pilot, app)
-        await pilot.press("tab")
+    async with crowd_in_front_view(tmp_path, frames) as (app, pilot, pos):
         app.cursor["front"] = (pos[9][0] + 1, pos[9][1])
         await pilot.press("m")
         await pilot.pause()

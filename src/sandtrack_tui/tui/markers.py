@@ -139,4 +139,4 @@ class MarkersMixin:
 
         dist = math.hypot(p2[0] - p1[0], p2[1] - p1[1])
         self.push_screen(AskText(f"Length between the two ends ({dist:.1f} px apart), in mm:", "", check,
-                                 number=True), done)
+                                 input_type="number"), done)
