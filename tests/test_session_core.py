@@ -167,3 +167,20 @@ def test_xyz_at_an_instant_from_three_cameras_interpolates_the_late_one(tmp_path
     proj.delete_points(2, "top")
     assert multiview.xyz_at_frame(proj, 2, cams, proj.calibration()).empty
     proj.close()
+
+
+def test_new_project_with_more_cameras(tmp_path, capsys):
+    from sandtrack_tui.cli import main
+
+    for cam in ("a", "b", "c"):
+        (tmp_path / cam).mkdir()
+        cv2.imwrite(str(tmp_path / cam / "0.png"), np.zeros((36, 64, 3), np.uint8))
+    path = tmp_path / "p.sandtrack"
+    assert main(["new", str(path), "--side", str(tmp_path / "a"), "--front", str(tmp_path / "b"),
+                 "--camera", f"top={tmp_path / 'c'}"]) == 0
+    with Project.open(path) as proj:
+        assert proj.cameras() == ["side", "front", "top"]
+    capsys.readouterr()
+    assert main(["new", str(tmp_path / "q.sandtrack"), "--side", str(tmp_path / "a"), "--camera", "top"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "NAME=PATH" in err[0]
