@@ -5,7 +5,8 @@ dropped SSH link loses nothing; there is no save step. Long runs (tracking) comm
 without waiting for the disk and sync once at the end (`Project.edit(sync_each_write=False)`).
 
 Tables
-- ``meta(key, value)``: ``schema_version`` and creation time.
+- ``meta(key, value)``: ``schema_version``, creation time, and other facts about the file that are
+  not edits (undo leaves them).
 - ``videos(camera, path, fingerprint, width, height, fps, frames)``: one row per camera
   ("side", "front", or any name for more cameras).
 - ``settings(key, value)``: JSON values: ``sync_offset_s`` (s; front started that much later),
@@ -344,6 +345,17 @@ class Project:
         if problems:
             raise SandtrackError("; ".join(p.message() for p in problems))
         return {c: FrameSource(self.videos()[c].path, cache_mb=cache_mb) for c in self.cameras()}
+
+    # -- facts about the file (not edits: undo leaves them) -----------------------------------
+    def meta(self, key: str) -> str | None:
+        with self._reading():
+            row = self.conn.execute("SELECT value FROM meta WHERE key=?", (key,)).fetchone()
+        return None if row is None else str(row[0])
+
+    def set_meta(self, key: str, value: str) -> None:
+        if key in ("schema_version", "created"):
+            raise SandtrackError(f"meta key {key!r} is the store's own")
+        self._write(lambda: self.conn.execute("INSERT OR REPLACE INTO meta VALUES (?, ?)", (key, str(value))))
 
     # -- settings ------------------------------------------------------------------------------
     def get(self, key: str, default=None):

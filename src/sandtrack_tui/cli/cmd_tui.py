@@ -24,7 +24,7 @@ SAMPLE_DATA = Path(os.environ.get("SANDTRACK_SAMPLE_DATA", REPO_ROOT / "sample_d
 CALIBRATION_CANDIDATES = ("experiment/calibration.toml", "calibration.toml", "ground_truth/cameras.toml")
 SAMPLE_MODEL = "model.pt"
 SAMPLE_POINTS = "calibration/points.csv"
-SETUP_KEY = "sample_setup"  # set once the sample project got its sync, calibration and network
+SETUP_KEY = "sample_setup"  # meta key: the sample project got its sync, calibration and network
 
 
 def register(sub) -> None:
@@ -55,7 +55,7 @@ def sample_project(sample_data: Path = SAMPLE_DATA, target: Path | None = None) 
         try:
             with Project.open(path) as proj:
                 problems = proj.video_problems()
-                done = proj.get(SETUP_KEY) is not None
+                done = proj.meta(SETUP_KEY) is not None
         except SandtrackError:
             problems = ["unreadable"]
         if not problems:
@@ -101,7 +101,7 @@ def _set_up(proj, sample_data: Path) -> None:
     model = sample_data / SAMPLE_MODEL
     if proj.get("model") is None and model.is_file():
         _link_model(proj, model)
-    proj.set(SETUP_KEY, 1, "sample project set up")
+    proj.set_meta(SETUP_KEY, "1")  # once: what the user undoes afterwards stays undone
 
 
 def _sync(proj) -> None:
