@@ -46,8 +46,8 @@ class MarkerPicker(ModalScreen[int | None]):
 
     def compose(self) -> ComposeResult:
         with Vertical():
-            yield Label(f"[b]Markers[/], nearest to the cursor in {self.active} first. enter: select, r: rename, "
-                        "M: merge into another marker, /: filter by id or name, escape: close")
+            yield Label(f"[b]Markers[/] nearest the cursor in {self.active} first. enter: select, r: rename, "
+                        "M: merge into…, /: filter, esc: close")
             yield Input(placeholder="id or name", id="filter")
             yield DataTable(id="markers", cursor_type="row")
 
