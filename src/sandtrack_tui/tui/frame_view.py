@@ -219,7 +219,7 @@ def place_labels(requests: list[LabelRequest], rows: int, cols: int,
     that two ids never read as one. A label sits beside its marker only where no other marker is
     nearer; otherwise it goes further out, to the nearest free spot (`far`: the caller draws a leader
     line to it). Returns (request, row, col, far) per placed label, in the order given; a label is
-    left out only when the view has no free spot for it at all."""
+    left out only when no free spot lies within FAR_ROWS rows and FAR_COLS columns of its marker."""
     if blocked is None:
         blocked = np.zeros((rows, cols), bool)
         for q in requests:
@@ -274,14 +274,17 @@ def _near_spot(q: LabelRequest, n: int, k: int, free: np.ndarray, anchors: np.nd
 
 
 _OFFSETS: dict[tuple[int, int, int], tuple[np.ndarray, np.ndarray]] = {}
+FAR_ROWS, FAR_COLS = 30, 60  # how far an id may move from its marker
 
 
 def _far_spot(q: LabelRequest, n: int, free: np.ndarray):
-    """The free spot whose label centre is nearest to the marker (rows count twice), anywhere in view."""
+    """The free spot whose label centre is nearest to the marker (rows count twice), within FAR_ROWS
+    rows and FAR_COLS columns of it."""
     rows, width = free.shape
-    key = (rows, width, n)
+    key = (min(rows, FAR_ROWS), min(width, FAR_COLS), n)
     if key not in _OFFSETS:
-        dr, dc = np.mgrid[-rows:rows + 1, -width - n:width + n + 1]
+        h, w = key[0], key[1]
+        dr, dc = np.mgrid[-h:h + 1, -w - n:w + n + 1]
         order = np.argsort(np.hypot(2.0 * dr, dc + (n - 1) / 2).ravel(), kind="stable")
         _OFFSETS[key] = dr.ravel()[order], dc.ravel()[order]
         if len(_OFFSETS) > 64:
@@ -310,10 +313,12 @@ def bead_cells(tf: ViewTransform, x: float, y: float, radius: float, out: np.nda
     return r0, r1, c0, c1
 
 
-def draw_overlays(rgb: np.ndarray, tf: ViewTransform, ov: Overlays) -> dict[tuple[int, int], tuple[str, Style]]:
+def draw_overlays(rgb: np.ndarray, tf: ViewTransform, ov: Overlays,
+                  place_ids: bool = True) -> dict[tuple[int, int], tuple[str, Style]]:
     """Draw boxes, crosshair, search window and epipolar curves into `rgb` (in place); return the
     text labels as {(row, col): (char, style)}: every marker's id, none over another id or a marker,
-    with a leader line where an id had to move away from its marker."""
+    with a leader line where an id had to move away from its marker. place_ids=False: no ids (and
+    no leader lines), e.g. for a picture drawn at a finer scale than the cells its ids go in."""
     labels: dict[tuple[int, int], tuple[str, Style]] = {}
     for curve, colour in ov.epipolar:
         if curve is None or len(curve) < 2:
@@ -356,7 +361,7 @@ def draw_overlays(rgb: np.ndarray, tf: ViewTransform, ov: Overlays) -> dict[tupl
             first = (row0 - 1 if row0 > 0 else row0, col1 + 1)  # the box's top right corner
             requests.append((0, LabelRequest(m.label, style, (mr, mc), (br0, br1, bc0, bc1), first, colour)))
     # boxed (and selected) markers first: their ids sit at the box's corner as far as possible
-    ordered = [q for _prio, q in sorted(requests, key=lambda r: (r[0], r[1].anchor))]
+    ordered = [q for _prio, q in sorted(requests, key=lambda r: (r[0], r[1].anchor))] if place_ids else []
     for q, row, col, far in place_labels(ordered, tf.rows, tf.cols, blocked):
         if far:
             _leader(rgb, q, row, col)
