@@ -105,7 +105,7 @@ class ReposeScreen(TaskScreen):
         sweep = self.sweep
         traj = core("trajectories", "trajectory_table")
         cmp = core("compare", "experiment_table")
-        fps = self.main.sources["side"].fps
+        fps = self.main.sources[self.main.ref].fps
 
         def job(progress, should_stop):
             runs, params = sweep.read_runs(path)
