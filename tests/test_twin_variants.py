@@ -10,6 +10,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from sandtrack_tui.cli import main
+from sandtrack_tui.cli.cmd_sample import VARIANT_NAMES
 from sandtrack_tui.errors import SandtrackError
 from sandtrack_tui.tracking.appearance import learn
 from sandtrack_tui.tracking.seeding import detect_markers
@@ -78,7 +80,10 @@ def test_dense_identical_beads_in_16_bit_grey_tiff(tmp_path):
     assert 10 < np.median(d.min(axis=1)) < 16  # ~13 px beads, touching
 
 
-def test_unknown_variant_is_one_clear_error(tmp_path):
+def test_unknown_variant_is_one_clear_error(tmp_path, capsys):
     with pytest.raises(SandtrackError, match="unknown twin variant 'nope'"):
         render_variant("nope", tmp_path)
-    assert {"blue", "red", "white", "black", "glass", "dense", "fast", "shake"} <= set(VARIANTS)
+    assert tuple(VARIANTS) == VARIANT_NAMES  # the CLI's help names them all
+    assert main(["sample", str(tmp_path / "v"), "--variant", "nope"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "unknown twin variant 'nope'" in err[0]

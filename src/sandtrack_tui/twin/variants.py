@@ -311,7 +311,10 @@ def render_variant(variant: str | Variant, out_dir: str | Path, seed: int = 0, l
     t0, c0 = time.perf_counter(), time.process_time()
     import pandas as pd
 
-    (out / "ground_truth").mkdir(parents=True, exist_ok=True)
+    try:
+        (out / "ground_truth").mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SandtrackError(f"cannot create {out}: {exc.strerror or exc}") from None
     cols = ["frame", "marker", "x_px", "y_px", "visible", "visible_fraction", "X_mm", "Y_mm", "Z_mm"]
     for camera in v.cameras:
         log(f"rendering twin variant {name}: {camera} camera, {frame_count(v)} frames")
