@@ -9,9 +9,11 @@ first frame its camera sees the board (the box around the square, or a box of ha
 around the corner), then tracked forward through the clip: the board moves by up to ~100 px between
 frames, turns and leaves the view, so the tracker must flag what it is not sure of.
 
-Truth per frame: the point placed by a homography fitted to Caliscope's detected corners of that
-frame (undistorted with Caliscope's own calibration, distorted back) (groundtruth.board_points_from_
-corners); frames where Caliscope found fewer than 6 corners have no truth and are not scored.
+Truth per frame: placed by a homography fitted to Caliscope's detected corners of that frame
+(undistorted with Caliscope's own calibration, distorted back; groundtruth.board_points_from_corners):
+a corner itself; a square's image centroid (its outline placed so, what a blob tracker measures; under
+perspective the projected centre lies up to ~2 px from it). Frames where Caliscope found fewer than
+6 corners have no truth and are not scored.
 Figures per kind of point: reported `tracked` on frames with truth, the share within 3 px
 (target >= 95 %), the share of truth frames reported tracked (coverage), mean / p95 error. The same
 runs on the clips converted to grey 8-bit PNG and 16-bit TIFF image folders (the grey paths).
@@ -45,19 +47,35 @@ SQUARE_M = 0.054
 COLS, ROWS = 4, 5
 FIRST_SYNC = 416  # sync_index of frame 0 of every file
 CLICK_OFF = (1.5, -1.0)
+OUTLINE = 25  # points per side of a square's outline
 
 
 def truth_points(cam_id: int) -> tuple[dict, np.ndarray, np.ndarray]:
-    """({frame: (N, 2) px}, board points (N, 2) m, kinds (N,): 'square' or 'corner') for one camera."""
+    """({frame: (N, 2) px}, board points (N, 2) m, kinds (N,): 'square' or 'corner') for one camera.
+    A square's point is the centroid of its image (its outline placed by the homography and the lens:
+    what a blob's coverage centroid measures; under perspective it is not the projected centre)."""
     cal = import_caliscope(DATA / "camera_array.toml")
     camera = cal.cameras[f"cam_{cam_id}"]
     xy = pd.read_csv(DATA / "xy.csv")
     xy = xy[xy.cam_id == cam_id].assign(frame=lambda d: d.sync_index - FIRST_SYNC)
     squares = [((c + 0.5) * SQUARE_M, (r + 0.5) * SQUARE_M) for r in range(ROWS) for c in range(COLS)]
     corners = [((c + 1) * SQUARE_M, (r + 1) * SQUARE_M) for r in range(ROWS - 1) for c in range(COLS - 1)]
+    t = np.linspace(-0.5, 0.5, OUTLINE, endpoint=False)
+    edge = np.concatenate([np.c_[t, np.full_like(t, -0.5)], np.c_[np.full_like(t, 0.5), t],
+                           np.c_[-t, np.full_like(t, 0.5)], np.c_[np.full_like(t, -0.5), -t]]) * SQUARE_M
+    outlines = np.concatenate([np.asarray(sq) + edge for sq in squares])
+    placed = board_points_from_corners(xy, camera, np.concatenate([outlines, corners]))
+    n_out = len(outlines)
+    truth = {}
+    for f, px in placed.items():
+        cents = []
+        for k in range(len(squares)):
+            m = cv2.moments(px[k * len(edge):(k + 1) * len(edge)].astype(np.float32))
+            cents.append((m["m10"] / m["m00"], m["m01"] / m["m00"]))
+        truth[f] = np.concatenate([np.array(cents), px[n_out:]])
     pts = np.array(squares + corners)
     kinds = np.array(["square"] * len(squares) + ["corner"] * len(corners))
-    return board_points_from_corners(xy, camera, pts), pts, kinds
+    return truth, pts, kinds
 
 
 def _plain(img: np.ndarray, centre: np.ndarray, side: float) -> bool:
