@@ -23,7 +23,6 @@ gating (the four views are tracked one by one).
 
 from __future__ import annotations
 
-import json
 import sys
 import tempfile
 import time
@@ -198,11 +197,14 @@ def run(cameras=(0, 1, 2, 3)) -> dict:
             for f in frames:
                 for m in f.attrs["models"].values():
                     models[m] = models.get(m, 0) + 1
-            out[label] = {"figures": figures(df), "models": models,
-                          "seed_problems": sum(len(f.attrs["problems"]) for f in frames),
-                          "cpu_s": round(time.process_time() - c0, 2)}
+            for kind, figs in figures(df).items():
+                out.update({f"{label}.{kind}.{k}": v for k, v in figs.items()})
+            out[f"{label}.models"] = ",".join(f"{k}:{n}" for k, n in sorted(models.items()))
+            out[f"{label}.seed_problems"] = sum(len(f.attrs["problems"]) for f in frames)
+            out[f"{label}.cpu_s"] = round(time.process_time() - c0, 2)
     return out
 
 
 if __name__ == "__main__":
-    print(json.dumps(run(), indent=1))
+    for key, value in run().items():
+        print(f"{key}: {value}")
