@@ -34,6 +34,8 @@ from .screens.prompts import AskNumber, Confirm
 from .seeding import SeedingMixin
 from .table import MarkerRow, MarkerTable
 from .tasks import Task, TasksMixin, guarded
+from .termcaps import Graphics
+from .tiles import ScreenGraphics
 from .timeline import Timeline, next_problem, status_codes
 
 GOOD = ("tracked", "manual", "interpolated", "imported")
@@ -65,8 +67,10 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, App):
     """
     BINDINGS = bindings()
 
-    def __init__(self, project: Project | str | Path, colors: str | None = None, prefetch: int = 4):
+    def __init__(self, project: Project | str | Path, colors: str | None = None, prefetch: int = 4,
+                 graphics: Graphics | None = None):
         super().__init__()
+        self.pixels = ScreenGraphics(self, graphics or Graphics("blocks"))
         self.project = project if isinstance(project, Project) else Project.open(project)
         self.sources = self.project.open_sources(cache_mb=160)
         cams = self.project.cameras()
@@ -134,6 +138,7 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, App):
             self.notify("256 colours: the frames are drawn in grey (markers in blue). For colour, start with "
                         "COLORTERM=truecolor (ssh does not pass it on); in tmux also set "
                         "terminal-features ',*:RGB'.", timeout=12)
+        self.pixels.start(self.views())
         self.feeder = FrameFeeder(self.sources, lambda r: self.post_message(FrameReady(r)), self.prefetch)
         if self.size.height < 40:
             self._set_layout(1)
@@ -160,6 +165,23 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, App):
             self.bg_task.cancel_requested = True
         if self.feeder is not None:
             self.feeder.stop()
+        self.pixels.stop(self.views())
+
+    # -- real pixels (kitty graphics / sixel): tiles.py does the work ---------------------------
+    def write_graphics(self, data: str) -> None:
+        """Escape codes straight to the terminal, in order with the UI's own output (the driver's
+        writer thread); nothing in a headless run."""
+        driver = self._driver
+        if driver is not None and not self.is_headless:
+            driver.write(data)
+            driver.flush()
+
+    def _display(self, screen: Screen, renderable) -> None:
+        # Textual's write of a screen update: a private hook, the only place that knows which cells
+        # were written (sixel pictures under them are drawn again right after the text)
+        super()._display(screen, renderable)
+        if hasattr(self, "_w"):
+            self.pixels.after_display(self.views(), renderable, self.screen is self._main_screen)
 
     def views(self) -> list[FrameView]:
         return [self._w[f"view-{c}"] for c in self.cameras]
@@ -252,7 +274,7 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, App):
             tf = self._transform(cam)
             if tf is None:
                 continue
-            req = FrameRequest(cam, self.cam_index(cam), tf, self.boost)
+            req = FrameRequest(cam, self.cam_index(cam), tf, self.boost, self.pixels.cell_px)
             self._wanted[cam] = req.key
             v = self.view(cam)
             if v.pixels_key == req.key:

@@ -131,6 +131,11 @@ def render_pixels(frame_bgr: np.ndarray, tf: ViewTransform, boost: bool = True) 
     size = (dc1 - dc0, dr1 - dr0)
     if tf.s <= 1.0:
         small = cv2.resize(crop, size, interpolation=cv2.INTER_NEAREST)
+    elif tf.s < 2.0:
+        # INTER_AREA by a fractional factor costs ~18 ms for a 1080p frame: from 1.5x halve exactly
+        # (area), then interpolate the small rest; below 1.5x interpolate (1-2 ms either way)
+        work = _shrink(crop, 2) if tf.s >= 1.5 else crop
+        small = cv2.resize(work, size, interpolation=cv2.INTER_LINEAR)
     else:
         # INTER_AREA is fast for whole-number factors and slow otherwise, so shrink by whole
         # factors first (2x, then k x) and do the fractional rest on the small image.
@@ -393,6 +398,7 @@ class FrameView(Widget):
         self._drag_from: tuple[int, int] | None = None
         self._dragged = False
         self.last_compose_ms = 0.0
+        self.graphics = None  # a graphics.GraphicsView when the terminal shows real pixels (kitty, sixel)
 
     # -- data in -----------------------------------------------------------------------------
     def set_pixels(self, pixels: np.ndarray, key, tf: ViewTransform) -> None:
@@ -411,6 +417,17 @@ class FrameView(Widget):
         import time
 
         t0 = time.perf_counter()
+        if self.graphics is not None and self.pixels is not None and self.tf is not None:
+            region = self.content_region
+            if (self.tf.cols, self.tf.rows) == (region.width, region.height):  # else a frame for the new size is due
+                self.graphics.draw(self.pixels, self.tf, self.overlays, self.message_text, (region.x, region.y))
+            self.last_compose_ms = (time.perf_counter() - t0) * 1000
+            if self._strips:  # text shown before (a message): blank those cells
+                self._strips = []
+                self.refresh()
+            return
+        if self.graphics is not None:
+            self.graphics.clear()
         rows = self.content_size.height
         cols = self.content_size.width
         regions = None
