@@ -21,6 +21,7 @@ TEXT = (0, 255, 0)  # pixels of a cell that text was written into (sixel layer)
 
 _CSI = re.compile(r"\x1b\[([0-9;?<>=$ ]*)([@-~])")
 _STRING = re.compile(r"\x1b([_P\]])(.*?)(?:\x1b\\|\x07)", re.S)
+_SIXEL_TOKEN = re.compile(r'(#[\d;]+)|!(\d+)([?-~])|([?-~]+)|([$-])|"[\d;]*')
 
 
 class FakeTerminal:
@@ -171,55 +172,57 @@ class FakeTerminal:
             return
         self.sixel_images += 1
         params = [int(p) if p else 0 for p in m.group(1).split(";")] if m.group(1) else []
-        transparent = len(params) > 1 and params[1] == 1
-        data = body[m.end():]
-        x0, y0 = self.cursor[0] * self.cw, self.cursor[1] * self.ch
-        colours: dict[int, tuple[int, int, int]] = {}
-        colour = (0, 0, 0)
-        x = band = 0
-        i, n = 0, len(data)
-        width = height = 0
-        while i < n:
-            c = data[i]
-            if c == '"':
-                m = re.match(r'"(\d+);(\d+);?(\d*);?(\d*)', data[i:])
-                width, height = int(m.group(3) or 0), int(m.group(4) or 0)
-                i += m.end()
-            elif c == "#":
-                m = re.match(r"#(\d+)(?:;(\d+);(\d+);(\d+);(\d+))?", data[i:])
-                reg = int(m.group(1))
-                if m.group(2) is not None:
-                    assert m.group(2) == "2", "only RGB colour definitions are expected"
-                    colours[reg] = tuple(round(int(m.group(k)) * 255 / 100) for k in (3, 4, 5))
-                colour = colours[reg]
-                i += m.end()
-            elif c == "!":
-                m = re.match(r"!(\d+)(.)", data[i:], re.S)
-                self._sixel_run(x0 + x, y0 + 6 * band, ord(m.group(2)) - 63, int(m.group(1)), colour)
-                x += int(m.group(1))
-                i += m.end()
-            elif c == "$":
-                x = 0
-                i += 1
-            elif c == "-":
-                x = 0
-                band += 1
-                i += 1
-            elif "?" <= c <= "~":
-                self._sixel_run(x0 + x, y0 + 6 * band, ord(c) - 63, 1, colour)
-                x += 1
-                i += 1
-            else:
-                i += 1
-        if not transparent and width and height:
+        if not (len(params) > 1 and params[1] == 1):
             raise AssertionError("only transparent-background sixel (P2=1) is expected")
-
-    def _sixel_run(self, x: int, y: int, bits: int, n: int, colour) -> None:
-        for r in range(6):
-            if bits >> r & 1 and 0 <= y + r < self.sixel.shape[0]:
-                xs = slice(max(x, 0), min(x + n, self.sixel.shape[1]))
-                self.sixel[y + r, xs] = colour
-                self.sixel_set[y + r, xs] = True
+        registers: dict[int, tuple[int, int, int]] = {}
+        colours: list[tuple[int, int, int]] = []
+        colour = -1
+        x = band = 0
+        seg_x, seg_band, seg_colour, seg_len, chunks = [], [], [], [], []
+        for tok in _SIXEL_TOKEN.finditer(body, m.end()):
+            define, count, char, chars, control = tok.groups()
+            if define is not None:
+                parts = [int(p) for p in define[1:].split(";")]
+                if len(parts) == 5:
+                    assert parts[1] == 2, "only RGB colour definitions are expected"
+                    registers[parts[0]] = tuple(round(v * 255 / 100) for v in parts[2:])
+                colours.append(registers[parts[0]])
+                colour = len(colours) - 1
+            elif count is not None or chars is not None:
+                data = char * int(count) if count is not None else chars
+                seg_x.append(x)
+                seg_band.append(band)
+                seg_colour.append(colour)
+                seg_len.append(len(data))
+                chunks.append(data)
+                x += len(data)
+            elif control is not None:
+                band += control == "-"
+                x = 0
+        if not chunks:
+            return
+        # every sixel column as (x, band, colour, 6 bits), in drawing order; a later one paints over
+        lens = np.array(seg_len)
+        seg = np.repeat(np.arange(len(lens)), lens)
+        starts = np.cumsum(lens) - lens
+        xs = np.array(seg_x)[seg] + np.arange(len(seg)) - starts[seg]
+        vals = np.frombuffer("".join(chunks).encode(), np.uint8).astype(np.int64) - 63
+        h, w = self.sixel.shape[:2]
+        x0, y0 = self.cursor[0] * self.cw, self.cursor[1] * self.ch
+        bands, seg_colour = np.array(seg_band), np.array(seg_colour)
+        hits = [(vals >> r & 1).astype(bool) for r in range(6)]
+        ys = np.concatenate([y0 + 6 * bands[seg[hit]] + r for r, hit in enumerate(hits)])
+        xs = np.concatenate([x0 + xs[hit] for hit in hits])
+        segs = np.concatenate([seg[hit] for hit in hits])
+        order = np.argsort(segs, kind="stable")  # drawing order
+        ys, xs, cid = ys[order], xs[order], seg_colour[segs[order]]
+        inside = (ys >= 0) & (ys < h) & (xs >= 0) & (xs < w)
+        ys, xs, cid = ys[inside], xs[inside], cid[inside]
+        flat = ys * w + xs
+        _, last = np.unique(flat[::-1], return_index=True)  # the last writer of each pixel
+        pick = len(flat) - 1 - last
+        self.sixel[ys[pick], xs[pick]] = np.array(colours, np.uint8)[cid[pick]]
+        self.sixel_set[ys[pick], xs[pick]] = True
 
     # -- output --------------------------------------------------------------------------------
     def screen(self) -> np.ndarray:
@@ -254,6 +257,28 @@ class FakeTerminal:
 # --------------------------------------------------------------------------------------------
 KITTY_QUERY = re.compile(rb"\x1b_Gi=(\d+)[^;]*a=q[^;]*;[^\x1b]*\x1b\\")
 SIXEL_END = "\x1b8\x1b[?2026l"  # how sandtrack ends each graphics write (Textual never writes ESC 8)
+
+
+def answer(data: bytes, kitty: bool, sixel: bool, cell_px=(10, 20)) -> tuple[bytes, bytes]:
+    """What a terminal offering `kitty` and/or `sixel` graphics replies to the queries in `data`,
+    in order, and the rest of `data` after the last query answered."""
+    cw, ch = cell_px
+    questions = [
+        (KITTY_QUERY, (lambda q: b"\x1b_Gi=" + KITTY_QUERY.match(q).group(1) + b";OK\x1b\\") if kitty else b""),
+        (re.compile(rb"\x1b\[16t"), f"\x1b[6;{ch};{cw}t".encode()),
+        (re.compile(rb"\x1b\[14t"), b""),
+        (re.compile(rb"\x1b\[\?1;1;0S"), b"\x1b[?1;0;256S" if sixel else b""),
+        (re.compile(rb"\x1b\[0?c"), b"\x1b[?62;4;22c" if sixel else b"\x1b[?62;22c"),
+        (re.compile(rb"\x1b\[\?2026\$p"), b"\x1b[?2026;2$y"),
+    ]
+    replies = []
+    while True:
+        hits = [(m.start(), m.end(), r) for pat, r in questions for m in [pat.search(data)] if m]
+        if not hits:
+            return b"".join(replies), data
+        start, end, reply = min(hits, key=lambda h: h[0])
+        replies.append(reply(data[start:end]) if callable(reply) else reply)
+        data = data[end:]
 
 
 class PtyTerminal:
@@ -306,27 +331,9 @@ class PtyTerminal:
         import os
 
         self._scan = (self._scan + data)[-4096:]
-        replies = []
-        while True:
-            hits = [(m.start(), m.end(), r) for pat, r in self._questions() for m in [pat.search(self._scan)] if m]
-            if not hits:
-                break
-            start, end, reply = min(hits)
-            replies.append(reply(self._scan[start:end]) if callable(reply) else reply)
-            self._scan = self._scan[end:]
+        replies, self._scan = answer(self._scan, self.kitty, self.sixel, self.cell_px)
         if replies:
-            os.write(self.master, b"".join(replies))
-
-    def _questions(self):
-        cw, ch = self.cell_px
-        da1 = b"\x1b[?62;4;22c" if self.sixel else b"\x1b[?62;22c"
-        yield KITTY_QUERY, (lambda q: b"\x1b_Gi=" + KITTY_QUERY.match(q).group(1) + b";OK\x1b\\") if self.kitty \
-            else b""
-        yield re.compile(rb"\x1b\[16t"), f"\x1b[6;{ch};{cw}t".encode()
-        yield re.compile(rb"\x1b\[14t"), b""
-        yield re.compile(rb"\x1b\[\?1;1;0S"), b"\x1b[?1;0;256S" if self.sixel else b""
-        yield re.compile(rb"\x1b\[0?c"), da1
-        yield re.compile(rb"\x1b\[\?2026\$p"), b"\x1b[?2026;2$y"
+            os.write(self.master, replies)
 
     def write(self, data: bytes) -> float:
         import os

@@ -17,7 +17,6 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable
 
-import cv2
 import numpy as np
 
 from .frame_view import Overlays, ViewTransform
@@ -35,9 +34,12 @@ class TileCanvas:
     """What the terminal shows of one view, tile by tile, and the escape codes that bring it up to
     date. Tile `key` = tile row * 4096 + tile column.
 
-    `shown` holds the RGB the terminal shows, `shown_idx` a palette index per pixel whose colour is
-    within the tolerance of it. A step compares only pixels whose index changed; a new palette
-    compares every pixel (and then takes the new indices as `shown_idx`)."""
+    The terminal shows palette colour `shown_idx` at every pixel; `sent` is the true colour each
+    pixel had when its tile was last sent. A tile is sent again when a pixel's palette index
+    changed and its true colour moved more than the tolerance from `sent`: a change is judged on
+    the picture, not on the palette (sensor noise that flips a pixel between two neighbouring
+    palette colours sends nothing). So every pixel shows its true colour's palette colour, or one
+    within the tolerance (plus the palette's error). A new palette sends the whole view."""
 
     def __init__(self, protocol, cell_px: tuple[int, int], colors: int = 256, tile_cells=TILE_CELLS,
                  tolerance: int = TOLERANCE) -> None:
@@ -47,12 +49,13 @@ class TileCanvas:
         self.tolerance = tolerance
         self.palette = Palette(colors)
         self.geometry: tuple | None = None  # (col, row, cols, rows) of the content on the screen
-        self.idx: np.ndarray | None = None  # the latest picture, palette indices
-        self.shown: np.ndarray | None = None  # RGB as the terminal shows it (rows*ch x cols*cw x 3)
+        self.rgb: np.ndarray | None = None  # the latest picture (rows*ch x cols*cw x 3)
+        self.idx: np.ndarray | None = None  # and its palette indices
+        self.sent: np.ndarray | None = None
         self.shown_idx: np.ndarray | None = None
         self.placed: set[int] = set()
         self.visible = True
-        self.dirty: set[int] = set()  # tiles to send whatever their pixels (not sent yet, or text over them)
+        self.dirty: set[int] = set()  # tiles to send (changed, not sent yet, or text written over them)
         self.tiles_sent = 0
 
     # -- geometry ------------------------------------------------------------------------------
@@ -76,51 +79,30 @@ class TileCanvas:
         if geometry != self.geometry:
             out.append(self.clear())
             self.geometry = geometry
-        if refit or self.palette.colours is None:
+        idx = None if refit or self.palette.colours is None else self.palette.quantize(rgb)
+        if idx is None or not self.palette.fits(rgb, idx):
             self.palette.fit(rgb)
-            idx = self.palette.quantize(rgb)
-        else:
-            idx = self.palette.quantize(rgb)
-            if not self.palette.fits(rgb, idx):
-                self.palette.fit(rgb)
-                idx, refit = self.palette.quantize(rgb), True
-        self.idx = idx
-        if self.shown is None:
-            self.shown = self.palette.colours[idx]
-            self.shown_idx = idx.copy()
+            idx, refit = self.palette.quantize(rgb), True
+        self.rgb, self.idx = rgb, idx
+        if refit or self.sent is None:
+            self.sent, self.shown_idx = rgb.copy(), idx.copy()
             self.dirty |= {t[0] for t in self._tiles()}
-        elif refit:
-            self.dirty |= self._over(self.palette.colours[idx], self.shown)
-            self.shown_idx = idx.copy()
         else:
             ys, xs = np.nonzero(idx != self.shown_idx)
             if len(ys):
-                far = self._far(self.palette.colours[idx[ys, xs]], self.shown[ys, xs])
-                self.dirty |= self._keys(ys[far], xs[far])
+                far = np.abs(rgb[ys, xs].astype(np.int16) - self.sent[ys, xs]).max(axis=1) > self.tolerance
+                cw, ch = self.cell_px
+                tc, tr = self.tile_cells
+                self.dirty |= set(np.unique((ys[far] // (tr * ch)) * 4096 + xs[far] // (tc * cw)).tolist())
         if self.visible:
             out.append(self.flush())
         return "".join(out)
-
-    def _far(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        return (np.abs(a.astype(np.int16) - b).max(axis=-1)) > self.tolerance
-
-    def _keys(self, ys: np.ndarray, xs: np.ndarray) -> set[int]:
-        cw, ch = self.cell_px
-        tc, tr = self.tile_cells
-        return set(np.unique((ys // (tr * ch)) * 4096 + xs // (tc * cw)).tolist())
-
-    def _over(self, new: np.ndarray, shown: np.ndarray) -> set[int]:
-        """Tiles where some pixel of `new` differs from `shown` by more than the tolerance."""
-        diff = cv2.absdiff(new, shown).max(axis=2)
-        ys, xs = np.nonzero(diff > self.tolerance)
-        return self._keys(ys, xs)
 
     def flush(self) -> str:
         """The dirty tiles, sent from the latest picture."""
         if not self.dirty or self.idx is None or not self.visible:
             return ""
         col0, row0 = self.geometry[:2]
-        colours = self.palette.colours
         out = []
         for key, c0, r0, nc, nr in self._tiles():
             if key not in self.dirty:
@@ -128,7 +110,7 @@ class TileCanvas:
             ys, xs = self._px(c0, r0, nc, nr)
             tile = self.idx[ys, xs]
             out.append(self.protocol.tile(tile, self.palette, key, col0 + c0, row0 + r0, nc, nr))
-            self.shown[ys, xs] = colours[tile]
+            self.sent[ys, xs] = self.rgb[ys, xs]
             self.shown_idx[ys, xs] = tile
             self.placed.add(key)
             self.tiles_sent += 1
@@ -172,7 +154,7 @@ class TileCanvas:
         """Forget the picture (and take kitty's images off the screen)."""
         out = "".join(self.protocol.remove(key, free) for key in sorted(self.placed))
         self.placed.clear()
-        self.geometry, self.idx, self.shown, self.shown_idx = None, None, None, None
+        self.geometry, self.rgb, self.idx, self.sent, self.shown_idx = None, None, None, None, None
         self.dirty.clear()
         return out
 
