@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.install-stamp
 
-.PHONY: run test lint bench install sample clean
+.PHONY: run test lint fuzz bench install sample clean
 
 $(BIN)/python:
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "Python 3.11 is needed (set PYTHON=...)"; exit 1; }
@@ -29,8 +29,14 @@ lint: $(STAMP)
 test: lint
 	$(BIN)/python -m pytest
 
+# The deep property-test run: fresh random examples (not the fixed ones of `make test`), 30 times as many.
+FUZZ_TESTS := tests/test_fuzz_readers.py tests/test_dem_readers.py tests/test_export_import.py tests/test_regression_fuzz.py
+fuzz: $(STAMP)
+	SANDTRACK_FUZZ=deep $(BIN)/python -m pytest -p no:cacheprovider $(FUZZ_TESTS)
+
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run_all.py
+	$(MAKE) fuzz
 
 sample: $(STAMP)
 	$(BIN)/sandtrack sample sample_data --preset small

@@ -88,6 +88,27 @@ def _key(path: Path) -> str:
         return str(path)
 
 
+# A damaged file shows as an SQLite error, or as text that is not UTF-8 where SQLite returns text.
+_DAMAGE = (sqlite3.DatabaseError, UnicodeDecodeError)
+
+
+def _open_error(path: Path, exc: Exception) -> SandtrackError:
+    if "readonly" in str(exc) or "unable to open" in str(exc):
+        return SandtrackError(f"{path}: cannot open the project: the file or its folder is read-only "
+                              f"(SQLite needs to write beside it; use a writable copy)")
+    return SandtrackError(f"{path}: project file is damaged ({str(exc).splitlines()[0][:200]})")
+
+
+def _check_version(path: Path, version: int | None) -> None:
+    if version is None:
+        raise SandtrackError(f"{path}: not a sandtrack project (no schema version)")
+    if version < 1:
+        raise SandtrackError(f"{path}: project file is damaged (schema version {version})")
+    if version > SCHEMA_VERSION:
+        raise SandtrackError(
+            f"{path}: made by a newer sandtrack (schema {version}, this one reads up to {SCHEMA_VERSION}); upgrade")
+
+
 @dataclass
 class VideoRef:
     camera: str
@@ -128,9 +149,13 @@ class Project:
     @staticmethod
     def _connect(path: Path) -> sqlite3.Connection:
         conn = sqlite3.connect(str(path), timeout=10.0, isolation_level=None, check_same_thread=False)
-        conn.execute("PRAGMA journal_mode=WAL")
-        conn.execute("PRAGMA synchronous=FULL")
-        conn.execute("PRAGMA foreign_keys=ON")
+        try:
+            conn.execute("PRAGMA journal_mode=WAL")
+            conn.execute("PRAGMA synchronous=FULL")
+            conn.execute("PRAGMA foreign_keys=ON")
+        except BaseException:
+            conn.close()  # a damaged file fails here: no connection may outlive the failed open
+            raise
         return conn
 
     @classmethod
@@ -149,11 +174,15 @@ class Project:
         except sqlite3.Error as exc:
             raise SandtrackError(f"cannot create {p}: {exc}") from None
         proj = cls(p, conn)
-        proj._migrate(0)
-        with proj._tx():
-            conn.execute("INSERT OR REPLACE INTO meta VALUES ('created', ?)", (str(time.time()),))
-        for camera, vpath in (videos or {}).items():
-            proj.link_video(camera, vpath)
+        try:
+            proj._migrate(0)
+            with proj._tx():
+                conn.execute("INSERT OR REPLACE INTO meta VALUES ('created', ?)", (str(time.time()),))
+            for camera, vpath in (videos or {}).items():
+                proj.link_video(camera, vpath)
+        except BaseException:
+            proj.close()
+            raise
         return proj
 
     @classmethod
@@ -175,28 +204,27 @@ class Project:
                 raise SandtrackError(f"{p}: not a sandtrack project (not an SQLite file)")
         try:
             conn = cls._connect(p)
+        except _DAMAGE as exc:
+            raise _open_error(p, exc) from None
+        try:
             version = cls._read_version(conn)
-        except sqlite3.DatabaseError as exc:
-            if "readonly" in str(exc) or "unable to open" in str(exc):
-                raise SandtrackError(f"{p}: cannot open the project: the file or its folder is read-only "
-                                     f"(SQLite needs to write beside it; use a writable copy)") from None
-            raise SandtrackError(f"{p}: project file is damaged ({exc})") from None
-        except ValueError:
-            raise SandtrackError(f"{p}: project file is damaged (bad schema version)") from None
-        if version is None:
+            _check_version(p, version)
+            proj = cls(p, conn)
+        except BaseException as exc:
             conn.close()
-            raise SandtrackError(f"{p}: not a sandtrack project (no schema version)")
-        if version < 1:
-            conn.close()
-            raise SandtrackError(f"{p}: project file is damaged (schema version {version})")
-        if version > SCHEMA_VERSION:
-            conn.close()
-            raise SandtrackError(
-                f"{p}: made by a newer sandtrack (schema {version}, this one reads up to {SCHEMA_VERSION}); upgrade"
-            )
-        proj = cls(p, conn)
+            if isinstance(exc, _DAMAGE):
+                raise _open_error(p, exc) from None
+            if isinstance(exc, ValueError):
+                raise SandtrackError(f"{p}: project file is damaged (bad schema version)") from None
+            raise
         if version < SCHEMA_VERSION:
-            proj._migrate(version)
+            try:
+                proj._migrate(version)
+            except BaseException as exc:
+                proj.close()
+                if isinstance(exc, _DAMAGE):
+                    raise _open_error(p, exc) from None
+                raise
         return proj
 
     @staticmethod
@@ -265,7 +293,7 @@ class Project:
         """Damage inside the file only shows when its pages are read: one line instead of a traceback."""
         try:
             yield
-        except (sqlite3.DatabaseError, pd.errors.DatabaseError, json.JSONDecodeError) as exc:
+        except (*_DAMAGE, pd.errors.DatabaseError, json.JSONDecodeError) as exc:
             cause = exc.__cause__ if isinstance(exc.__cause__, sqlite3.Error) else exc
             raise SandtrackError(f"{self.path}: cannot read the project file, it is damaged "
                                  f"({str(cause).splitlines()[0][:200]})") from None
