@@ -165,12 +165,52 @@ def _check_screen(out: bytes, mode: str, project: Path) -> dict:
             round(100 * float((err > 24).mean()), 2), "side_view_cells_without_picture": text}
 
 
+def encoder_figures(video: Path, frames: range, cols: int = 98, rows: int = 27) -> dict:
+    """Bytes and CPU per view and step of the tile encoder alone (no terminal, no overlays), for
+    each protocol: the first picture, then each following frame."""
+    from sandtrack_tui.tui.frame_view import Overlays, ViewTransform
+    from sandtrack_tui.tui.graphics import compose, render_view
+    from sandtrack_tui.tui.tiles import GraphicsView
+    from sandtrack_tui.video import FrameSource
+
+    with FrameSource(video, cache_mb=64) as src:
+        pictures = [src.frame(i) for i in frames if i < len(src)]
+    tf = ViewTransform.make(pictures[0].shape[1], pictures[0].shape[0], cols, rows)
+    rgbs = [compose(render_view(p, tf, CELL), tf, CELL, Overlays()) for p in pictures]
+    out = {}
+    for mode in ("kitty", "sixel"):
+        sizes, cpu = [], []
+        gv = GraphicsView(mode, CELL, 256, 0, lambda d: sizes.append(len(d)))
+        for rgb in rgbs:
+            c0 = time.process_time()
+            gv.send(gv.canvas.update(rgb, (1, 2, cols, rows)))
+            cpu.append((time.process_time() - c0) * 1000)
+            if len(sizes) < len(cpu):
+                sizes.append(0)
+        tiles = -(-cols // 8) * -(-rows // 2)
+        out[mode] = {"first_kb": round(sizes[0] / 1000, 1), "step_kb_median": round(statistics.median(sizes[1:]) / 1000, 1),
+                     "step_kb_max": round(max(sizes[1:]) / 1000, 1),
+                     "tiles_per_step": round((gv.canvas.tiles_sent - tiles) / (len(rgbs) - 1), 1), "tiles": tiles,
+                     "cpu_ms_first": round(cpu[0], 1), "cpu_ms_per_step_median": round(statistics.median(cpu[1:]), 1)}
+    return out
+
+
 def run() -> dict:
+    from sandtrack_tui.tui import sixel
+
+    sixel.warm_up()
+    encoder = {"sample_side_frames_250_290": encoder_figures(ROOT / "sample_data" / "experiment" / "side.mp4",
+                                                             range(250, 291))}
+    real = ROOT.parent / "shared" / "data" / "caliscope_4cam"
+    if (real / "cam_0.mp4").is_file():  # real webcams, ~6 fps: sensor noise and a board moving by hand
+        encoder["real_webcam_cam_0_frames_0_47"] = encoder_figures(real / "cam_0.mp4", range(48))
+        encoder["real_webcam_cam_2_frames_0_47"] = encoder_figures(real / "cam_2.mp4", range(48))
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
         project = make_project(Path(tmp))
         setup = time.perf_counter() - t0
         results = {mode: run_mode(project, mode) for mode in MODES}
+    results["encoder_98x27_cells"] = encoder
     results["setup_s"] = round(setup, 1)
     results["pty"] = f"{COLS} x {ROWS} cells of {CELL[0]} x {CELL[1]} px, {STEPS} steps from frame {START_FRAME}"
     results["frame_target_ms"] = 100

@@ -165,7 +165,6 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, App):
             self.bg_task.cancel_requested = True
         if self.feeder is not None:
             self.feeder.stop()
-        self.pixels.stop(self.views())
 
     # -- real pixels (kitty graphics / sixel): tiles.py does the work ---------------------------
     def write_graphics(self, data: str) -> None:
@@ -175,6 +174,11 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, App):
         if driver is not None and not self.is_headless:
             driver.write(data)
             driver.flush()
+
+    def exit(self, *args, **kwargs) -> None:
+        if hasattr(self, "_w"):  # kitty's images leave with the app, while its screen is still up
+            self.pixels.stop(self.views())
+        super().exit(*args, **kwargs)
 
     def _display(self, screen: Screen, renderable) -> None:
         # Textual's write of a screen update: a private hook, the only place that knows which cells
