@@ -1,9 +1,10 @@
 """What each view sends to the terminal: tiles of whole cells, only where the picture changed.
 
-Only tiles where some pixel differs from what the terminal shows by more than `TOLERANCE` (per
-channel, 0-255) are sent. So the screen never strays further than that from the frame (plus the
-palette's error), and a step sends only the tiles where something moved: on the sample, 8 x 2-cell
-tiles sent 30-60 KB per view and step (kitty) where the whole view is ~400 KB.
+A tile is sent again only where some pixel's true colour moved more than `TOLERANCE` (per
+channel, 0-255) from the colour it had when the tile was last sent. So the screen never strays
+further than that from the frame (plus the palette's error), sensor noise sends nothing, and a step
+sends only the tiles where something moved: on the sample, 8 x 2-cell tiles sent 30-60 KB per view
+and step (kitty) where the whole view is ~400 KB.
 
 Kitty tiles are images the terminal keeps, placed at their cell (z = -1: under text, so a
 notification over a view stays readable); when another screen covers the views their placements
