@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import sys
+import time
 from pathlib import Path
 
 import cv2
@@ -117,13 +118,14 @@ async def test_views_are_real_pixels_and_follow_every_step(project, mode):
         # pixels; sixel draws its tiles again over the text Textual wrote (headless: none is written)
         out.clear()
         await pilot.press("question_mark")
-        await pilot.pause(0.1)
+        await settle(pilot, app, lambda: not any(v.graphics.canvas.visible for v in app.views()))
         hidden = "".join(out)
         term.feed(hidden)
         if mode == "kitty":
             assert not term.placements and "a=T" not in hidden
         await pilot.press("escape")
-        await pilot.pause(0.1)
+        await settle(pilot, app, lambda: all(v.graphics.canvas.visible for v in app.views()))
+        await pilot.pause(0.05)
         back = "".join(out)[len(hidden):]
         term.feed(back)
         check_views(app, term)
@@ -152,7 +154,7 @@ async def test_blocks_when_the_terminal_has_no_graphics(project):
 
 def test_over_a_real_pty(tmp_path, frames):
     """`sandtrack tui` on a pseudo-terminal that offers sixel: it detects sixel itself, and the screen
-    rebuilt from everything it wrote shows the frame in the side view, no cell lost to text, also
+    rebuilt from everything it wrote shows the frame in the side view with no cell lost to text, also
     after another screen covered it."""
     try:
         proj = make_project(tmp_path, frames=frames)
@@ -163,26 +165,55 @@ def test_over_a_real_pty(tmp_path, frames):
                            sixel=True, env=env)
     except OSError as exc:
         pytest.skip(f"no pseudo-terminal here: {exc}")
-    try:
-        term.wait_quiet(0.5, timeout=60)
-        for key in (b"\x1b[C", b"\x1b[C", b"?", b"\x1b"):
-            term.write(key)
-            term.wait_quiet(0.25)
+    screen = FakeTerminal(*SIZE, CELL)
+    fed = 0
+
+    def side_view():
+        """The side view's cells on screen now (the pictures in the left half), or None."""
+        nonlocal fed
         out = term.output()
+        screen.feed(out[fed:])
+        fed = len(out)
+        ys, xs = np.nonzero(screen.graphics_mask()[:, : SIZE[0] // 2 * CELL[0]])
+        if not len(ys):
+            return None
+        col, row = xs.min() // CELL[0], ys.min() // CELL[1]
+        return col, row, (xs.max() + 1) // CELL[0] - col, (ys.max() + 1) // CELL[1] - row
+
+    def shows(frame_index: int) -> bool:
+        view = side_view()
+        if view is None or f"frame {frame_index}/" not in screen.line(0):
+            return False
+        col, row, cols, rows = view
+        if not screen.graphics_mask()[row * CELL[1]:(row + rows) * CELL[1], col * CELL[0]:(col + cols) * CELL[0]].all():
+            return False  # text over the view
+        region = type("R", (), {"width": cols, "height": rows})
+        err = np.abs(screen.region(col, row, cols, rows).astype(np.int16)
+                     - expected_view(frame_index, "side", region)).max(axis=2)
+        return np.median(err) <= 4 and (err > TOLERANCE + 24).mean() < 0.03
+
+    def wait_for(condition, what: str) -> None:
+        for _ in range(600):  # polled until it holds; the time limit is only a safety net
+            if condition():
+                return
+            if term.proc.poll() is not None:
+                break
+            time.sleep(0.1)
+        raise AssertionError(f"the screen never showed {what}")
+
+    try:
+        wait_for(lambda: shows(0), "frame 0")
+        term.write(b"\x1b[C\x1b[C")
+        wait_for(lambda: shows(2), "frame 2")
+        term.write(b"?")
+        wait_for(lambda: not shows(2), "the help screen over the view")
+        term.write(b"\x1b")
+        wait_for(lambda: shows(2), "frame 2 again after the help screen")
     finally:
         code = term.close()
     assert code == 0
-    screen = FakeTerminal(*SIZE, CELL)
-    screen.feed(out[: out.rfind(b"\x1b[?1049l")])  # the screen as it was before leaving
-    assert b"\x1bP0;1;0q" in out and b"\x1b_G" not in out.replace(b"\x1b_Gi=7431,s=1", b"")  # sixel chosen
-    assert "frame 2/" in screen.line(0)
-    ys, xs = np.nonzero(screen.graphics_mask()[:, : SIZE[0] // 2 * CELL[0]])
-    col, row = xs.min() // CELL[0], ys.min() // CELL[1]
-    cols, rows = (xs.max() + 1) // CELL[0] - col, (ys.max() + 1) // CELL[1] - row
-    assert screen.graphics_mask()[row * CELL[1]:(row + rows) * CELL[1], col * CELL[0]:(col + cols) * CELL[0]].all()
-    region = type("R", (), {"width": cols, "height": rows})
-    err = np.abs(screen.region(col, row, cols, rows).astype(np.int16) - expected_view(2, "side", region)).max(axis=2)
-    assert np.median(err) <= 4 and (err > TOLERANCE + 24).mean() < 0.03
+    out = term.output()
+    assert b"\x1bP0;1;0q" in out and b"a=T" not in out  # sixel chosen, no kitty image sent
 
 
 def test_graphics_option(project, monkeypatch, capsys):
