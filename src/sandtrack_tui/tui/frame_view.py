@@ -398,7 +398,7 @@ class FrameView(Widget):
         self._drag_from: tuple[int, int] | None = None
         self._dragged = False
         self.last_compose_ms = 0.0
-        self.graphics = None  # a graphics.GraphicsView when the terminal shows real pixels (kitty, sixel)
+        self.graphics = None  # a tiles.GraphicsView when the terminal shows real pixels (kitty, sixel)
 
     # -- data in -----------------------------------------------------------------------------
     def set_pixels(self, pixels: np.ndarray, key, tf: ViewTransform) -> None:
