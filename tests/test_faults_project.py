@@ -61,6 +61,7 @@ def make_project(root: Path, cal, name: str, side: str = "side.mp4") -> Path:
         Path(f"{path}{suffix}").unlink(missing_ok=True)
     with Project.create(path, {"side": root / side, "front": root / "front.mp4"}) as proj:
         proj.set_calibration(cal)
+        proj.set("sync_offset_s", 0.0)  # the rendered cameras are frame-locked
     path.chmod(0o666)
     return path
 

@@ -5,7 +5,8 @@ dropped SSH link loses nothing; there is no save step. Long runs (tracking) comm
 without waiting for the disk and sync once at the end (`Project.edit(sync_each_write=False)`).
 
 Tables
-- ``meta(key, value)``: ``schema_version`` and creation time.
+- ``meta(key, value)``: ``schema_version``, creation time, and other facts about the file that are
+  not edits (undo leaves them).
 - ``videos(camera, path, fingerprint, width, height, fps, frames)``: one row per camera
   ("side", "front", or any name for more cameras).
 - ``settings(key, value)``: JSON values: ``sync_offset_s`` (s; front started that much later),
@@ -39,6 +40,7 @@ import pandas as pd
 from .errors import SandtrackError
 
 SCHEMA_VERSION = 3
+LABEL_MAX = 16  # characters of a marker label
 STATUSES = ("tracked", "occluded", "lost", "manual", "interpolated", "imported")
 POINT_COLUMNS = ["frame", "camera", "marker", "x_px", "y_px", "status", "score", "psr", "colour_frac"]
 _POINT_VALUES = POINT_COLUMNS[3:]
@@ -344,6 +346,17 @@ class Project:
             raise SandtrackError("; ".join(p.message() for p in problems))
         return {c: FrameSource(self.videos()[c].path, cache_mb=cache_mb) for c in self.cameras()}
 
+    # -- facts about the file (not edits: undo leaves them) -----------------------------------
+    def meta(self, key: str) -> str | None:
+        with self._reading():
+            row = self.conn.execute("SELECT value FROM meta WHERE key=?", (key,)).fetchone()
+        return None if row is None else str(row[0])
+
+    def set_meta(self, key: str, value: str) -> None:
+        if key in ("schema_version", "created"):
+            raise SandtrackError(f"meta key {key!r} is the store's own")
+        self._write(lambda: self.conn.execute("INSERT OR REPLACE INTO meta VALUES (?, ?)", (key, str(value))))
+
     # -- settings ------------------------------------------------------------------------------
     def get(self, key: str, default=None):
         with self._reading():
@@ -367,6 +380,11 @@ class Project:
     @property
     def sync_offset_s(self) -> float:
         return float(self.get("sync_offset_s", 0.0))
+
+    def sync_confirmed(self) -> bool:
+        """True once a sync offset was stored (measured, typed in, or 0 set on purpose); before that
+        `sync_offset_s` is a default of 0, which is wrong for cameras started by hand."""
+        return self.get("sync_offset_s") is not None
 
     def calibration(self):
         from .camera import Calibration
@@ -406,7 +424,20 @@ class Project:
         return self._write(fn)
 
     def rename_marker(self, marker_id: int, label: str) -> None:
-        self.add_marker(label, marker_id)
+        """Give a marker a new label (the name shown everywhere; its id stays), as one undoable edit."""
+        label = str(label).strip()
+        if not label or len(label) > LABEL_MAX or not label.isprintable():
+            raise SandtrackError(f"a marker label is 1-{LABEL_MAX} printable characters, not {label!r}")
+
+        def fn():
+            old = self.conn.execute("SELECT label FROM markers WHERE id=?", (marker_id,)).fetchone()
+            if old is None:
+                raise SandtrackError(f"no marker {marker_id}")
+            eid = self._new_edit("marker", f"rename marker {old[0]} to {label}")
+            self._log_row(eid, 0, "markers", str(marker_id), json.dumps(old[0]), json.dumps(label))
+            self.conn.execute("UPDATE markers SET label=? WHERE id=?", (label, marker_id))
+
+        self._write(fn)
 
     def delete_marker(self, marker_id: int) -> None:
         """Delete a marker and all its points (undoable)."""
@@ -658,6 +689,22 @@ class _Edit:
 
         self.project._write(fn)
         return len(keys)
+
+    def delete_marker(self, marker_id: int) -> None:
+        """Remove a marker's row (its points are this edit's business) as part of this edit."""
+        conn = self.project.conn
+
+        def fn():
+            if self.edit_id is None:
+                self.edit_id = self.project._new_edit(self.kind, self.description)
+            old = conn.execute("SELECT label FROM markers WHERE id=?", (int(marker_id),)).fetchone()
+            if old is None:
+                return
+            self.project._log_row(self.edit_id, self.seq, "markers", str(int(marker_id)), json.dumps(old[0]), None)
+            self.seq += 1
+            conn.execute("DELETE FROM markers WHERE id=?", (int(marker_id),))
+
+        self.project._write(fn)
 
 
 def _existing_values(conn, records) -> dict:
