@@ -175,3 +175,17 @@ def test_palette_png_decodes_with_opencv():
     colours = rng.integers(0, 256, (37, 3)).astype(np.uint8)
     decoded = cv2.imdecode(np.frombuffer(palette_png(idx, colours), np.uint8), cv2.IMREAD_COLOR)[:, :, ::-1]
     assert np.array_equal(decoded, colours[idx])
+
+
+def test_ids_in_a_crowd_get_leader_lines_at_pixel_scale():
+    frame = sand()
+    marks = [MarkerMark(k, str(k), 500 + 14 * (k % 5), 300 + 14 * (k // 5), "tracked") for k in range(1, 21)]
+    term = FakeTerminal(80, 26, CELL)
+    gv, tf, px, data = next(draw("kitty", [frame], Overlays(marks=marks)))
+    term.feed(data)
+    screen = shown(term)
+    leader = np.all(np.abs(screen - tuple(int(v * 0.7) for v in STATUS_RGB["tracked"])) <= 2, axis=2)
+    assert leader.sum() > 50  # ids moved away from their beads are joined to them by a line
+    # each line is one pixel wide at the terminal's resolution, not a half-block pixel (8 x 8 here)
+    rows = leader.any(axis=1)
+    assert leader[rows].sum(axis=1).min() <= 3

@@ -318,13 +318,16 @@ def bead_cells(tf: ViewTransform, x: float, y: float, radius: float, out: np.nda
     return r0, r1, c0, c1
 
 
-def draw_overlays(rgb: np.ndarray, tf: ViewTransform, ov: Overlays,
-                  place_ids: bool = True) -> dict[tuple[int, int], tuple[str, Style]]:
+def draw_overlays(rgb: np.ndarray, tf: ViewTransform, ov: Overlays, place_ids: bool = True,
+                  cells: ViewTransform | None = None) -> dict[tuple[int, int], tuple[str, Style]]:
     """Draw boxes, crosshair, search window and epipolar curves into `rgb` (in place); return the
     text labels as {(row, col): (char, style)}: every marker's id, none over another id or a marker,
     with a leader line where an id had to move away from its marker. place_ids=False: no ids (and
-    no leader lines), e.g. for a picture drawn at a finer scale than the cells its ids go in."""
+    no leader lines). `cells`: the view's cells when `rgb` is drawn at a finer scale (`tf`, same
+    region: the terminal's own pixels); the ids are placed in those cells, leader lines drawn in `rgb`."""
     labels: dict[tuple[int, int], tuple[str, Style]] = {}
+    ct = cells or tf  # where ids go
+    scale = ct.s / tf.s  # rgb pixels per half-block pixel
     for curve, colour in ov.epipolar:
         if curve is None or len(curve) < 2:
             continue
@@ -337,7 +340,7 @@ def draw_overlays(rgb: np.ndarray, tf: ViewTransform, ov: Overlays,
         x, y, hw, hh = ov.search
         _rect(rgb, tf, x - hw, y - hh, x + hw, y + hh, SEARCH_RGB)
     requests = []
-    blocked = np.zeros((tf.rows, tf.cols), bool)
+    blocked = np.zeros((ct.rows, ct.cols), bool)
     for m in ov.marks:
         if not (np.isfinite(m.x) and np.isfinite(m.y)):
             continue
@@ -345,10 +348,10 @@ def draw_overlays(rgb: np.ndarray, tf: ViewTransform, ov: Overlays,
         style = Style(color=RichColor.from_triplet(_t(colour)), bgcolor=RichColor.from_rgb(0, 0, 0),
                       bold=m.selected, reverse=m.selected)
         hs = max(m.half_size_px, 1.5 * tf.s)
-        mc, mr = tf.source_to_cell(m.x, m.y)
+        mc, mr = ct.source_to_cell(m.x, m.y)
         # the cells of the bead itself (about half its box), which no id may cover
-        br0, br1, bc0, bc1 = bead_cells(tf, m.x, m.y, 0.5 * m.half_size_px, blocked)
-        labelled = tf.contains(m.x, m.y)  # a marker outside the view gets no id
+        br0, br1, bc0, bc1 = bead_cells(ct, m.x, m.y, 0.5 * m.half_size_px, blocked)
+        labelled = ct.contains(m.x, m.y)  # a marker outside the view gets no id
         if hs / tf.s < 2.5 and not m.selected:
             # zoomed out, boxes of neighbouring markers would merge: a status bar under the marker
             u, v = tf.source_to_display(m.x, m.y)
@@ -362,14 +365,14 @@ def draw_overlays(rgb: np.ndarray, tf: ViewTransform, ov: Overlays,
         if m.selected:
             _rect(rgb, tf, m.x - hs - tf.s, m.y - hs - tf.s, m.x + hs + tf.s, m.y + hs + tf.s, colour)
         if labelled:
-            col1, row0 = tf.source_to_cell(m.x + hs, m.y - hs)
+            col1, row0 = ct.source_to_cell(m.x + hs, m.y - hs)
             first = (row0 - 1 if row0 > 0 else row0, col1 + 1)  # the box's top right corner
             requests.append((0, LabelRequest(m.label, style, (mr, mc), (br0, br1, bc0, bc1), first, colour)))
     # boxed (and selected) markers first: their ids sit at the box's corner as far as possible
     ordered = [q for _prio, q in sorted(requests, key=lambda r: (r[0], r[1].anchor))] if place_ids else []
-    for q, row, col, far in place_labels(ordered, tf.rows, tf.cols, blocked):
+    for q, row, col, far in place_labels(ordered, ct.rows, ct.cols, blocked):
         if far:
-            _leader(rgb, q, row, col)
+            _leader(rgb, q, row, col, scale)
         for k, ch in enumerate(q.text):
             labels[(row, col + k)] = (ch, q.style)
     if ov.cursor is not None:
@@ -381,12 +384,16 @@ def draw_overlays(rgb: np.ndarray, tf: ViewTransform, ov: Overlays,
     return labels
 
 
-def _leader(rgb: np.ndarray, q: LabelRequest, row: int, col: int) -> None:
-    """A thin line from a marker to its id placed away from it (display pixels: one per column, two per
-    row); the part under the id's cells is hidden by the id."""
+def _leader(rgb: np.ndarray, q: LabelRequest, row: int, col: int, scale: float = 1.0) -> None:
+    """A thin line from a marker to its id placed away from it (display pixels: `scale` per column,
+    2 * `scale` per row); the part under the id's cells is hidden by the id."""
     ar, ac = q.anchor
-    end = (int(np.clip(ac, col, col + len(q.text) - 1)), 2 * row + 1)
-    cv2.line(rgb, (ac, 2 * ar + 1), end, tuple(int(v * 0.7) for v in q.colour), 1, cv2.LINE_8)
+
+    def at(c: int, r: int) -> tuple[int, int]:  # the middle of cell (r, c)
+        return int((c + 0.5) * scale - 0.5), int((2 * r + 1) * scale)
+
+    end = at(int(np.clip(ac, col, col + len(q.text) - 1)), row)
+    cv2.line(rgb, at(ac, ar), end, tuple(int(v * 0.7) for v in q.colour), 1, cv2.LINE_8)
 
 
 def _t(rgb) -> tuple[int, int, int]:

@@ -3,9 +3,9 @@ images for the kitty graphics protocol or sixel (termcaps.py chooses; tiles.py d
 
 - `render_view`: the half-block renderer (frame_view.render_pixels) on a grid of cell_w x cell_w
   square pixels per half cell, so every overlay lands where it belongs.
-- `compose`: the overlays drawn into that image: boxes, cursor, search window and epipolar curve
-  from the view's `Overlays` (frame_view.draw_overlays at pixel scale), marker ids where
-  frame_view places them in cells, written as pixels.
+- `compose`: the overlays drawn into that image by frame_view.draw_overlays at pixel scale (boxes,
+  cursor, search window, epipolar curves, leader lines), the marker ids where it places them in
+  cells, written as pixels.
 - `Palette`: an adaptive palette (Pillow's fast octree) with exact entries for the overlay colours.
   Over SSH every byte counts: a palette image deflates to ~28 % of a true-colour PNG of the same
   view, for 1.6 levels (of 255) mean error.
@@ -65,8 +65,7 @@ def compose(pixels: np.ndarray, tf: ViewTransform, cell_px: tuple[int, int], ove
     rows * cell_h high."""
     cw, ch = cell_px
     rgb = pixels.copy()
-    draw_overlays(rgb, pixel_transform(tf, cw), overlays)
-    labels = draw_overlays(np.zeros((2 * tf.rows, tf.cols, 3), np.uint8), tf, overlays)  # where the ids go
+    labels = draw_overlays(rgb, pixel_transform(tf, cw), overlays, cells=tf)  # the ids go in cells
     for k, char in enumerate(message[: tf.cols]):
         labels[(0, k)] = (char, MESSAGE_STYLE)
     draw_labels(rgb, labels, cw, 2 * cw)
