@@ -161,8 +161,9 @@ def _check_screen(out: bytes, mode: str, project: Path) -> dict:
     err = np.abs(shown - expected[: shown.shape[0]]).max(axis=2)
     text = int((~term.graphics_mask()[row * CELL[1]:(row + rows) * CELL[1], col * CELL[0]:(col + cols) * CELL[0]]
                 ).sum() // (CELL[0] * CELL[1]))
-    return {"side_view_cells": f"{cols} x {rows}", "side_view_error_median": float(np.median(err)), "side_view_pixels_over_24_pct":
-            round(100 * float((err > 24).mean()), 2), "side_view_cells_without_picture": text}
+    return {"side_view_cells": f"{cols} x {rows}", "side_view_error_median": float(np.median(err)),
+            "side_view_pixels_over_24_pct": round(100 * float((err > 24).mean()), 2),
+            "side_view_cells_without_picture": text}
 
 
 def encoder_figures(video: Path, frames: range, cols: int = 98, rows: int = 27) -> dict:

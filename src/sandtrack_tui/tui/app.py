@@ -32,7 +32,7 @@ from ..video import FramePair, camera_offsets, common_range, nearest_frames
 from .core import core
 from .editing import EditingMixin
 from .feeder import FrameFeeder, FrameRequest, FrameResult
-from .frame_view import EPIPOLAR_RGB, FrameView, MarkerMark, Overlays, ViewTransform
+from .frame_view import CAMERA_RGB, FrameView, MarkerMark, Overlays, ViewTransform
 from .keys import ANYWHERE, KEY_DISPLAY, KEYS, bindings
 from .markers import MarkersMixin
 from .screens.help import HelpScreen
@@ -45,8 +45,6 @@ from .tiles import ScreenGraphics
 from .timeline import Timeline, next_problem, status_codes
 
 GOOD = ("tracked", "manual", "interpolated", "imported")
-# Epipolar curves in a view are drawn in the colour of the camera they come from (shown in its title).
-CAMERA_RGB = [EPIPOLAR_RGB, (90, 200, 255), (255, 170, 60), (150, 255, 120), (255, 255, 120), (200, 150, 255)]
 FRAME_CACHE_MB = 320  # decoded frames kept for stepping, shared by the cameras
 
 class TableReady(Message):

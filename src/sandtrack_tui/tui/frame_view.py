@@ -49,6 +49,8 @@ STATUS_RGB = {
 SELECTED_RGB = (255, 255, 255)
 CURSOR_RGB = (255, 230, 0)
 EPIPOLAR_RGB = (255, 80, 200)
+# Epipolar curves in a view are drawn in the colour of the camera they come from (shown in its title).
+CAMERA_RGB = [EPIPOLAR_RGB, (90, 200, 255), (255, 170, 60), (150, 255, 120), (255, 255, 120), (200, 150, 255)]
 SEARCH_RGB = (255, 160, 40)
 
 _CUBE = np.array([0, 95, 135, 175, 215, 255], np.int16)

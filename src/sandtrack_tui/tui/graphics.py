@@ -25,8 +25,8 @@ from rich.style import Style
 
 from .frame_view import (
     BOOST_RGB,
+    CAMERA_RGB,
     CURSOR_RGB,
-    EPIPOLAR_RGB,
     SEARCH_RGB,
     SELECTED_RGB,
     STATUS_RGB,
@@ -37,8 +37,10 @@ from .frame_view import (
 )
 
 BOOST_MIN_SCALE = 3.0  # source px per screen px from which a 9 px marker gets the marker boost
-RESERVED = tuple(dict.fromkeys([(0, 0, 0), (255, 255, 255), (255, 255, 0), BOOST_RGB, CURSOR_RGB, EPIPOLAR_RGB,
-                                SEARCH_RGB, SELECTED_RGB, *STATUS_RGB.values()]))
+# palette entries kept exact: the overlays' colours (ids' leader lines are their status colour x 0.7)
+RESERVED = tuple(dict.fromkeys([(0, 0, 0), (255, 255, 255), (255, 255, 0), BOOST_RGB, CURSOR_RGB, SEARCH_RGB,
+                                SELECTED_RGB, *CAMERA_RGB, *STATUS_RGB.values(),
+                                *(tuple(int(v * 0.7) for v in c) for c in STATUS_RGB.values())]))
 REFIT_ERROR = 3.0  # mean palette error (levels) from which the palette is fitted again
 KITTY_CHUNK = 4096
 MESSAGE_STYLE = Style(color="black", bgcolor="yellow", bold=True)
