@@ -52,6 +52,7 @@ KEYS = [
     ("f4", "screen('training')", "train the regression model", "Screens", False),
     ("e,f5", "screen('export')", "export trajectories", "Screens", True),
     ("f6", "screen('compare')", "DEM comparison", "Screens", False),
+    ("f7", "screen('repose')", "angle of repose and DEM parameter sweep", "Screens", False),
     ("question_mark", "help", "help", "Screens", True),
     ("q", "quit", "quit", "Screens", True),
 ]
