@@ -34,6 +34,9 @@ def register(sub) -> None:
                    help="relink a camera's video before opening (e.g. after moving the files)")
     p.add_argument("--colors", choices=["truecolor", "256"],
                    help="force the colour mode (default: detected; over SSH set COLORTERM=truecolor)")
+    p.add_argument("--graphics", choices=["auto", "kitty", "sixel", "blocks"], default="auto",
+                   help="how frames are drawn: real pixels through the kitty graphics protocol or sixel, or "
+                        "half-block characters; auto (default) asks the terminal")
     p.set_defaults(func=run)
 
 
@@ -149,7 +152,9 @@ def run(args) -> int:
     if args.video:
         relink(path, args.video)
     from ..tui.app import SandtrackApp
+    from ..tui.termcaps import detect
 
     app = SandtrackApp(path, colors=args.colors)
+    app.pixels.graphics = detect(args.graphics)  # after the project opened: a bad one never queries the terminal
     app.run()
     return int(app.return_code or 0)

@@ -32,7 +32,7 @@ from ..video import FramePair, camera_offsets, common_range, nearest_frames
 from .core import core
 from .editing import EditingMixin
 from .feeder import FrameFeeder, FrameRequest, FrameResult
-from .frame_view import EPIPOLAR_RGB, FrameView, MarkerMark, Overlays, ViewTransform
+from .frame_view import CAMERA_RGB, FrameView, MarkerMark, Overlays, ViewTransform
 from .keys import ANYWHERE, KEY_DISPLAY, KEYS, bindings
 from .markers import MarkersMixin
 from .screens.help import HelpScreen
@@ -40,11 +40,11 @@ from .screens.prompts import AskNumber, Confirm
 from .seeding import SeedingMixin
 from .table import MarkerRow, MarkerTable
 from .tasks import Task, TasksMixin, guarded
+from .termcaps import Graphics
+from .tiles import ScreenGraphics
 from .timeline import Timeline, next_problem, status_codes
 
 GOOD = ("tracked", "manual", "interpolated", "imported")
-# Epipolar curves in a view are drawn in the colour of the camera they come from (shown in its title).
-CAMERA_RGB = [EPIPOLAR_RGB, (90, 200, 255), (255, 170, 60), (150, 255, 120), (255, 255, 120), (200, 150, 255)]
 FRAME_CACHE_MB = 320  # decoded frames kept for stepping, shared by the cameras
 
 class TableReady(Message):
@@ -75,8 +75,10 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, MarkersMixin, App):
     """
     BINDINGS = bindings()
 
-    def __init__(self, project: Project | str | Path, colors: str | None = None, prefetch: int = 4):
+    def __init__(self, project: Project | str | Path, colors: str | None = None, prefetch: int = 4,
+                 graphics: Graphics | None = None):
         super().__init__()
+        self.pixels = ScreenGraphics(self, graphics or Graphics("blocks"))
         self.project = project if isinstance(project, Project) else Project.open(project)
         cams = self.project.cameras()
         if not cams:
@@ -156,6 +158,7 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, MarkersMixin, App):
             self.notify("256 colours: the frames are drawn in grey (markers in blue). For colour, start with "
                         "COLORTERM=truecolor (ssh does not pass it on); in tmux also set "
                         "terminal-features ',*:RGB'.", timeout=12)
+        self.pixels.start(self.views())
         self.feeder = FrameFeeder(self.sources, lambda r: self.post_message(FrameReady(r)), self.prefetch)
         if self.size.height < 40:
             self._set_layout(1)
@@ -185,6 +188,27 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, MarkersMixin, App):
             self.bg_task.cancel_requested = True
         if self.feeder is not None:
             self.feeder.stop()
+
+    # -- real pixels (kitty graphics / sixel): tiles.py does the work ---------------------------
+    def write_graphics(self, data: str) -> None:
+        """Escape codes straight to the terminal, in order with the UI's own output (the driver's
+        writer thread); nothing in a headless run."""
+        driver = self._driver
+        if driver is not None and not self.is_headless:
+            driver.write(data)
+            driver.flush()
+
+    def exit(self, *args, **kwargs) -> None:
+        if hasattr(self, "_w"):  # kitty's images leave with the app, while its screen is still up
+            self.pixels.stop(self.views())
+        super().exit(*args, **kwargs)
+
+    def _display(self, screen: Screen, renderable) -> None:
+        # Textual's write of a screen update: a private hook, the only place that knows which cells
+        # were written (sixel pictures under them are drawn again right after the text)
+        super()._display(screen, renderable)
+        if hasattr(self, "_w"):
+            self.pixels.after_display(self.views(), renderable, self.screen is self._main_screen)
 
     def views(self) -> list[FrameView]:
         return [self._w[self._view_id(c)] for c in self.cameras]
@@ -287,7 +311,7 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, MarkersMixin, App):
             tf = self._transform(cam)
             if tf is None:
                 continue
-            req = FrameRequest(cam, self.cam_index(cam), tf, self.boost)
+            req = FrameRequest(cam, self.cam_index(cam), tf, self.boost, self.pixels.cell_px)
             self._wanted[cam] = req.key
             v = self.view(cam)
             if v.pixels_key == req.key:
