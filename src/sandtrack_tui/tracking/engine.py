@@ -261,7 +261,8 @@ class Engine:
         explained = [(p.match.x, p.match.y) for k, p in props.items() if k[1] == cam]
         explained += [xy for k, xy in forced.items() if k[1] == cam]
         cands: dict[tuple, list] = {}  # track key -> [(d2, blob id, blob)]
-        jumpers: set = set()  # tracks searched beyond their gate (any rival is then ambiguous)
+        jumpers: set = set()  # tracks searched a largest move per frame beyond their gate (a streak)
+        far: set = set()  # tracks searched beyond their gate (any rival is then ambiguous)
         windows: dict = {}  # track key -> (x, y, hx, hy) searched
         seen: list = []  # one blob seen through several tracks' windows is one blob
         for t in tracks:
@@ -281,19 +282,25 @@ class Engine:
             p = t.params
             # (the first frames of a miss only: later the gate, widened while hidden, takes over)
             reach = p.max_jump_px * (t.misses + 1) if t.misses <= JUMP_FRAMES else 0.0
+            carried = False
             if band_from is not None:
                 # The other view pins the marker to a line: search a wider window, along the band only.
                 wide = max(hx, hy, 4 * t.model.radius + 10)
                 hx = hy = min(wide, p.max_search_px)
                 if reach > hx:
                     hx = hy = min(reach, p.max_band_search_px)
+                else:
+                    # Hidden a while: the sand may have carried it anywhere along the line.
+                    carried = t.misses > JUMP_FRAMES and t.model.has_blob and hx < p.max_band_search_px
             elif reach > max(hx, hy):
                 hx = hy = min(reach, p.max_search_px)
-            jump = max(hx, hy) > max(t.search_halfsize()) and t.model.has_blob
+            jump = not carried and max(hx, hy) > max(t.search_halfsize()) and t.model.has_blob
             # Beyond the gate the marker may be a streak: its pixels count from half the threshold.
             windows[key] = (px, py, hx, hy)
             blobs = find_blobs(img, t.model, px, py, hx, hy,
                                threshold=0.5 * t.model.threshold if jump else None)
+            if carried:
+                blobs += self._band_blobs(cam, img, t.model, band_from, px, py, hx, p.max_band_search_px)
             blobs = unexplained(blobs, np.array(explained).reshape(-1, 2), 1.5 * t.model.radius + 1)
             if not blobs:
                 continue
@@ -305,17 +312,42 @@ class Engine:
                 keep = np.ones(len(blobs), bool)
             else:
                 keep = d2 <= t.params.gate_d2
+            if jump or carried:
+                far.add(key)
             if jump:
                 jumpers.add(key)
             cands[key] = [(float(d), self._blob_id(seen, b, t.model.radius), b)
                           for d, b, k in zip(d2, blobs, keep, strict=True) if k]
         n = 0
-        for key, blob in self._assign(cam, int(frames[cam][0]), cands, jumpers, windows).items():
+        for key, blob in self._assign(cam, int(frames[cam][0]), cands, far, windows).items():
             m = self.tracks[key].verify_at(img, blob.x, blob.y, int(frames[cam][0]) if key in jumpers else None)
             if m is not None:
                 props[key] = _Proposal(m, reattach=True, jump=key in jumpers)
                 n += 1
         return n
+
+    def _band_blobs(self, cam, img, model, band_from, px, py, inner: float, reach: float) -> list:
+        """Blobs along the other view's epipolar band through `band_from`, out to `reach` px from
+        (px, py), outside the window of half-size `inner` searched already: small tiles along the
+        line (a brightness model reads its sand level per tile, as in any search window)."""
+        h = 2 * model.radius + 8
+        n = int(math.ceil(reach / (2 * h)))
+        offs = np.arange(-n, n + 1) * 2 * h
+        cx, cy = np.meshgrid(px + offs, py + offs)
+        cx, cy = cx.ravel(), cy.ravel()
+        outside = (np.abs(cx - px) + h > inner) | (np.abs(cy - py) + h > inner)
+        H, W = img.shape[:2]
+        inside = (cx + h >= 0) & (cy + h >= 0) & (cx - h < W) & (cy - h < H)
+        cx, cy = cx[outside & inside], cy[outside & inside]
+        if not len(cx):
+            return []
+        d = self.stereo.distance(self.stereo.other(cam), band_from, cam, np.c_[cx, cy])
+        near = d <= h * math.sqrt(2) + self.stereo.band_px
+        out = []
+        for x, y in zip(cx[near], cy[near], strict=True):
+            out += [b for b in find_blobs(img, model, float(x), float(y), h, h)
+                    if abs(b.x - px) > inner or abs(b.y - py) > inner]
+        return out
 
     @staticmethod
     def _blob_id(seen: list, b, radius: float) -> int:
@@ -325,15 +357,35 @@ class Engine:
         seen.append((b.x, b.y))
         return len(seen) - 1
 
-    def _assign(self, cam, frame, cands: dict, jumpers=frozenset(), windows=None) -> dict:
+    def _assign(self, cam, frame, cands: dict, far=frozenset(), windows=None) -> dict:
         """Tracks to blobs, most likely pair first; a pair is taken only if neither the track nor the
-        blob has a rival nearly as likely (likelihood ratio > e^3 ≈ 20): ambiguity is left alone. A
-        track searched beyond its gate (`jumpers`) takes a blob outside its gate only when neither the
-        track nor the blob has any rival, and the blob lies in no other searching track's window
-        (`windows`: that track may be the blob's marker even if it did not see the blob there)."""
+        blob has a rival nearly as likely (likelihood ratio > e^3 ≈ 20): ambiguity is left alone.
+        Blobs inside a track's gate go first: a blob only a track searched beyond its gate (`far`)
+        could reach is left to the tracks whose gate holds it. Then a far track takes a blob outside
+        its gate only when neither the track nor the blob has any rival, and the blob lies in no
+        other still searching track's window (`windows`: that track may be the blob's marker even if
+        it did not see the blob there)."""
+        gated, beyond = {}, {}
+        for k, lst in cands.items():
+            if k not in far:
+                gated[k] = lst
+                continue
+            gate = self.tracks[k].params.gate_d2
+            gated[k] = [c for c in lst if c[0] <= gate]
+            beyond[k] = [c for c in lst if c[0] > gate]
+        blocked_tracks, blocked_blobs = set(), set()
+        out = self._assign_pass(cam, frame, gated, blocked_tracks, blocked_blobs, None)
+        if any(beyond.values()):
+            taken = set(out)
+            searching = {k: w for k, w in (windows or {}).items() if k not in taken}
+            beyond = {k: v for k, v in beyond.items() if k not in blocked_tracks}
+            out.update(self._assign_pass(cam, frame, beyond, blocked_tracks, blocked_blobs, searching))
+        return out
+
+    def _assign_pass(self, cam, frame, cands: dict, blocked_tracks: set, blocked_blobs: set, windows) -> dict:
+        """One greedy pass of _assign; `windows` given: the candidates lie beyond their tracks' gates."""
         out = {}
         cands = {k: sorted(v, key=lambda c: c[0]) for k, v in cands.items() if v}
-        blocked_tracks, blocked_blobs = set(), set()
         while True:
             best = None
             for key, lst in cands.items():
@@ -351,9 +403,9 @@ class Engine:
             rival_blob = [c[0] for c in cands[key] if c[1] != bid and c[1] not in blocked_blobs]
             rival_track = [c[0] for k, lst in cands.items() if k != key and k not in blocked_tracks
                            for c in lst if c[1] == bid]
-            far = key in jumpers and d2 > self.tracks[key].params.gate_d2
+            far = windows is not None
             near = [r for r in rival_blob + rival_track if r - d2 < self.ambiguity_d2 or far]
-            if far and windows:
+            if far:
                 near += [d2 for k, (wx, wy, hx, hy) in windows.items()
                          if k != key and abs(blob.x - wx) <= hx and abs(blob.y - wy) <= hy]
             blocked_tracks.add(key)

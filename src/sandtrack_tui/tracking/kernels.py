@@ -187,9 +187,9 @@ def _robust_circle(x, y, rounds):
 
 
 @_jit
-def edge_centre(win, cx, cy, radius, steps, cos, sin, min_rise, step_px, iterations, settle_px):
-    """(ok, x, y): centre of the marker's dark silhouette near (cx, cy) in the BGR window `win`,
-    in the window's coordinates (see luma.edge_centre)."""
+def edge_centre(win, cx, cy, radius, steps, cos, sin, min_rise, step_px, iterations, settle_px, sign):
+    """(ok, x, y): centre of the marker's dark silhouette (sign 1; a bright one: sign -1) near (cx, cy)
+    in the BGR window `win`, in the window's coordinates (see luma.edge_centre)."""
     luma = luma_window(win)
     n = steps.shape[0]
     n_rays = cos.shape[0]
@@ -205,7 +205,7 @@ def edge_centre(win, cx, cy, radius, steps, cos, sin, min_rise, step_px, iterati
             for s in range(n):
                 px = float(cos[ray] * steps[s] + fx)
                 py = float(sin[ray] * steps[s] + fy)
-                prof[s] = _cubic_sample(luma, px, py, wx, wy)
+                prof[s] = sign * _cubic_sample(luma, px, py, wx, wy)
             best, k = -np.inf, 0
             for s in range(n - 2):  # outward rise of brightness (central difference)
                 g = prof[s + 2] - prof[s]
@@ -526,9 +526,9 @@ def rest_shift_yuv(yp, up, vp, t, x0, y0, ref, gx, gy, ginv, max_shift_px, max_r
 
 @_jit
 def edge_centre_yuv(yp, up, vp, t, x0, y0, n, cx, cy, radius, steps, cos, sin, min_rise, step_px, iterations,
-                    settle_px):
+                    settle_px, sign):
     return edge_centre(_bgr(yp, up, vp, t, x0, y0, x0 + n, y0 + n), cx, cy, radius, steps, cos, sin, min_rise,
-                       step_px, iterations, settle_px)
+                       step_px, iterations, settle_px, sign)
 
 
 @_jit

@@ -18,7 +18,8 @@ import cv2
 import numpy as np
 
 from . import kernels
-from .appearance import AppearanceModel
+from .appearance import BRIGHT, AppearanceModel
+from .luma import edge_centre
 
 
 @dataclass(slots=True)
@@ -114,8 +115,22 @@ class TemplateMatcher:
         if not found:
             return None
         self._last = (score, x0, y0)
-        return Match(x=mx + x0, y=my + y0, score=peak, psr=psr, colour_frac=frac, used_centroid=used,
-                     touching=touching)
+        x, y = mx + x0, my + y0
+        if used and not touching and not streak:
+            x, y = self.silhouette(frame_bgr, x, y)
+        return Match(x=x, y=y, score=peak, psr=psr, colour_frac=frac, used_centroid=used, touching=touching)
+
+    def silhouette(self, frame_bgr, x: float, y: float) -> tuple[float, float]:
+        """A bright marker's centre from its outline (luma.edge_centre, brightness falling outward):
+        its lit side is brighter than its shaded side, which pulls a weighted centroid towards the
+        light by a few tenths of a pixel; where the outline lies does not depend on the shading.
+        Other models, or no clear outline within a pixel: (x, y) as it is."""
+        if self.model.kind != BRIGHT:
+            return x, y
+        e = edge_centre(frame_bgr, x, y, self.model.radius, polarity=-1.0)
+        if e is None or (e[0] - x) ** 2 + (e[1] - y) ** 2 > 1.0:
+            return x, y
+        return e
 
     def _streaks(self, score: np.ndarray, res: np.ndarray, velocity: tuple) -> tuple[np.ndarray, float]:
         """A marker moving v px per frame is smeared over e |v| px by an exposure of e frames. For a
@@ -174,7 +189,8 @@ class TemplateMatcher:
         x0, y0 = int(round(x)) - R, int(round(y)) - R
         roi = _crop(frame_bgr, x0, y0, 2 * R + 1, 2 * R + 1)
         cx, cy, frac = self.centroid(self.model.prepared(self.model.score(roi)), x - x0, y - y0, iterations=3)
-        return cx + x0, cy + y0, frac
+        cx, cy = self.silhouette(frame_bgr, cx + x0, cy + y0)
+        return cx, cy, frac
 
 
 def _crop(img: np.ndarray, x0: int, y0: int, w: int, h: int) -> np.ndarray:
