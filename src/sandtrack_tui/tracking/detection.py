@@ -40,8 +40,8 @@ def detect_like(frame_bgr, model, min_frac: float = MIN_FRAC) -> pd.DataFrame:
     rows = []
     for k in range(1, n):
         x, y, w, h, npx = stats[k]
-        if npx < 2:
-            continue
+        if npx < 2 or x == 0 or y == 0 or x + w == W or y + h == H:
+            continue  # (a blob cut by the image's edge: its centre is not the marker's)
         xa, ya, xb, yb = max(x - 1, 0), max(y - 1, 0), min(x + w + 1, W), min(y + h + 1, H)
         grown = cv2.dilate((labels[ya:yb, xa:xb] == k).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
         area = float(weights[ya:yb, xa:xb][grown].sum())

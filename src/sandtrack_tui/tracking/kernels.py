@@ -142,8 +142,10 @@ def _cubic_sample(img, x, y, wx, wy):
 
 
 @_jit
-def _robust_circle(x, y, rounds):
-    """Kasa circle fit, then Cauchy re-weighting by the distance from the circle: (ok, cx, cy, r)."""
+def _robust_circle(x, y, rounds, outward):
+    """Kasa circle fit, then Cauchy re-weighting by the distance from the circle: (ok, cx, cy, r).
+    `outward`: only points outside the circle are suspects (a dark marker's outline can be pushed
+    outward by its contact shadow or a dark neighbour beside it, never inward: inside is the marker)."""
     m = x.shape[0]
     w = np.ones(m)
     a1 = a2 = r = 0.0
@@ -181,15 +183,15 @@ def _robust_circle(x, y, rounds):
             res[i] = np.hypot(x[i] - a1, y[i] - a2) - r
         scale = 1.4826 * np.sort(np.abs(res))[m // 2] + 0.05
         for i in range(m):
-            q = res[i] / (2 * scale)
+            q = max(res[i], 0.0) / scale if outward else res[i] / (2 * scale)
             w[i] = 1.0 / (1.0 + q * q)
     return True, a1, a2, r
 
 
 @_jit
-def edge_centre(win, cx, cy, radius, steps, cos, sin, min_rise, step_px, iterations, settle_px, sign):
+def edge_centre(win, cx, cy, radius, steps, cos, sin, min_rise, step_px, iterations, settle_px, sign, outward):
     """(ok, x, y): centre of the marker's dark silhouette (sign 1; a bright one: sign -1) near (cx, cy)
-    in the BGR window `win`, in the window's coordinates (see luma.edge_centre)."""
+    in the BGR window `win`, in the window's coordinates (see luma.edge_centre; `outward`: _robust_circle)."""
     luma = luma_window(win)
     n = steps.shape[0]
     n_rays = cos.shape[0]
@@ -225,7 +227,7 @@ def edge_centre(win, cx, cy, radius, steps, cos, sin, min_rise, step_px, iterati
             good += 1
         if good < n_rays // 2:
             return False, cx, cy
-        ok, ox, oy, r = _robust_circle(ex[:good], ey[:good], 2)
+        ok, ox, oy, r = _robust_circle(ex[:good], ey[:good], 6 if outward else 2, outward)
         if not ok or ox * ox + oy * oy > 4.0 or abs(r - radius) > 0.5 * radius + 1:
             return False, cx, cy
         cx, cy = cx + ox, cy + oy
@@ -526,9 +528,9 @@ def rest_shift_yuv(yp, up, vp, t, x0, y0, ref, gx, gy, ginv, max_shift_px, max_r
 
 @_jit
 def edge_centre_yuv(yp, up, vp, t, x0, y0, n, cx, cy, radius, steps, cos, sin, min_rise, step_px, iterations,
-                    settle_px, sign):
+                    settle_px, sign, outward):
     return edge_centre(_bgr(yp, up, vp, t, x0, y0, x0 + n, y0 + n), cx, cy, radius, steps, cos, sin, min_rise,
-                       step_px, iterations, settle_px, sign)
+                       step_px, iterations, settle_px, sign, outward)
 
 
 @_jit

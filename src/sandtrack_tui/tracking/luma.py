@@ -32,7 +32,7 @@ MIN_RISE = 2.0  # luma levels per half pixel: a real edge, not noise on flat san
 
 
 def edge_centre(frame_bgr, x: float, y: float, radius: float, iterations: int = 3, settle_px: float = 0.35,
-                polarity: float = 1.0):
+                polarity: float = 1.0, outward: bool = False):
     """Centre (x, y) of the marker's dark silhouette (polarity 1; a bright marker's: -1, the steepest
     fall of brightness outward) near (x, y) in frame coordinates, or None.
     Along N_RAYS rays, cubic brightness profiles at `STEP` px from 0.4 to 1.7 radii; each ray's
@@ -44,7 +44,7 @@ def edge_centre(frame_bgr, x: float, y: float, radius: float, iterations: int = 
     if x0 < 0 or y0 < 0 or x0 + 2 * R + 1 > W or y0 + 2 * R + 1 > H:
         return None
     args = (float(x - x0), float(y - y0), float(radius), _steps(radius), _COS, _SIN, MIN_RISE, STEP, iterations,
-            settle_px, float(polarity))
+            settle_px, float(polarity), bool(outward))
     yuv = getattr(frame_bgr, "yuv", None)  # a frame still in its 4:2:0 planes (yuv.py)
     if yuv is not None:
         ok, cx, cy = kernels.edge_centre_yuv(*yuv, x0, y0, 2 * R + 1, *args)

@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from . import kernels
-from .appearance import BRIGHT, AppearanceModel
+from .appearance import BRIGHT, DARK, AppearanceModel
 from .luma import edge_centre
 
 
@@ -121,13 +121,16 @@ class TemplateMatcher:
         return Match(x=x, y=y, score=peak, psr=psr, colour_frac=frac, used_centroid=used, touching=touching)
 
     def silhouette(self, frame_bgr, x: float, y: float) -> tuple[float, float]:
-        """A bright marker's centre from its outline (luma.edge_centre, brightness falling outward):
-        its lit side is brighter than its shaded side, which pulls a weighted centroid towards the
-        light by a few tenths of a pixel; where the outline lies does not depend on the shading.
-        Other models, or no clear outline within a pixel: (x, y) as it is."""
-        if self.model.kind != BRIGHT:
+        """A brightness model's marker centred on its outline (luma.edge_centre), not on its pixels'
+        weights: a bright marker's lit side is brighter than its shaded side, and a dark marker's
+        contact shadow is dark too; either pulls a weighted centroid by a few tenths of a pixel,
+        while where the outline lies depends on neither. A dark marker's outline can only be pushed
+        outward (by its shadow), so only edge points outside the circle are suspects. Colour and
+        texture models, or no clear outline within a pixel: (x, y) as it is."""
+        if self.model.kind not in (BRIGHT, DARK):
             return x, y
-        e = edge_centre(frame_bgr, x, y, self.model.radius, polarity=-1.0)
+        dark = self.model.kind == DARK
+        e = edge_centre(frame_bgr, x, y, self.model.radius, polarity=1.0 if dark else -1.0, outward=dark)
         if e is None or (e[0] - x) ** 2 + (e[1] - y) ** 2 > 1.0:
             return x, y
         return e

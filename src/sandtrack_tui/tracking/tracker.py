@@ -50,7 +50,7 @@ class TrackParams:
     # Between intra-coded frames, report the luma edge centre + the colour-minus-luma offset of the
     # last intra frame (luma.py), while the marker stays within this distance of where it was then.
     luma_carry: bool = True
-    luma_carry_max_px: float = 5.0
+    luma_carry_max_px: float = 12.0
     # A marker whose brightness window has shifted by at most rest_shift_px, and changed otherwise
     # by at most max(rest_residual, rest_residual_frac x its contrast) rms, since its last full
     # measurement is that measurement moved by the shift (rest.py); intra frames are always measured.
@@ -150,7 +150,7 @@ class MarkerTrack:
         if m is None:
             return None
         m.d2 = self.kf.d2(m.x, m.y)
-        if not self.acceptable(m, TOUCHING_RELAX if m.touching else 1.0):
+        if not self.acceptable(m, TOUCHING_RELAX if m.touching else 1.0) or self._cut_by_border(frame_bgr, m):
             return None
         self._carry(frame_bgr, m, frame_index)
         return m
@@ -179,7 +179,7 @@ class MarkerTrack:
         sx, sy = m.x, m.y
         if self._offset is not None:  # start from where the edge centre is expected: fewer fit rounds
             sx, sy = sx - self._offset[0], sy - self._offset[1]
-        m.luma = edge_centre(frame_bgr, sx, sy, self.model.radius)
+        m.luma = edge_centre(frame_bgr, sx, sy, self.model.radius, outward=True)
         if m.luma is None or intra:
             return
         lx, ly = m.luma
@@ -203,6 +203,15 @@ class MarkerTrack:
                 > self.params.luma_carry_max_px:
             self._offset = self._anchor_luma = None  # the chain from the intra frame is broken
 
+    def _cut_by_border(self, frame_bgr, m: Match) -> bool:
+        """The marker's disc reaches the image's edge: part of it is outside the picture, and the
+        centre of what is left is not the marker's."""
+        if not self.model.has_blob:
+            return False
+        H, W = frame_bgr.shape[:2]
+        r = self.model.radius + 1.0
+        return m.x < r or m.y < r or m.x > W - 1 - r or m.y > H - 1 - r
+
     def acceptable(self, m: Match, relax: float = 1.0) -> bool:
         p = self.params
         psr_ok = not math.isfinite(m.psr) or m.psr >= p.min_psr * relax
@@ -222,6 +231,8 @@ class MarkerTrack:
             return None
         if self.model.has_blob and m.colour_frac > MERGED_COVERAGE:
             return None  # the candidate is this marker merged with another: who is who is not clear
+        if self._cut_by_border(frame_bgr, m):
+            return None
         m.d2 = self.kf.d2(m.x, m.y)
         return m
 
