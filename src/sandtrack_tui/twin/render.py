@@ -27,13 +27,19 @@ MARKER_BGR = np.array([0.70, 0.33, 0.09], np.float32)  # blue paint on wood
 
 @dataclass(frozen=True)
 class MarkerStyle:
-    """How a marker sphere looks: albedo (BGR), a specular highlight (strength, shininess) and the
-    share of the scene behind it that shows through (glass)."""
+    """How a marker sphere looks: albedo (BGR), a specular highlight (strength, shininess); a glass
+    bead (`ior` > 0, its refractive index) instead refracts the sand beneath it through its body,
+    tinted by `albedo` (its transmittance through one diameter), and reflects the room at its rim."""
 
     albedo: tuple = tuple(float(v) for v in MARKER_BGR)
     spec: float = 0.10
     shininess: int = 30
-    transmit: float = 0.0
+    ior: float = 0.0
+
+
+GLASS_ROOM = 0.12  # brightness of the room a glass bead reflects (the lab around the box, lit by the lamp)
+GLASS_SHADOW = 0.6  # share of an opaque bead's contact shadow that a glass bead casts ...
+GLASS_CAUSTIC = 1.5  # ... and the light it focuses into the middle of its shadow (a ball lens: a caustic)
 
 
 BLUE_PAINT = MarkerStyle()  # matte paint, diffuse lab light
@@ -43,6 +49,16 @@ SHADOW_TOP_Y = 800.0  # the lamp's light reaches the sand past the shank's parts
 
 def _norm(v):
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _refract(d, n, cosi, eta):
+    """Directions of rays d (unit) refracted at surfaces of normal n (unit, against d; cosi = -d.n)
+    from a medium of index n1 into one of n2, eta = n1 / n2 (grazing rays that would be totally
+    reflected go straight on)."""
+    k = 1.0 - eta**2 * (1.0 - cosi**2)
+    out = eta * d + (eta * cosi - np.sqrt(np.maximum(k, 0.0)))[:, None] * n
+    out = np.where((k > 0)[:, None], out, d)
+    return out / np.linalg.norm(out, axis=1, keepdims=True)
 
 
 def wall_shadow(P):
@@ -350,8 +366,10 @@ class CameraView:
                 ds = np.hypot(Ps[..., 0] - S[0], Ps[..., 2] - S[2])
                 dc = np.hypot(Ps[..., 0] - P[0], Ps[..., 2] - P[2])
                 near = (np.abs(Ps[..., 1] - h_here) < 6) & np.isinf(shank_depth)
-                dark = 1 - near * (0.45 * np.exp(-((ds / 2.6) ** 4)) + 0.25 * np.exp(-((dc / 3.2) ** 2)))
-                region *= dark[..., None]
+                shade = 0.45 * np.exp(-((ds / 2.6) ** 4)) + 0.25 * np.exp(-((dc / 3.2) ** 2))
+                if style.ior:  # glass passes most of the light, focused into a bright spot in its shadow
+                    shade = GLASS_SHADOW * shade - GLASS_CAUSTIC * np.exp(-((ds / (0.3 * radius)) ** 2))
+                region *= (1 - near * shade)[..., None]
             # supersampled sphere
             off = (np.arange(ss) + 0.5) / ss - 0.5
             sx = (gx[..., None, None] + off[None, None, None, :]).repeat(ss, axis=2)
@@ -375,17 +393,56 @@ class CameraView:
             lamb = np.clip(nrm @ L, 0, 1)
             hvec = _norm(L - dd)
             spec = np.clip(np.sum(nrm * hvec, axis=1), 0, 1) ** style.shininess * style.spec
-            col = albedo * (0.55 + 0.5 * lamb)[:, None] + spec[:, None]
+            seen = None
+            if style.ior:
+                col, seen = self._glass(dd, Q, nrm, P, radius, h_here, style, region, x0c, y0c)
+                col = col + spec[:, None]
+            else:
+                col = albedo * (0.55 + 0.5 * lamb)[:, None] + spec[:, None]
             col = col * 255.0
             frac = hit.reshape(y1c - y0c, x1c - x0c, ss * ss)
             colr = (col * hit[:, None]).reshape(y1c - y0c, x1c - x0c, ss * ss, 3).sum(2)
             cover = frac.mean(-1)
             colr = colr / np.maximum(frac.sum(-1), 1)[..., None] * self.vignette[ys, xs, None]
-            if style.transmit:  # glass: the (darkened) scene behind the bead shows through it
-                colr = colr + style.transmit * region
+            if seen is not None:  # the sand seen through the bead (sampled from the picture: vignetted already)
+                colr = colr + (seen * hit[:, None]).reshape(y1c - y0c, x1c - x0c, ss * ss, 3).sum(2) / \
+                    np.maximum(frac.sum(-1), 1)[..., None]
             region = region * (1 - cover[..., None]) + colr * cover[..., None]
             img[ys, xs] = np.clip(region, 0, 255).astype(np.uint8)
         return img
+
+    def _glass(self, dd, Q, nrm, P, radius, h_sand, style, region, x0, y0):
+        """A glass bead, per ray (dd, hitting it at Q with normal nrm): (reflected light, 0..1 BGR; sand
+        seen through it, 0..255 BGR). The ray is refracted into the sphere and out again (Snell), the
+        emerging ray meets the sand plane at the bead's foot and the picture there (`region`, its
+        window at (x0, y0), with the bead's own shadow and the bright spot it focuses the lamp's light
+        into) is what shows through, tinted and less what the
+        two surfaces reflect (Schlick's Fresnel term). The reflected share shows the dim room, so the
+        rim, where reflection takes over, is dark, and the middle shows the sand, turned over."""
+        eta = 1.0 / style.ior
+        cosi = np.clip(-np.sum(dd * nrm, axis=1), 0.0, 1.0)
+        r0 = ((style.ior - 1.0) / (style.ior + 1.0)) ** 2
+        fres = r0 + (1 - r0) * (1 - cosi) ** 5
+        t1 = _refract(dd, nrm, cosi, eta)
+        along = -2.0 * np.sum(t1 * (Q - P), axis=1)
+        Q2 = Q + along[:, None] * t1
+        n2 = (Q2 - P) / radius
+        cos2 = np.clip(np.sum(t1 * n2, axis=1), 0.0, 1.0)
+        t2 = _refract(t1, -n2, cos2, style.ior)
+        down = t2[:, 1] < -1e-6
+        s = np.where(down, (h_sand - Q2[:, 1]) / np.where(down, t2[:, 1], -1.0), 0.0)
+        foot = Q2 + np.maximum(s, 0.0)[:, None] * t2
+        px = self.cam.project(foot)
+        sand = cv2.remap(region.astype(np.float32), (px[:, 0] - x0).astype(np.float32)[None],
+                         (px[:, 1] - y0).astype(np.float32)[None], cv2.INTER_LINEAR,
+                         borderMode=cv2.BORDER_REPLICATE)[0].astype(np.float64)
+        room = np.where(down, 1.0, 0.0)[:, None] * sand / 255.0  # (an upward ray sees the room)
+        tint = np.asarray(style.albedo, np.float64) ** (along / (2 * radius))[:, None]
+        passed = ((1 - fres) * (1 - (r0 + (1 - r0) * (1 - cos2) ** 5)))[:, None] * tint
+        seen = passed * np.where(down[:, None], sand, GLASS_ROOM * 255.0)
+        reflected = fres[:, None] * np.where((dd[:, 1] + 2 * cosi * nrm[:, 1] > 0)[:, None], GLASS_ROOM,
+                                             0.6 * room + 0.4 * GLASS_ROOM)
+        return reflected, seen
 
     def add_noise(self, img: np.ndarray, k: int) -> np.ndarray:
         pos, neg = self.noise[k % len(self.noise)]
