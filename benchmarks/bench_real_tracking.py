@@ -36,7 +36,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
 from sandtrack_tui.calibration.caliscope import import_caliscope  # noqa: E402
-from sandtrack_tui.groundtruth import board_points_from_corners  # noqa: E402
+from sandtrack_tui.groundtruth import board_points_from_corners, local_homography  # noqa: E402
 from sandtrack_tui.store import Project  # noqa: E402
 from sandtrack_tui.tracking.run import seed_marker, track_project  # noqa: E402
 from sandtrack_tui.video import FrameSource  # noqa: E402
@@ -63,14 +63,15 @@ def truth_points(cam_id: int) -> tuple[dict, np.ndarray, np.ndarray]:
     edge = np.concatenate([np.c_[t, np.full_like(t, -0.5)], np.c_[np.full_like(t, 0.5), t],
                            np.c_[-t, np.full_like(t, 0.5)], np.c_[np.full_like(t, -0.5), -t]]) * SQUARE_M
     outlines = np.concatenate([np.asarray(sq) + edge for sq in squares])
-    placed = board_points_from_corners(xy, camera, np.concatenate([outlines, corners]))
+    anchors = np.concatenate([np.repeat(np.asarray(squares), len(edge), axis=0), np.asarray(corners)])
+    placed = board_points_from_corners(xy, camera, np.concatenate([outlines, corners]), anchors=anchors)
     n_out = len(outlines)
     truth = {}
     for f, px in placed.items():
         cents = []
         for k in range(len(squares)):
             m = cv2.moments(px[k * len(edge):(k + 1) * len(edge)].astype(np.float32))
-            cents.append((m["m10"] / m["m00"], m["m01"] / m["m00"]))
+            cents.append((m["m10"] / m["m00"], m["m01"] / m["m00"]) if m["m00"] > 0 else (np.nan, np.nan))
         truth[f] = np.concatenate([np.array(cents), px[n_out:]])
     pts = np.array(squares + corners)
     kinds = np.array(["square"] * len(squares) + ["corner"] * len(corners))
@@ -101,8 +102,16 @@ def _x_corner(img: np.ndarray, centre: np.ndarray, side: float) -> bool:
     return abs(m[0] - m[3]) < 30 and abs(m[1] - m[2]) < 30 and abs(m[0] - m[1]) > 50
 
 
+def _enclosed(i: int) -> bool:
+    """A square with squares of the board on all four sides: a plain square on the board's edge
+    touches the board's white margin and is one bright area with it, not a contrast point."""
+    r, c = divmod(i, COLS)
+    return 0 < r < ROWS - 1 and 0 < c < COLS - 1
+
+
 def _seeds(source, truth: dict, pts: np.ndarray, kinds: np.ndarray, wanted=("square", "corner")) -> list[tuple]:
-    """(point index, frame, x, y, box) for the squares and X-corners in the first frame with truth."""
+    """(point index, frame, x, y, box) for the enclosed plain squares and the X-corners in the first
+    frame with truth."""
     f0 = min(truth)
     img = source.frame(f0)
     px = truth[f0]
@@ -111,10 +120,37 @@ def _seeds(source, truth: dict, pts: np.ndarray, kinds: np.ndarray, wanted=("squ
     for i, (p, kind) in enumerate(zip(px, kinds, strict=True)):
         if kind not in wanted:
             continue
-        if kind == "square" and _plain(img, p, side):
+        if kind == "square" and _enclosed(i) and _plain(img, p, side):
             out.append((i, f0, p[0] + CLICK_OFF[0], p[1] + CLICK_OFF[1], side))
         elif kind == "corner" and _x_corner(img, p, side):
             out.append((i, f0, p[0] + CLICK_OFF[0], p[1] + CLICK_OFF[1], 0.6 * side))
+    return out
+
+
+def _clicked_truth(cam_id: int, truth: dict, seeds: list, pts: np.ndarray, kinds: np.ndarray) -> dict:
+    """The truth of the X-corners seeded (texture models: the tracked point is the one clicked, not
+    the corner): each click taken to board coordinates at its seed frame, then placed in every frame
+    like the corner (by the 4 detected corners nearest it)."""
+    cal = import_caliscope(DATA / "camera_array.toml")
+    camera = cal.cameras[f"cam_{cam_id}"]
+    xy = pd.read_csv(DATA / "xy.csv")
+    xy = xy[xy.cam_id == cam_id].assign(frame=lambda d: d.sync_index - FIRST_SYNC)
+    out = {f: t.copy() for f, t in truth.items()}
+    for i, f0, x, y, _side in seeds:
+        if kinds[i] != "corner":
+            continue
+        g = xy[xy.frame == f0]
+        obj, img = g[["obj_loc_x", "obj_loc_y"]].to_numpy(float), camera.undistort(g[["img_loc_x", "img_loc_y"]]
+                                                                                    .to_numpy(float))
+        H = local_homography(obj, img, pts[i])
+        if H is None:
+            continue
+        board = cv2.perspectiveTransform(camera.undistort(np.array([[x, y]])).reshape(-1, 1, 2),
+                                         np.linalg.inv(H)).reshape(2)
+        placed = board_points_from_corners(xy, camera, board[None], anchors=pts[i][None])
+        for f, px in placed.items():
+            if f in out:
+                out[f][i] = px[0]
     return out
 
 
@@ -124,6 +160,7 @@ def track_camera(video: Path, cam_id: int, tmp: Path, label: str, kinds=("square
     truth, pts, point_kinds = truth_points(cam_id)
     with FrameSource(video) as src:
         seeds = _seeds(src, truth, pts, point_kinds, kinds)
+    truth = _clicked_truth(cam_id, truth, seeds, pts, point_kinds)
     proj = Project.create(tmp / f"real_{label}_{cam_id}.sandtrack", {"side": video})
     for k, (_point, f, x, y, side) in enumerate(seeds, start=1):
         seed_marker(proj, k, "side", f, x, y, side, side)
@@ -143,6 +180,7 @@ def track_camera(video: Path, cam_id: int, tmp: Path, label: str, kinds=("square
         rows.append((cam_id, i, point_kinds[i], int(r.frame), r.status, err, t is not None))
     models = {m: v["side"]["appearance"]["model"] for m, v in summary["per_marker"].items()}
     df = pd.DataFrame(rows, columns=["camera", "point", "kind", "frame", "status", "error_px", "has_truth"])
+    df["has_truth"] = df["has_truth"].astype(bool)
     df.attrs["models"] = models
     df.attrs["problems"] = problems
     return df

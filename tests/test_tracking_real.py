@@ -1,7 +1,9 @@
 """The tracker on real footage recorded by others (../shared/data/caliscope_4cam): the plain squares of
-a hand-held board, a real brightness contrast with no colour, tracked as markers. What it reports
-`tracked` must be within 3 px of the truth (from Caliscope's corner detections) in >= 95 % of frames;
-the grey 16-bit copy of the clip must behave the same. Skips when the footage is absent."""
+a hand-held board (those with board on all sides), a real brightness contrast with no colour,
+tracked as markers in the camera with the strongest lens distortion. What it reports `tracked` must
+be within 3 px of the truth (from Caliscope's corner detections): the board swings away and back,
+and an identical square met after a long absence is not taken for the one lost; the grey 16-bit
+copy of the clip must behave the same. Skips when the footage is absent."""
 
 from __future__ import annotations
 
@@ -26,13 +28,13 @@ def _bench():
 
 def test_board_squares_tracked_honestly_in_colour_and_grey_16_bit(tmp_path):
     b = _bench()
-    colour = b.track_camera(REAL / "cam_2.mp4", 2, tmp_path, "colour", kinds=("square",))
-    grey = b.track_camera(b._grey_folder(REAL / "cam_2.mp4", tmp_path / "g16", 16), 2, tmp_path, "grey16",
+    colour = b.track_camera(REAL / "cam_0.mp4", 0, tmp_path, "colour", kinds=("square",))
+    grey = b.track_camera(b._grey_folder(REAL / "cam_0.mp4", tmp_path / "g16", 16), 0, tmp_path, "grey16",
                           kinds=("square",))
     for df in (colour, grey):
         f = b.figures(df)["square"]
-        assert f["points"] == 3 and f["tracked_with_truth"] >= 10
-        assert f["within_3px_pct"] >= 95.0
+        assert f["points"] == 3 and f["tracked_with_truth"] >= 30
+        assert f["within_3px_pct"] == 100.0  # (not one lookalike taken for a square lost)
         assert set(df.attrs["models"].values()) == {"bright"}
         assert f["flagged_with_truth"] > 0  # the board leaves and turns: flagged, not guessed
     assert abs(b.figures(colour)["square"]["mean_error_px"] - b.figures(grey)["square"]["mean_error_px"]) < 0.3

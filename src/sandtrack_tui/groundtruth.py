@@ -165,26 +165,77 @@ def identity_switches(points: pd.DataFrame, truth: SampleTruth, id_map: dict[int
             "visible_tracked_pct": 100.0 * visible_tracked / visible_n if visible_n else float("nan")}
 
 
-def board_points_from_corners(corners: pd.DataFrame, camera, points_m: np.ndarray, min_corners: int = 6) -> dict:
+def board_points_from_corners(corners: pd.DataFrame, camera, points_m: np.ndarray, min_corners: int = 6,
+                              anchors: np.ndarray | None = None) -> dict:
     """Pixels of points on a flat board (`points_m` (N, 2), board coordinates in metres) in each frame,
     from that frame's detected board corners (`corners`: frame, obj_loc_x, obj_loc_y, img_loc_x,
     img_loc_y, as Caliscope's xy.csv): a homography fitted to the undistorted corners, its points
-    distorted again with `camera`'s lens. Frames with fewer than `min_corners` corners are left out.
-    Returns {frame: (N, 2) pixels}."""
+    distorted again with `camera`'s lens. With `anchors` ((N, 2), board coordinates: e.g. the centre
+    of the square a point outlines), each point is placed by the homography through the 4 detected
+    corners nearest its anchor instead (local: what the lens model gets wrong far from the image's
+    centre hardly enters), where those 4 span the board's plane. Frames with fewer than
+    `min_corners` corners are left out. Returns {frame: (N, 2) pixels}."""
     out = {}
-    K = camera.matrix
+    pts = np.asarray(points_m, float).reshape(-1, 2)
     for frame, g in corners.groupby("frame"):
         if len(g) < min_corners:
             continue
         img = camera.undistort(g[["img_loc_x", "img_loc_y"]].to_numpy(float))
-        H, _ = cv2.findHomography(g[["obj_loc_x", "obj_loc_y"]].to_numpy(float), img, 0)
+        obj = g[["obj_loc_x", "obj_loc_y"]].to_numpy(float)
+        H, _ = cv2.findHomography(obj, img, 0)
         if H is None:
             continue
-        und = cv2.perspectiveTransform(np.asarray(points_m, float).reshape(-1, 1, 2), H).reshape(-1, 2)
-        rays = np.hstack([(und - K[:2, 2]) / np.diag(K)[:2], np.ones((len(und), 1))])
-        px, _ = cv2.projectPoints(rays.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, camera.distortion)
-        out[int(frame)] = px.reshape(-1, 2)
+        und = cv2.perspectiveTransform(pts.reshape(-1, 1, 2), H).reshape(-1, 2)
+        if anchors is not None:
+            local = {}
+            for a in np.unique(np.asarray(anchors, float), axis=0):
+                Hl = local_homography(obj, img, a)
+                if Hl is not None:  # (else: no corners close around it, the whole board's homography)
+                    local[tuple(a)] = Hl
+            for a, Hl in local.items():
+                sel = (np.asarray(anchors) == np.array(a)).all(axis=1)
+                und[sel] = cv2.perspectiveTransform(pts[sel].reshape(-1, 1, 2), Hl).reshape(-1, 2)
+        out[int(frame)] = _distort(camera, und)
     return out
+
+
+def local_homography(obj: np.ndarray, img: np.ndarray, anchor) -> np.ndarray | None:
+    """Homography from board coordinates to (undistorted) pixels through the fewest detected corners
+    nearest `anchor` (board coordinates) that span the plane (4 when no 3 of them are on a line), or
+    None when those lie farther than 1.6 corner spacings from it."""
+    if len(obj) < 4:
+        return None
+    spacing = float(np.median(np.sort(np.hypot(*(obj[:, None] - obj[None]).transpose(2, 0, 1)), axis=1)[:, 1]))
+    dist = np.hypot(*(obj - np.asarray(anchor, float)).T)
+    order = np.argsort(dist, kind="stable")
+    near = next((order[:k] for k in range(4, len(order) + 1) if _spans_plane(obj[order[:k]])), None)
+    if near is None or dist[near].max() > 1.6 * spacing:
+        return None
+    H, _ = cv2.findHomography(obj[near], img[near], 0)
+    return H
+
+
+def _spans_plane(p: np.ndarray) -> bool:
+    """Points that can carry a homography: 4 of which no 3 lie on a line, or more not all on one
+    (within a tenth of their spacing)."""
+    if len(p) < 4:
+        return False
+    tol = 0.1 * float(np.median(np.hypot(*(p[1:] - p[0]).T)))
+
+    def off_line(i: int, j: int, k: int) -> float:
+        d = p[j] - p[i]
+        return abs(d[0] * (p[k, 1] - p[i, 1]) - d[1] * (p[k, 0] - p[i, 0])) / max(float(np.hypot(*d)), 1e-12)
+
+    if len(p) == 4:
+        return all(off_line(i, j, k) > tol for i, j, k in ((0, 1, 2), (0, 1, 3), (0, 2, 3), (1, 2, 3)))
+    return np.linalg.matrix_rank(p - p.mean(axis=0), tol=tol) >= 2
+
+
+def _distort(camera, und: np.ndarray) -> np.ndarray:
+    K = camera.matrix
+    rays = np.hstack([(und - K[:2, 2]) / np.diag(K)[:2], np.ones((len(und), 1))])
+    px, _ = cv2.projectPoints(rays.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, camera.distortion)
+    return px.reshape(-1, 2)
 
 
 # -- 3D ------------------------------------------------------------------------------------------

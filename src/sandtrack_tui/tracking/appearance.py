@@ -41,6 +41,7 @@ _CLOSE = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
 _SQUARE3 = np.ones((3, 3), np.uint8)
 MIN_SEPARATION = 0.2  # marker median score minus the sand's 99.5th percentile, in marker-contrast units
 MARKER_MEDIAN = 0.75  # a window whose median scores this much is mostly marker (a crowd): its sand level is unknown
+CENTRE_RING_SHARE = 0.75  # share of a circle of half its radius around a seed box's centre that is marker
 
 
 @dataclass
@@ -258,12 +259,22 @@ class SeedPatch:
         return cls(patch, inner, ring, xx.ravel(), yy.ravel(), float(cx), float(cy), float(w), float(h))
 
     def centre_scores(self, model: AppearanceModel) -> bool:
-        """The model scores the box's centre (within 1.5 px) as marker."""
-        near = np.hypot(self.xx - self.cx, self.yy - self.cy) <= 1.5
+        """The model scores the box's centre as marker: the pixels within 1.5 px of it, and most of
+        those on a circle of half the marker's radius around it (a box centred on a blob has marker
+        all around its centre; one centred on where dark and light areas meet, a corner of a
+        pattern, has the blob on one side only)."""
+        d = np.hypot(self.xx - self.cx, self.yy - self.cy)
+        near = d <= 1.5
         if not near.any():
             return True
-        px = np.clip(self.bgr[near], 0, 255).astype(np.uint8)[None]
-        return bool(np.median(model.score(px)[0]) >= model.threshold)
+        scores = model.score(np.clip(self.bgr, 0, 255).astype(np.uint8)[None])[0]
+        if np.median(scores[near]) < model.threshold:
+            return False
+        rho = 0.5 * model.radius
+        ring = np.abs(d - rho) <= 0.75
+        if rho <= 2.0 or np.count_nonzero(ring) < 8:
+            return True
+        return bool(np.mean(scores[ring] >= model.threshold) >= CENTRE_RING_SHARE)
 
     @cached_property
     def luma(self) -> np.ndarray:

@@ -92,8 +92,9 @@ class TemplateMatcher:
         score = self.model.prepared(self.model.score_window(frame_bgr, x0, y0, x1, y1))
         res = cv2.matchTemplate(score, self.seed_template, cv2.TM_CCOEFF_NORMED)
         cv2.patchNaNs(res, -1.0)
-        if float(res.max()) < self.skip_updated_above:
-            # The seed template alone is not convincing: let the updated one (dust, blur) compete.
+        if float(res.max()) < self.skip_updated_above and self.model.has_blob:
+            # The seed template alone is not convincing: let the updated one (dust, blur) compete. (Not
+            # for a pattern: with no blob to centre on, an updated template would carry its drift on.)
             res2 = cv2.matchTemplate(score, self.template, cv2.TM_CCOEFF_NORMED)
             cv2.patchNaNs(res2, -1.0)
             res = np.maximum(res, res2)

@@ -30,6 +30,7 @@ DEFAULT_BOX_PX = 16
 # who is the crowd rules' business: engine.py.)
 TOUCHING_RELAX = 0.85
 MERGED_COVERAGE = 1.4  # marker coverage (in seed discs) above which a blob is two markers merged
+SHORT_MISS = 3  # frames unseen up to which a returning marker's match is judged leniently (verify_at)
 
 
 @dataclass
@@ -227,7 +228,10 @@ class MarkerTrack:
             steps = abs(frame_index - last[0])
             velocity = ((x - last[1]) / steps, (y - last[2]) / steps)
         m = self.matcher.match(frame_bgr, x, y, 2.0, 2.0, velocity=velocity)
-        if m is None or not self.acceptable(m, relax=0.9):
+        # Back after a frame or two (half hidden still), a marker may match its template less well;
+        # after a longer absence a blob must look as much like it as a tracked marker does: by then
+        # where it is says little, and a lookalike nearby may be taken for it.
+        if m is None or not self.acceptable(m, relax=0.9 if self.misses <= SHORT_MISS else 1.0):
             return None
         if self.model.has_blob and m.colour_frac > MERGED_COVERAGE:
             return None  # the candidate is this marker merged with another: who is who is not clear
