@@ -274,7 +274,12 @@ class SeedPatch:
         ring = np.abs(d - rho) <= 0.75
         if rho <= 2.0 or np.count_nonzero(ring) < 8:
             return True
-        return bool(np.mean(scores[ring] >= model.threshold) >= CENTRE_RING_SHARE)
+        # Per eighth of the circle (a dusty marker's specks are scattered; a pattern's other half is whole
+        # sectors): the share of sectors whose median scores as marker.
+        sector = (np.floor((np.arctan2(self.yy - self.cy, self.xx - self.cx)[ring] + np.pi) / (np.pi / 4))
+                  .astype(int) % 8)
+        on = [np.median(scores[ring][sector == k]) >= model.threshold for k in range(8) if np.any(sector == k)]
+        return bool(np.mean(on) >= CENTRE_RING_SHARE)
 
     @cached_property
     def luma(self) -> np.ndarray:
