@@ -25,7 +25,7 @@ A box with no contrast of any kind gives one line saying what was measured and w
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import cv2
@@ -62,6 +62,8 @@ class AppearanceModel:
     # brightness around it is its own motion (rest.py). Not so for a white marker on beige sand, whose
     # shaded half is as bright as the sand: its window's brightness is the sand's texture, which stays.
     luma_follows: bool = True
+    crowd: bool = False  # learned among touching markers like it (a dense layer)
+    pattern: np.ndarray | None = None  # a crowd marker's brightness around it (finds the others like it)
 
     @property
     def has_blob(self) -> bool:
@@ -160,15 +162,34 @@ def describe_text(desc: dict) -> str:
     return f"{what}, contrast {desc['contrast']:.1f}"
 
 
-def learn(frame, cx: float, cy: float, w: float, h: float, centred: bool = True) -> AppearanceModel:
+def learn(frame, cx: float, cy: float, w: float, h: float, centred: bool = True, kind: str | None = None,
+          like: AppearanceModel | None = None) -> AppearanceModel:
     """Learn the appearance model of the marker in a seed box centred at (cx, cy), w x h px.
     `frame`: BGR or grey, 8 or 16 bit. `centred`: the box is centred on the marker (a seed), so a
     blob model must cover the box's centre (a box centred on a pattern, such as a corner between
     dark and light squares, gets a texture model, not the model of a blob beside its centre); not
-    so for a box around a click that may be off the marker. Raises SandtrackError with what was
-    measured when the box holds nothing that stands out from the sand around it."""
+    so for a box around a click that may be off the marker. `kind`: the brightness model (dark or
+    bright) of a marker this one is like (auto-seed), tried first, against sand farther out when the
+    ring around the box holds none (a bead inside a dense layer is surrounded by beads: against them
+    only its highlight stands out); `like`: that marker's own model, taken as this one's when it was
+    learned among touching lookalikes (the beads of one layer) or when even then its kind is not
+    found. Raises SandtrackError with what was measured when the box holds nothing that stands out
+    from the sand around it."""
     from . import brightness, colour
 
+    if like is not None and like.crowd and kind == like.kind:
+        return replace(like)  # (touching lookalikes: the beads of one layer, learned once among them)
+    if kind in (DARK, BRIGHT):
+        for widen in (1.0, 2.0, 3.0):
+            try:
+                seed = SeedPatch.cut(frame, cx, cy, w, h, widen)
+            except SandtrackError:
+                break
+            m, _ = brightness.learn_brightness(seed, -1.0 if kind == DARK else 1.0)
+            if m is not None and (not centred or seed.centre_scores(m)):
+                return m
+        if like is not None and like.kind == kind:
+            return replace(like)
     seed = SeedPatch.cut(frame, cx, cy, w, h)
     model, colour_sep = colour.learn_colour(seed)
     bright, bright_sep = brightness.learn_brightness(seed)
@@ -233,9 +254,11 @@ class SeedPatch:
     cy: float
     w: float
     h: float
+    frame: np.ndarray | None = None  # the image the box was cut from
+    crowded: bool = False  # the marker's part runs out of the box: it touches others like it (centre_component)
 
     @classmethod
-    def cut(cls, frame, cx: float, cy: float, w: float, h: float) -> SeedPatch:
+    def cut(cls, frame, cx: float, cy: float, w: float, h: float, widen: float = 1.0) -> SeedPatch:
         from ..video import to_bgr8
 
         H, W = frame.shape[:2]
@@ -244,7 +267,7 @@ class SeedPatch:
         if not (w >= 3 and h >= 3):
             raise SandtrackError(f"seed box {w}x{h} px is too small (at least 3x3)")
         half_in = 0.5 * max(w, h)
-        margin = max(4.0, 0.5 * half_in)
+        margin = max(4.0, 0.5 * half_in) * widen
         R = int(np.ceil(half_in + margin))
         x0, x1 = int(round(cx)) - R, int(round(cx)) + R + 1
         y0, y1 = int(round(cy)) - R, int(round(cy)) + R + 1
@@ -256,7 +279,7 @@ class SeedPatch:
         ring = (np.maximum(dx, dy) >= half_in + 1.5)
         if inner.sum() < 4 or ring.sum() < 12:
             raise SandtrackError("seed box lies too close to the image border to learn the marker's appearance")
-        return cls(patch, inner, ring, xx.ravel(), yy.ravel(), float(cx), float(cy), float(w), float(h))
+        return cls(patch, inner, ring, xx.ravel(), yy.ravel(), float(cx), float(cy), float(w), float(h), frame)
 
     def centre_scores(self, model: AppearanceModel) -> bool:
         """The model scores the box's centre as marker: the pixels within 1.5 px of it, and most of
@@ -322,6 +345,7 @@ class SeedPatch:
             if rd is not None and own.sum() > 1.3 * np.pi * rd**2:
                 gy, gx = np.mgrid[0:own.shape[0], 0:own.shape[1]]
                 own &= np.hypot(gx - px, gy - py) <= rd + 0.5
+                self.crowded = True  # (its part is far more than its own disc: it touches others)
         lab_own = own[yi - y0, xi - x0]
         other = (img.astype(bool) & ~own).astype(np.uint8)
         other[~np.isin(labels, big)] = 0  # noise pixels are kept with the marker

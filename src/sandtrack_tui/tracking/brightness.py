@@ -38,10 +38,11 @@ def _centre_level(seed: SeedPatch) -> float:
     return float(np.median(seed.luma[centre])) if centre.any() else float(np.median(seed.luma[seed.inner]))
 
 
-def _surround(ring: np.ndarray, centre: float) -> np.ndarray:
+def _surround(ring: np.ndarray, centre: float, sign: float | None = None) -> np.ndarray:
     """The ring's sand. In a dense layer the ring is mostly other markers like the centre one, with
     sand (or gaps) between: when the ring's brightness falls into two clear groups, the sand is the
-    group farther from the centre's level."""
+    group farther from the centre's level (the marker's polarity `sign` known: the brighter group for
+    a dark marker, the darker for a bright one)."""
     lo, hi = np.percentile(ring, 10), np.percentile(ring, 90)
     if hi - lo < 1e-6:
         return ring
@@ -56,7 +57,10 @@ def _surround(ring: np.ndarray, centre: float) -> np.ndarray:
         t = t_new
     a, b = ring[ring < t], ring[ring >= t]
     spread = max(_robust(a)[1], _robust(b)[1], 1.0)
-    near, far = (a, b) if abs(np.median(a) - centre) < abs(np.median(b) - centre) else (b, a)
+    if sign is not None:
+        near, far = (a, b) if sign < 0 else (b, a)
+    else:
+        near, far = (a, b) if abs(np.median(a) - centre) < abs(np.median(b) - centre) else (b, a)
     if abs(np.median(b) - np.median(a)) < 4 * spread or len(near) < 0.25 * len(ring) or len(far) < 12:
         return ring  # one group (sand), or a few neighbour pixels the caller drops
     return far
@@ -74,20 +78,23 @@ def two_tone(seed: SeedPatch) -> bool:
     return _two_tone((seed.luma[seed.inner] - med) / max(mad, 1.0))
 
 
-def learn_brightness(seed: SeedPatch) -> tuple[AppearanceModel | None, float]:
-    """The dark or bright model of a seed, or None; and the separation measured (see colour.py)."""
+def learn_brightness(seed: SeedPatch, sign: float | None = None) -> tuple[AppearanceModel | None, float]:
+    """The dark or bright model of a seed, or None; and the separation measured (see colour.py).
+    `sign`: -1 a dark marker, 1 a bright one is wanted (known from a marker it is like); else the
+    side on which the box stands out more."""
     L = seed.luma
     inside = L[seed.inner]
-    sand = _surround(L[seed.ring], _centre_level(seed))
+    sand = _surround(L[seed.ring], _centre_level(seed), sign)
     med, mad = _robust(sand)
     mad = max(mad, 1.0)  # quantised, clean sand (grey-level images): one level
     z = (inside - med) / mad
     dark, bright = np.clip(-z - OUTLIER_Z, 0, None).sum(), np.clip(z - OUTLIER_Z, 0, None).sum()
-    if dark == 0 and bright == 0:
+    if (dark if sign is not None and sign < 0 else bright if sign is not None else dark + bright) == 0:
         return None, float("nan")
-    if _two_tone(z):
+    if sign is None and _two_tone(z):
         return None, float("nan")  # as much darker as lighter than the sand: a pattern (texture), no blob
-    sign = -1.0 if dark >= bright else 1.0
+    if sign is None:
+        sign = -1.0 if dark >= bright else 1.0
     sand = sand[sign * (sand - med) <= 4 * mad]  # neighbouring markers reaching into the ring
     mu_s = float(np.median(sand))
     p_in = sign * (inside - mu_s)
@@ -104,6 +111,9 @@ def learn_brightness(seed: SeedPatch) -> tuple[AppearanceModel | None, float]:
     chosen, others = seed.centre_component(p_in >= t)
     if chosen.sum() < 3:
         return None, float("nan")
+    own_radius, own_centre = None, None
+    if seed.crowded:
+        chosen, others, own_radius, own_centre = _own_disc(seed, p_in >= t, chosen, others, sign)
     # A bright marker is lit on one side and shaded on the other: its level is that of its shaded
     # part (its dimmest tenth), so the whole marker weighs alike and the centre is its outline's.
     level_d = float(inside[chosen].mean() if sign < 0 else np.percentile(inside[chosen], 10))
@@ -134,9 +144,50 @@ def learn_brightness(seed: SeedPatch) -> tuple[AppearanceModel | None, float]:
     kind = DARK if sign < 0 else BRIGHT
     w = LUMA_BGR.astype(np.float64) / contrast
     return AppearanceModel(w=w, b=-level_s / contrast, threshold=threshold, disc_area=area,
-                           radius=float(np.sqrt(full / np.pi)), sand_spread=spread, kind=kind, den=0.0, eps=1.0,
+                           radius=own_radius or float(np.sqrt(full / np.pi)), sand_spread=spread, kind=kind, den=0.0,
+                           eps=1.0,
                            floor=floor, contrast=float(np.median(s_disc) - np.median(s_sand)) / max(spread, 1e-6),
-                           levels=(level_d, level_s)), separation
+                           levels=(level_d, level_s), crowd=seed.crowded,
+                           pattern=_luma_patch(seed, own_centre, own_radius) if own_radius else None), separation
+
+
+def _luma_patch(seed: SeedPatch, centre: tuple, radius: float) -> np.ndarray | None:
+    """The brightness of a marker among touching ones (its shading, its highlight), a square of its
+    diameter centred on it: what every marker like it looks like."""
+    import cv2
+
+    from ..video import to_bgr8
+
+    half = int(np.ceil(radius))
+    size = 2 * half + 1
+    x0, y0 = int(np.floor(centre[0])) - half - 2, int(np.floor(centre[1])) - half - 2
+    H, W = seed.frame.shape[:2]
+    if x0 < 0 or y0 < 0 or x0 + size + 4 > W or y0 + size + 4 > H:
+        return None
+    win = to_bgr8(seed.frame[y0:y0 + size + 4, x0:x0 + size + 4]).astype(np.float32) @ LUMA_BGR
+    return cv2.getRectSubPix(np.ascontiguousarray(win, np.float32), (size, size), (centre[0] - x0, centre[1] - y0))
+
+
+def _own_disc(seed: SeedPatch, selected: np.ndarray, chosen: np.ndarray, others: np.ndarray, sign: float):
+    """Among touching markers like it (a dense layer) the marker's own pixels are those inside its
+    outline, fitted where it borders the gaps between the markers (luma.edge_circle; the contacts with
+    its neighbours show no edge, or a neighbour's far one, which lies outside the circle). The rest
+    of the box is other markers. Returns (chosen, others, the outline's radius, its centre); (chosen,
+    others, None, None) when no outline is found."""
+    from ..video import to_bgr8
+    from .luma import edge_circle
+
+    guess = max(float(np.sqrt(chosen.sum() / np.pi)), 2.0)
+    H, W = seed.frame.shape[:2]
+    R = int(np.ceil(1.8 * 1.5 * guess + 5))
+    ox, oy = max(int(round(seed.cx)) - R, 0), max(int(round(seed.cy)) - R, 0)
+    win = np.ascontiguousarray(to_bgr8(seed.frame[oy:min(int(round(seed.cy)) + R + 1, H),
+                                                  ox:min(int(round(seed.cx)) + R + 1, W)]))
+    c = edge_circle(win, seed.cx - ox, seed.cy - oy, guess, iterations=5, polarity=-sign, outward=sign < 0)
+    if c is None or np.hypot(c[0] + ox - seed.cx, c[1] + oy - seed.cy) > 0.5 * c[2]:
+        return chosen, others, None, None
+    d = np.hypot(seed.xx[seed.inner] - (c[0] + ox), seed.yy[seed.inner] - (c[1] + oy))
+    return selected & (d <= c[2]), (d > c[2] + 1.0), float(c[2]), (c[0] + ox, c[1] + oy)
 
 
 def learn_texture(seed: SeedPatch) -> AppearanceModel | None:

@@ -17,10 +17,13 @@ import numpy as np
 import pandas as pd
 
 from . import kernels
+from .appearance import BRIGHT, DARK
+from .chroma import LUMA_BGR
 
 COLUMNS = ["x_px", "y_px", "w", "h", "area", "contrast"]
 MIN_FRAC = 0.45  # a blob's marker area, in markers, to count as one
 MAX_MARKERS = 400  # blobs of more markers than this are left alone (a large object of the marker's colour)
+CROWD_MATCH = 0.6  # correlation with a crowd marker's surroundings from which a place is a marker like it
 
 
 def detect_like(frame_bgr, model, min_frac: float = MIN_FRAC) -> pd.DataFrame:
@@ -28,6 +31,8 @@ def detect_like(frame_bgr, model, min_frac: float = MIN_FRAC) -> pd.DataFrame:
     (area: marker area found, in px²; contrast: the median score of the marker's pixels)."""
     if not model.has_blob or not frame_bgr.size:
         return pd.DataFrame([], columns=COLUMNS)
+    if model.crowd and model.kind in (DARK, BRIGHT) and _patterned(model):
+        return _detect_crowd(frame_bgr, model)
     score = model.score(frame_bgr)
     mask = (score >= model.threshold).astype(np.uint8)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
@@ -113,3 +118,54 @@ def _peaks(smooth: np.ndarray, on: np.ndarray, n: int, r: float) -> list[tuple[i
         if len(chosen) >= n:
             break
     return chosen
+
+
+def _patterned(model) -> bool:
+    """A crowd marker with a brightness pattern of its own (a shading, a highlight: what tells touching
+    beads apart in their mass), not a plain disc (those are split at the peaks of their blob)."""
+    p = model.pattern
+    if p is None or not model.levels:
+        return False
+    half = p.shape[0] // 2
+    yy, xx = np.mgrid[0:p.shape[0], 0:p.shape[1]]
+    disc = np.hypot(xx - half, yy - half) <= 0.9 * model.radius
+    return float(np.std(p[disc])) >= 0.05 * abs(model.levels[0] - model.levels[1])
+
+
+def _detect_crowd(frame_bgr, model) -> pd.DataFrame:
+    """Markers like one learned among touching markers (a dense layer of identical beads): where the
+    brightness of the learned one (its shading, its highlight; a disc of 0.9 radii) is found again
+    (normalised cross-correlation of at least CROWD_MATCH, local peaks a radius apart); each is then
+    centred on its outline where it borders the gaps (luma.edge_circle; the contacts with its
+    neighbours show none) and kept when that outline has the marker's radius and is seen all around
+    it (a bead half hidden behind another is not centred across that side). Peaks that end on the
+    same marker are one."""
+    from .luma import edge_circle
+
+    r = model.radius
+    if model.pattern is None:
+        return pd.DataFrame([], columns=COLUMNS)
+    luma = (frame_bgr.astype(np.float32) @ LUMA_BGR).astype(np.float32)
+    half = model.pattern.shape[0] // 2
+    disc = np.zeros(model.pattern.shape, np.float32)
+    cv2.circle(disc, (half, half), max(int(round(0.9 * r)), 1), 1.0, -1)  # the marker itself, not its neighbours
+    res = cv2.matchTemplate(luma, model.pattern, cv2.TM_CCOEFF_NORMED, mask=disc)
+    cv2.patchNaNs(res, -1.0)
+    size = max(int(2 * round(0.8 * r)) + 1, 3)
+    peaks = (res >= cv2.dilate(res, np.ones((size, size), np.uint8))) & (res >= CROWD_MATCH)
+    ys, xs = np.nonzero(peaks)
+    H, W = frame_bgr.shape[:2]
+    rows: list[tuple] = []
+    polarity = 1.0 if model.kind == DARK else -1.0
+    for i in np.argsort(-res[ys, xs], kind="stable"):
+        x, y = float(xs[i] + half), float(ys[i] + half)
+        c = edge_circle(frame_bgr, x, y, r, iterations=5, polarity=polarity, outward=model.kind == DARK)
+        if c is None or abs(c[2] - r) > 0.3 * r or np.hypot(c[0] - x, c[1] - y) > 0.6 * r or c[3] < 4:
+            continue
+        if not (r + 1 <= c[0] <= W - 2 - r and r + 1 <= c[1] <= H - 2 - r):
+            continue  # (cut by the image's edge)
+        if any(np.hypot(c[0] - q[0], c[1] - q[1]) < r for q in rows):
+            continue
+        side = 2 * np.ceil(r) + 5
+        rows.append((float(c[0]), float(c[1]), side, side, model.disc_area, float(res[ys[i], xs[i]])))
+    return pd.DataFrame(rows, columns=COLUMNS)

@@ -21,7 +21,7 @@ from .globalmotion import image_shift
 from .matcher import Match
 from .reacquire import find_blobs, unexplained
 from .stereo import StereoCheck
-from .tracker import MarkerTrack, Observation
+from .tracker import SHORT_MISS, MarkerTrack, Observation
 
 JUMP_FRAMES = 2  # frames after a miss during which a track is searched a largest move per frame unseen
 
@@ -101,6 +101,7 @@ class Engine:
             if self.follow_view:
                 self._follow_view(cam, j, img, live[cam], props)
             self._resolve_conflicts(live[cam], props, forced)
+            self._crowd_coherence(live[cam], props, crowd)
         if self.stereo is not None:
             self._stereo_check(frames, props, forced, only_reattached=False)
         reattached = 0
@@ -108,6 +109,7 @@ class Engine:
             if self._reacquire(cam, img, live[cam], props, forced, frames):
                 reattached += 1
                 self._resolve_conflicts(live[cam], props, forced)  # (a pass leaves no clash behind)
+                self._crowd_coherence(live[cam], props, self._neighbours(live[cam]))
         if self.stereo is not None and reattached:
             self._stereo_check(frames, props, forced, only_reattached=True)
         for cam, (j, img, _rem) in frames.items():
@@ -153,6 +155,33 @@ class Engine:
         if len(self.view_shifts) < self.max_events:
             self.view_shifts.append({"camera": cam, "frame": int(j), "dx": round(shift[0], 2),
                                      "dy": round(shift[1], 2)})
+
+    def _crowd_coherence(self, tracks, props, crowd: dict) -> None:
+        """Markers among touching lookalikes (a dense layer) are carried by the sand together: a
+        marker's match must have moved from its prediction as its touching neighbours' matches did
+        (within half a radius of their median); one that did not has taken a neighbour or a gap,
+        and coasts instead (flagged). With fewer than two neighbours matched, it may have moved half a
+        radius from its prediction at most."""
+        drop = []
+        for t in tracks:
+            p = props.get((t.marker, t.camera))
+            if p is None or not t.model.crowd:
+                continue
+            moves = []
+            for o, q in crowd.get(id(t), ()):
+                po = props.get((o.marker, o.camera))
+                if po is not None:
+                    moves.append((po.match.x - q[0], po.match.y - q[1]))
+            px, py = t.kf.xy
+            if len(moves) < 2:  # (no neighbours to vouch for a move: at most half a bead off its prediction)
+                if math.hypot(p.match.x - px, p.match.y - py) > 0.5 * t.model.radius:
+                    drop.append((t.marker, t.camera))
+                continue
+            mx, my = statistics.median(m[0] for m in moves), statistics.median(m[1] for m in moves)
+            if math.hypot(p.match.x - px - mx, p.match.y - py - my) > 0.5 * t.model.radius:
+                drop.append((t.marker, t.camera))
+        for key in drop:
+            del props[key]
 
     def _neighbours(self, tracks) -> dict:
         """For each track, the other tracks whose predictions touch it: id(track) -> [(track, xy)]."""
@@ -269,6 +298,8 @@ class Engine:
             key = (t.marker, cam)
             if key in props:
                 continue
+            if t.model.crowd and t.misses > SHORT_MISS:
+                continue  # (unseen a while among touching lookalikes: which is which is not known any more)
             px, py = t.kf.xy
             hx, hy = t.search_halfsize()
             band_from = None
@@ -282,6 +313,8 @@ class Engine:
             p = t.params
             # (the first frames of a miss only: later the gate, widened while hidden, takes over)
             reach = p.max_jump_px * (t.misses + 1) if t.misses <= JUMP_FRAMES else 0.0
+            if t.model.crowd:
+                reach = 0.0  # (among touching lookalikes a blob beyond the gate is anyone's: motion alone tells)
             carried = False
             if band_from is not None:
                 # The other view pins the marker to a line: search a wider window, along the band only.
@@ -291,7 +324,8 @@ class Engine:
                     hx = hy = min(reach, p.max_band_search_px)
                 else:
                     # Hidden a while: the sand may have carried it anywhere along the line.
-                    carried = t.misses > JUMP_FRAMES and t.model.has_blob and hx < p.max_band_search_px
+                    carried = (t.misses > JUMP_FRAMES and t.model.has_blob and not t.model.crowd
+                               and hx < p.max_band_search_px)
             elif reach > max(hx, hy):
                 hx = hy = min(reach, p.max_search_px)
             jump = not carried and max(hx, hy) > max(t.search_halfsize()) and t.model.has_blob

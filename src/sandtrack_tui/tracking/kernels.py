@@ -190,8 +190,9 @@ def _robust_circle(x, y, rounds, outward):
 
 @_jit
 def edge_centre(win, cx, cy, radius, steps, cos, sin, min_rise, step_px, iterations, settle_px, sign, outward):
-    """(ok, x, y): centre of the marker's dark silhouette (sign 1; a bright one: sign -1) near (cx, cy)
-    in the BGR window `win`, in the window's coordinates (see luma.edge_centre; `outward`: _robust_circle)."""
+    """(ok, x, y, r, quadrants): centre and radius of the marker's dark silhouette (sign 1; a bright one:
+    sign -1) near (cx, cy) in the BGR window `win`, in the window's coordinates, and how many of the
+    four quadrants around it hold the outline (see luma.edge_centre; `outward`: _robust_circle)."""
     luma = luma_window(win)
     n = steps.shape[0]
     n_rays = cos.shape[0]
@@ -226,14 +227,24 @@ def edge_centre(win, cx, cy, radius, steps, cos, sin, min_rise, step_px, iterati
             ey[good] = sin[ray] * d
             good += 1
         if good < n_rays // 2:
-            return False, cx, cy
+            return False, cx, cy, 0.0, 0
         ok, ox, oy, r = _robust_circle(ex[:good], ey[:good], 6 if outward else 2, outward)
         if not ok or ox * ox + oy * oy > 4.0 or abs(r - radius) > 0.5 * radius + 1:
-            return False, cx, cy
+            return False, cx, cy, 0.0, 0
         cx, cy = cx + ox, cy + oy
         if ox * ox + oy * oy < settle_px * settle_px:
             break
-    return True, cx, cy
+    # Quadrants around the centre holding at least two edge points on the circle (within a pixel):
+    # an outline seen on two sides only does not fix the centre across them.
+    counts = np.zeros(4, np.int64)
+    for i in range(good):
+        qx, qy = ex[i] - ox, ey[i] - oy
+        if abs(np.hypot(qx, qy) - r) <= 1.0:
+            counts[(0 if qx >= 0 else 1) + (0 if qy >= 0 else 2)] += 1
+    quadrants = 0
+    for q in range(4):
+        quadrants += counts[q] >= 2
+    return True, cx, cy, r, quadrants
 
 
 @_jit

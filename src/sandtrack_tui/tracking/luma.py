@@ -34,7 +34,15 @@ MIN_RISE = 2.0  # luma levels per half pixel: a real edge, not noise on flat san
 def edge_centre(frame_bgr, x: float, y: float, radius: float, iterations: int = 3, settle_px: float = 0.35,
                 polarity: float = 1.0, outward: bool = False):
     """Centre (x, y) of the marker's dark silhouette (polarity 1; a bright marker's: -1, the steepest
-    fall of brightness outward) near (x, y) in frame coordinates, or None.
+    fall of brightness outward) near (x, y) in frame coordinates, or None (edge_circle without the radius)."""
+    c = edge_circle(frame_bgr, x, y, radius, iterations, settle_px, polarity, outward)
+    return None if c is None else c[:2]
+
+
+def edge_circle(frame_bgr, x: float, y: float, radius: float, iterations: int = 3, settle_px: float = 0.35,
+                polarity: float = 1.0, outward: bool = False):
+    """(x, y, r, quadrants): the circle of the marker's silhouette near (x, y), of about `radius`, in
+    frame coordinates, and how many of the four quadrants around it hold its outline; or None.
     Along N_RAYS rays, cubic brightness profiles at `STEP` px from 0.4 to 1.7 radii; each ray's
     steepest outward rise (parabola vertex, at least MIN_RISE) is an edge point; a robust circle
     through them moves the estimate; up to `iterations` rounds, until it moves < settle_px."""
@@ -47,10 +55,10 @@ def edge_centre(frame_bgr, x: float, y: float, radius: float, iterations: int = 
             settle_px, float(polarity), bool(outward))
     yuv = getattr(frame_bgr, "yuv", None)  # a frame still in its 4:2:0 planes (yuv.py)
     if yuv is not None:
-        ok, cx, cy = kernels.edge_centre_yuv(*yuv, x0, y0, 2 * R + 1, *args)
+        ok, cx, cy, r, quadrants = kernels.edge_centre_yuv(*yuv, x0, y0, 2 * R + 1, *args)
     else:
-        ok, cx, cy = kernels.edge_centre(frame_bgr[y0:y0 + 2 * R + 1, x0:x0 + 2 * R + 1], *args)
-    return (cx + x0, cy + y0) if ok else None
+        ok, cx, cy, r, quadrants = kernels.edge_centre(frame_bgr[y0:y0 + 2 * R + 1, x0:x0 + 2 * R + 1], *args)
+    return (cx + x0, cy + y0, r, int(quadrants)) if ok else None
 
 
 _STEPS: dict = {}

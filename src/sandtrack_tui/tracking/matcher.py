@@ -19,7 +19,7 @@ import numpy as np
 
 from . import kernels
 from .appearance import BRIGHT, DARK, AppearanceModel
-from .luma import edge_centre
+from .luma import edge_circle
 
 
 @dataclass(slots=True)
@@ -117,24 +117,34 @@ class TemplateMatcher:
             return None
         self._last = (score, x0, y0)
         x, y = mx + x0, my + y0
-        if used and not touching and not streak:
+        if self.model.crowd:
+            e = self.silhouette(frame_bgr, x, y, strict=True)
+            if e is None:
+                return None  # (among touching lookalikes only a marker whose own outline is found is one)
+            x, y = e
+        elif used and not touching and not streak:
             x, y = self.silhouette(frame_bgr, x, y)
         return Match(x=x, y=y, score=peak, psr=psr, colour_frac=frac, used_centroid=used, touching=touching)
 
-    def silhouette(self, frame_bgr, x: float, y: float) -> tuple[float, float]:
+    def silhouette(self, frame_bgr, x: float, y: float, strict: bool = False) -> tuple[float, float] | None:
         """A brightness model's marker centred on its outline (luma.edge_centre), not on its pixels'
         weights: a bright marker's lit side is brighter than its shaded side, and a dark marker's
         contact shadow is dark too; either pulls a weighted centroid by a few tenths of a pixel,
         while where the outline lies depends on neither. A dark marker's outline can only be pushed
         outward (by its shadow), so only edge points outside the circle are suspects. Colour and
-        texture models, or no clear outline within a pixel: (x, y) as it is."""
+        texture models, or no clear outline within a pixel: (x, y) as it is (`strict`: None when no
+        outline of the marker's radius is found all around it)."""
         if self.model.kind not in (BRIGHT, DARK):
-            return x, y
+            return None if strict else (x, y)
         dark = self.model.kind == DARK
-        e = edge_centre(frame_bgr, x, y, self.model.radius, polarity=1.0 if dark else -1.0, outward=dark)
-        if e is None or (e[0] - x) ** 2 + (e[1] - y) ** 2 > 1.0:
-            return x, y
-        return e
+        # (among touching markers the estimate may start a little off: the neighbours pull centroids)
+        reach = 0.5 * self.model.radius if self.model.crowd else 1.0
+        e = edge_circle(frame_bgr, x, y, self.model.radius, iterations=5 if self.model.crowd else 3,
+                        polarity=1.0 if dark else -1.0, outward=dark)
+        if e is None or (e[0] - x) ** 2 + (e[1] - y) ** 2 > reach**2 or \
+                (strict and (abs(e[2] - self.model.radius) > 0.3 * self.model.radius or e[3] < 4)):
+            return None if strict else (x, y)
+        return e[0], e[1]
 
     def _streaks(self, score: np.ndarray, res: np.ndarray, velocity: tuple) -> tuple[np.ndarray, float]:
         """A marker moving v px per frame is smeared over e |v| px by an exposure of e frames. For a
@@ -193,7 +203,9 @@ class TemplateMatcher:
         x0, y0 = int(round(x)) - R, int(round(y)) - R
         roi = _crop(frame_bgr, x0, y0, 2 * R + 1, 2 * R + 1)
         cx, cy, frac = self.centroid(self.model.prepared(self.model.score(roi)), x - x0, y - y0, iterations=3)
-        cx, cy = self.silhouette(frame_bgr, cx + x0, cy + y0)
+        if self.model.crowd:  # (among touching markers the centroid is pulled by the neighbours)
+            cx, cy = x - x0, y - y0
+        cx, cy = self.silhouette(frame_bgr, cx + x0, cy + y0) or (cx + x0, cy + y0)
         return cx, cy, frac
 
 

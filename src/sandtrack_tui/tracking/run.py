@@ -25,7 +25,7 @@ import pandas as pd
 from ..errors import SandtrackError
 from ..video import camera_offsets as video_offsets
 from . import identity
-from .appearance import learn
+from .appearance import KINDS, learn
 from .chroma import Chroma420Frame, block_replicated
 from .decoding import prefetch
 from .engine import Engine
@@ -40,6 +40,7 @@ SEED_COLUMNS = ["marker", "camera", "frame", "x_px", "y_px", "w", "h", "epipolar
 # auto-seed matches blobs to markers known this many frames before or after the seeded frame
 MATCH_WINDOW_FRAMES = 500
 BOXES_KEY = "tracking_boxes"
+KINDS_KEY = "tracking_models"
 _USABLE = (MANUAL, TRACKED, "interpolated", "imported")
 # Frame cache per camera when track_project opens the videos itself: tracking reads each frame
 # once, in either direction (decoding.py reads backward group by group), so the cache only spares
@@ -94,8 +95,9 @@ def auto_seed(project, frame: int | None = 0, sources: dict | None = None,
     """Every marker in `frame` (first camera's index; the others at the paired frame; None = the
     first frame all cameras recorded) that looks like marker `like` (default: the project's first
     marker with a manual point; with none, every blue marker), paired across cameras by epipolar
-    distance when the project holds a calibration. A proposal only: nothing is written. Unpaired
-    detections get their own proposal (epipolar_px NaN). A proposal that is a marker the project
+    distance when the project holds a calibration (not markers like one among touching markers: a
+    dense layer's beads lie a bead apart along any epipolar line). A proposal only: nothing is
+    written. Unpaired detections get their own proposal (epipolar_px NaN). A proposal that is a marker the project
     already has (identity.py: where the marker is in this frame, or was last seen) takes its id
     (`existing` True, `match_px` the distance); the rest are numbered after the highest id in use.
     Also `model`, `contrast`: the appearance model each proposed seed gets (appearance.py) and the
@@ -123,7 +125,10 @@ def auto_seed(project, frame: int | None = 0, sources: dict | None = None,
         proposal = 1
         stereo = _stereo_for(project, cams)
         used = {c: set() for c in dets}
-        if stereo is not None and all(c in dets for c in stereo.cams):
+        # Markers among touching ones like them lie a bead apart along any epipolar line, and in a
+        # slanted view partly hide each other: which blob pairs with which is not known from one frame.
+        crowd = any(m.crowd for m in models.values())
+        if stereo is not None and all(c in dets for c in stereo.cams) and not crowd:
             a, b = stereo.cams
             pairs = pair_by_epipolar(stereo, dets[a], dets[b], max_epipolar_px)
             pairs.sort(key=lambda p: (dets[a].x_px.iloc[p[0]], dets[a].y_px.iloc[p[0]]))
@@ -142,7 +147,8 @@ def auto_seed(project, frame: int | None = 0, sources: dict | None = None,
                 rows.append((proposal, c, frames[c], r.x_px, r.y_px, r.w, r.h, np.nan))
                 proposal += 1
         proposals = pd.DataFrame(rows, columns=SEED_COLUMNS)
-        looks = [_appearance_at(images[r.camera], r.x_px, r.y_px, r.w, r.h) for r in proposals.itertuples()]
+        looks = [_appearance_at(images[r.camera], r.x_px, r.y_px, r.w, r.h, models.get(r.camera))
+                 for r in proposals.itertuples()]
         proposals["model"] = [a[0] for a in looks]
         proposals["contrast"] = [a[1] for a in looks]
         if models:  # like a seeded marker: a detection whose own box shows no marker is not one
@@ -160,10 +166,11 @@ def auto_seed(project, frame: int | None = 0, sources: dict | None = None,
             _close(sources)
 
 
-def _appearance_at(img, x: float, y: float, w: float, h: float) -> tuple[str, float]:
-    """(model kind, contrast) the tracker learns from this seed box; ("none", NaN) if it learns none."""
+def _appearance_at(img, x: float, y: float, w: float, h: float, like=None) -> tuple[str, float]:
+    """(model kind, contrast) the tracker learns from this seed box (like the model `like`);
+    ("none", NaN) if it learns none."""
     try:
-        d = learn(img, x, y, w, h).describe()
+        d = learn(img, x, y, w, h, kind=None if like is None else like.kind, like=like).describe()
     except SandtrackError:
         return "none", float("nan")
     return d["model"], d["contrast"]
@@ -206,6 +213,14 @@ def reference_models(project, sources: dict, cams: list[str], like: int | None =
     return models
 
 
+def _reference_or_none(project, sources: dict, cams: list[str]) -> dict:
+    """reference_models, or {} when the marker they come from shows none."""
+    try:
+        return reference_models(project, sources, cams)
+    except SandtrackError:
+        return {}
+
+
 def accept_seeds(project, seeds: pd.DataFrame, description: str = "accept seeds") -> int:
     """Write seeds (SEED_COLUMNS; epipolar_px optional) as markers and manual points. Returns rows."""
     if seeds is None or len(seeds) == 0:
@@ -220,6 +235,7 @@ def accept_seeds(project, seeds: pd.DataFrame, description: str = "accept seeds"
             for r in seeds.itertuples()]
     project.set_points(rows, description)
     _store_boxes(project, seeds)
+    _store_kinds(project, seeds)
     return len(rows)
 
 
@@ -237,6 +253,18 @@ def _store_boxes(project, seeds: pd.DataFrame) -> None:
                 changed = True
     if changed:
         project.set(BOXES_KEY, boxes, "marker box sizes")
+
+
+def _store_kinds(project, seeds: pd.DataFrame) -> None:
+    """The appearance model auto-seed proposed for each seed (the one of the marker it is like): the
+    tracker learns that kind first (appearance.learn)."""
+    if "model" not in seeds.columns:
+        return
+    kinds = dict(project.get(KINDS_KEY, {}) or {})
+    new = {f"{int(r.marker)}/{r.camera}": str(r.model) for r in seeds.itertuples() if str(r.model) in KINDS}
+    if any(kinds.get(k) != v for k, v in new.items()):
+        kinds.update(new)
+        project.set(KINDS_KEY, kinds, "marker appearance models")
 
 
 def seed_marker(project, marker: int, camera: str, frame: int, x: float, y: float, w: float | None = None,
@@ -367,6 +395,8 @@ def track_project(project, markers=None, start: int | None = None, stop: int | N
         summary["stereo"] = stereo is not None
         engine = Engine(stereo=stereo, direction=dirn)
         boxes = project.get(BOXES_KEY, {}) or {}
+        kinds = project.get(KINDS_KEY, {}) or {}
+        refs = _reference_or_none(project, sources, cams) if kinds else {}
         params = params or TrackParams()
         # Decoded 4:2:0 video, on request: windows read with the colour re-interpolated (chroma.py).
         wrap = {}
@@ -377,7 +407,8 @@ def track_project(project, markers=None, start: int | None = None, stop: int | N
             box = boxes.get(f"{m}/{c}") or marker_box(img, x, y) or (DEFAULT_BOX_PX, DEFAULT_BOX_PX)
             try:
                 seed_img = Chroma420Frame(img, wrap[c]) if wrap[c] else img
-                engine.add(MarkerTrack(m, c, seed_img, f, x, y, box[0], box[1], params), f)
+                engine.add(MarkerTrack(m, c, seed_img, f, x, y, box[0], box[1], params, kind=kinds.get(f"{m}/{c}"),
+                                       like=refs.get(c)), f)
             except SandtrackError as exc:
                 problems.append(str(exc))
         if not engine.tracks:

@@ -27,6 +27,7 @@ from .colour import blueness, chroma_blueness
 from .detection import detect_like
 
 DETECT_COLUMNS = ["x_px", "y_px", "w", "h", "area", "contrast"]
+PAIR_MARGIN_PX = 1.0  # a pair's rivals must lie this much farther from the epipolar line than it
 
 
 def detect_markers(frame_bgr: np.ndarray, min_diameter_px: float = 4.0, max_diameter_px: float = 40.0,
@@ -192,7 +193,9 @@ def marker_box(frame_bgr: np.ndarray, x: float, y: float, radius: float = 12) ->
 def pair_by_epipolar(stereo, det_a: pd.DataFrame, det_b: pd.DataFrame, max_px: float = 5.0):
     """Pair detections of camera a and b (Hungarian on the symmetric epipolar distance).
 
-    Returns a list of (index_a, index_b, epipolar_px); pairs farther than max_px are dropped.
+    Returns a list of (index_a, index_b, epipolar_px); pairs farther than max_px are dropped, and so
+    are pairs with a rival (another detection of either camera) within PAIR_MARGIN_PX of their own
+    distance: those stay unpaired, for the operator.
     """
     if det_a.empty or det_b.empty:
         return []
@@ -205,4 +208,13 @@ def pair_by_epipolar(stereo, det_a: pd.DataFrame, det_b: pd.DataFrame, max_px: f
     cost = 0.5 * (d_ab + d_ba)
     big = 1e6
     rows, cols = linear_sum_assignment(np.where(cost <= max_px, cost, big))
-    return [(int(r), int(c), float(cost[r, c])) for r, c in zip(rows, cols, strict=True) if cost[r, c] <= max_px]
+    out = []
+    for r, c in zip(rows, cols, strict=True):
+        if cost[r, c] > max_px:
+            continue
+        # Another blob about as near the line (a crowd of beads along it): which is the pair is not known.
+        rivals = np.concatenate([np.delete(cost[r], c), np.delete(cost[:, c], r)])
+        if len(rivals) and rivals.min() <= cost[r, c] + PAIR_MARGIN_PX:
+            continue
+        out.append((int(r), int(c), float(cost[r, c])))
+    return out

@@ -85,7 +85,7 @@ class Observation(NamedTuple):
 class MarkerTrack:
     def __init__(self, marker: int, camera: str, frame_bgr: np.ndarray, frame_index: int, x: float, y: float,
                  w: float | None = None, h: float | None = None, params: TrackParams | None = None,
-                 refine_seed: bool = True):
+                 refine_seed: bool = True, kind: str | None = None, like: AppearanceModel | None = None):
         self.marker, self.camera = int(marker), camera
         self.params = params or TrackParams()
         H, W = frame_bgr.shape[:2]
@@ -95,7 +95,7 @@ class MarkerTrack:
         w = float(w) if w is not None and np.isfinite(w) and w > 0 else DEFAULT_BOX_PX
         h = float(h) if h is not None and np.isfinite(h) and h > 0 else DEFAULT_BOX_PX
         try:
-            self.model: AppearanceModel = learn(frame_bgr, x, y, w, h)
+            self.model: AppearanceModel = learn(frame_bgr, x, y, w, h, kind=kind, like=like)
         except SandtrackError as exc:
             raise SandtrackError(f"marker {marker} ({camera}, frame {frame_index}): {exc}") from None
         self.matcher = TemplateMatcher(self.model, frame_bgr, x, y)
@@ -215,7 +215,9 @@ class MarkerTrack:
 
     def acceptable(self, m: Match, relax: float = 1.0) -> bool:
         p = self.params
-        psr_ok = not math.isfinite(m.psr) or m.psr >= p.min_psr * relax
+        # (among touching markers like it every neighbour is a peak of the NCC surface: the PSR says
+        # nothing there; who is who is the gate's and the crowd rules' business)
+        psr_ok = not math.isfinite(m.psr) or m.psr >= p.min_psr * relax or self.model.crowd
         colour_ok = not self.model.has_blob or m.colour_frac >= p.min_colour
         return m.score >= p.min_score * relax and colour_ok and psr_ok
 
