@@ -345,7 +345,8 @@ class SeedPatch:
             if rd is not None and own.sum() > 1.3 * np.pi * rd**2:
                 gy, gx = np.mgrid[0:own.shape[0], 0:own.shape[1]]
                 own &= np.hypot(gx - px, gy - py) <= rd + 0.5
-                self.crowded = True  # (its part is far more than its own disc: it touches others)
+                # (its part is far more than its own disc, and holds another disc as deep: it touches others)
+                self.crowded = bool(np.any((np.hypot(xs - px, ys - py) >= 1.6 * rd) & (dt[ys, xs] >= 0.6 * dt[py, px])))
         lab_own = own[yi - y0, xi - x0]
         other = (img.astype(bool) & ~own).astype(np.uint8)
         other[~np.isin(labels, big)] = 0  # noise pixels are kept with the marker

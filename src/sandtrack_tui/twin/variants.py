@@ -42,7 +42,7 @@ STYLES = {
     "red": MarkerStyle(albedo=(0.08, 0.10, 0.62)),
     "white": MarkerStyle(albedo=(0.80, 0.82, 0.82), spec=0.08),
     "black": MarkerStyle(albedo=(0.045, 0.045, 0.05), spec=0.35, shininess=40),
-    "glass": MarkerStyle(albedo=(0.80, 0.84, 0.82), spec=0.9, shininess=120, ior=1.52),
+    "glass": MarkerStyle(albedo=(0.42, 0.45, 0.44), spec=0.9, shininess=120, ior=1.52),
 }
 SAND_TONES = {
     "dry": tuple(float(v) for v in SAND_BGR),
