@@ -151,12 +151,13 @@ def project(xc: np.ndarray, K: np.ndarray, dist: np.ndarray, family: str = "pinh
 
     `K` may be (3, 3) or per point (N, 3, 3); `dist` (D,) or per point (N, D)."""
     xc = np.asarray(xc, dtype=np.float64).reshape(-1, 3)
-    x = xc[:, 0] / xc[:, 2]
-    y = xc[:, 1] / xc[:, 2]
-    if family == "fisheye":
-        xd, yd = distort_fisheye(x, y, dist)
-    else:
-        xd, yd = distort_normalised(x, y, dist)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # points on the camera plane: inf/NaN
+        x = xc[:, 0] / xc[:, 2]
+        y = xc[:, 1] / xc[:, 2]
+        if family == "fisheye":
+            xd, yd = distort_fisheye(x, y, dist)
+        else:
+            xd, yd = distort_normalised(x, y, dist)
     K = np.asarray(K, dtype=np.float64)
     if K.ndim == 2:
         return np.stack([K[0, 0] * xd + K[0, 1] * yd + K[0, 2], K[1, 1] * yd + K[1, 2]], axis=1)

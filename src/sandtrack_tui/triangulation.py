@@ -103,7 +103,7 @@ def _solve3(A, b):
 def _solve_points(uv, seen, R, t, W, scale, iterations):
     """Per point: least squares on the DLT equations of the cameras that saw it (normalised
     coordinates, translations divided by `scale`), then `iterations` Gauss-Newton steps on the
-    weighted reprojection errors W (dn), stopping when a step is below 1e-7 mm."""
+    weighted reprojection errors W (dn), stopping when a step is below 1e-6 mm."""
     n_cam, n_pts = seen.shape
     out = np.full((n_pts, 3), np.nan)
     A = np.empty((3, 3))
@@ -139,6 +139,9 @@ def _solve_points(uv, seen, R, t, W, scale, iterations):
                 xc0 = R[c, 0, 0] * X[0] + R[c, 0, 1] * X[1] + R[c, 0, 2] * X[2] + t[c, 0]
                 xc1 = R[c, 1, 0] * X[0] + R[c, 1, 1] * X[1] + R[c, 1, 2] * X[2] + t[c, 1]
                 z = R[c, 2, 0] * X[0] + R[c, 2, 1] * X[1] + R[c, 2, 2] * X[2] + t[c, 2]
+                if not z > 1e-9:  # on or behind the camera (mismatched views): no refinement
+                    A[:] = np.nan
+                    break
                 px, py = xc0 / z, xc1 / z
                 ex, ey = px - uv[c, i, 0], py - uv[c, i, 1]
                 w00, w01, w10, w11 = W[c, i, 0, 0], W[c, i, 0, 1], W[c, i, 1, 0], W[c, i, 1, 1]
@@ -156,7 +159,7 @@ def _solve_points(uv, seen, R, t, W, scale, iterations):
             if not np.isfinite(step).all():
                 break
             X = X + step
-            if max(abs(step[0]), abs(step[1]), abs(step[2])) < 1e-7:
+            if max(abs(step[0]), abs(step[1]), abs(step[2])) < 1e-6:
                 break
         out[i] = X
     return out

@@ -18,6 +18,7 @@ from scipy.optimize import least_squares
 from ..camera import Calibration, Camera
 from ..errors import SandtrackError
 from ..lens import Lens, get_lens, lens_of, padded, project
+from ..xyz_pixels import camera_columns
 from .bundle import BundleState
 from .geometry import from_T, inv_T, radial_is_monotonic, to_T
 from .intrinsics import opencv_flags
@@ -37,14 +38,7 @@ def read_points_table(path: str | Path) -> tuple[pd.DataFrame, dict[str, tuple[s
     missing = [c for c in ("X_mm", "Y_mm", "Z_mm") if c not in df.columns]
     if missing:
         raise SandtrackError(f"{p}: missing columns {missing} (need X_mm, Y_mm, Z_mm and pixel columns)")
-    cams: dict[str, tuple[str, str]] = {}
-    if {"xs", "ys"} <= set(df.columns):
-        cams["side"] = ("xs", "ys")
-    if {"xf", "yf"} <= set(df.columns):
-        cams["front"] = ("xf", "yf")
-    for c in df.columns:
-        if c.startswith("x_") and f"y_{c[2:]}" in df.columns:
-            cams[c[2:]] = (c, f"y_{c[2:]}")
+    cams = camera_columns([str(c) for c in df.columns])
     if len(cams) < 1:
         raise SandtrackError(f"{p}: no pixel columns (xs, ys / xf, yf, or x_NAME, y_NAME)")
     # numbers only; anything else (text, inf) counts as missing
