@@ -20,7 +20,7 @@ import numpy as np
 import tomli_w
 
 from .errors import SandtrackError
-from .lens import LENSES, get_lens, lens_of, project
+from .lens import LENSES, get_lens, lens_of, project, undistort_normalised
 
 
 @dataclass
@@ -73,16 +73,16 @@ class Camera:
         return project(rotate(pts, self.R) + self.tvec, self.matrix, self.distortion, self.model)
 
     def undistort(self, pixels: np.ndarray) -> np.ndarray:
-        """Distorted pixels (N, 2) -> undistorted pixels (N, 2) of the same K."""
-        px = np.asarray(pixels, dtype=np.float64).reshape(-1, 1, 2)
+        """Distorted pixels (N, 2) -> undistorted pixels (N, 2) of the same K (NaN where the lens
+        model cannot be inverted)."""
+        px = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
         if len(px) == 0:
             return np.zeros((0, 2))
-        if self.model == "fisheye":
-            out = cv2.fisheye.undistortPoints(px, self.matrix, self.distortion, P=self.matrix)
-        else:
-            crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10)
-            out = cv2.undistortPoints(px, self.matrix, self.distortion, P=self.matrix, criteria=crit)
-        return out.reshape(-1, 2)
+        K = self.matrix
+        yd = (px[:, 1] - K[1, 2]) / K[1, 1]
+        xd = (px[:, 0] - K[0, 2] - K[0, 1] * yd) / K[0, 0]
+        x, y = undistort_normalised(xd, yd, self.distortion, self.model)
+        return np.stack([K[0, 0] * x + K[0, 1] * y + K[0, 2], K[1, 1] * y + K[1, 2]], axis=1)
 
     def to_dict(self) -> dict:
         d = {

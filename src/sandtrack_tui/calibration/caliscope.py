@@ -100,7 +100,11 @@ def export_caliscope(calibration: Calibration, path: str | Path) -> list[str]:
         T = to_T(cam.rvec, cam.tvec) @ rig_from_world
         distortion = cam.distortion
         if cam.model == "pinhole" and len(distortion) > 5 and np.any(distortion[5:]):
-            distortion, moved = standard_approximation(cam.matrix, distortion, (cam.width, cam.height))
+            grid = np.stack(np.meshgrid(np.linspace(0, cam.width, 41), np.linspace(0, cam.height, 41)), -1)
+            und = cam.undistort(grid.reshape(-1, 2))  # the image's own field, in undistorted pixels
+            K = cam.matrix
+            xy = np.stack([(und[:, 0] - K[0, 2]) / K[0, 0], (und[:, 1] - K[1, 2]) / K[1, 1]], axis=1)
+            distortion, moved = standard_approximation(K, distortion, xy)
             dropped = [t for t, v in zip(TERMS[5:], cam.distortion[5:], strict=False) if v]
             notes.append(f"Caliscope export, camera {n}: the {cam.lens} lens's {' '.join(dropped)} terms do not fit "
                          f"Caliscope's five-term model; written as the closest k1 k2 p1 p2 k3 model "

@@ -143,6 +143,8 @@ def calibrate_from_points(df: pd.DataFrame, cams: dict[str, tuple[str, str]],
         except (np.linalg.LinAlgError, ValueError) as exc:  # degenerate numbers (e.g. 1e300) the checks let through
             raise SandtrackError(f"camera {name}: cannot fit a camera to these points ({exc})") from None
         reports[name]["image_size"] = "given" if size is not None else "unknown (guessed for the file only)"
+        if "warning" in reports[name]:
+            warnings.append(reports[name]["warning"])
     first = next(iter(cameras))
     T0w = to_T(cameras[first].rvec, cameras[first].tvec)
     world_from_rig = inv_T(T0w)
@@ -258,11 +260,12 @@ def fit_camera(name: str, X: np.ndarray, uv: np.ndarray, size: tuple[int, int] |
         model = get_lens(lens)
         state = _fit(X, uv, model, start)
         if not _monotonic(state, size, uv):
-            if model.name != "standard":
-                raise SandtrackError(f"camera {name}: the {model.name} lens model folds the image edge back here "
-                                     "(over-fitting); use a simpler --lens or --lens auto")
-            state = _fit(X, uv, get_lens("tangential"), start)
-            info["k3"] = "fixed at 0 (a free k3 folded the image edge back)"
+            if model.name == "standard":
+                state = _fit(X, uv, get_lens("tangential"), start)
+                info["k3"] = "fixed at 0 (a free k3 folded the image edge back)"
+            else:
+                info["warning"] = (f"camera {name}: the {model.name} lens model folds the image edge back "
+                                   "(over-fitting where the points do not reach); use a simpler --lens or --lens auto")
     Kp, d = state.K[0], state.dist[0]
     err = np.linalg.norm(_projected(state, X) - uv, axis=1)
     rmse = float(np.sqrt(np.mean(err ** 2)))

@@ -5,11 +5,11 @@ frame), a depth plane of a 3D target, a frame of a points table, or a block of n
 Every candidate model is fitted with some groups left out and scored on them (pixel error of the
 left-out observations), fold by fold, and fitted once on everything for its training error.
 
-The choice keeps the *simplest* candidate (first in `lens.LENSES` order) whose cross-validated mean
-squared error exceeds the best one's by at most one standard error of that difference. The
-difference is paired group by group (both models are scored on the same left-out groups, so the
-groups' own spread in difficulty cancels), and its standard error is taken over the groups:
-observations of one group share their errors, so groups, not points, are the independent units.
+The choice keeps the *simplest* candidate (first in `lens.LENSES` order) that is not worse than the
+best one beyond noise (`excess_over`). "Worse" is compared group by group (both models are scored on
+the same left-out groups, so the groups' own spread in difficulty cancels), as the log ratio of their
+mean squared errors, with its standard error taken over the groups: observations of one group share
+their errors, so groups, not points, are the independent units.
 """
 
 from __future__ import annotations
@@ -18,11 +18,11 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.stats import t as student_t
 
 from ..errors import SandtrackError
 from ..lens import AUTO_LENSES, LENSES
 
-NOISE_SE = 2.0  # "within noise": at most this many standard errors of the paired difference worse
 FitFn = Callable[[str, np.ndarray], object]  # (lens name, training group ids) -> fitted model
 ScoreFn = Callable[[object, np.ndarray], tuple[np.ndarray, np.ndarray]]  # -> (sse, count) per group
 
@@ -130,37 +130,50 @@ def _combined(name: str) -> bool:
 
 
 def choose(candidates: list[Candidate]) -> Candidate:
-    """Mark and return the simplest candidate within one standard error of the best."""
+    """Mark and return the simplest candidate within noise of the best (see the module docstring)."""
     scored = [c for c in candidates if c.cv_rmse_px is not None]
     if not scored:
         reasons = "; ".join(f"{c.lens}: {c.excluded}" for c in candidates)
         raise SandtrackError(f"no lens model could be fitted ({reasons})")
     best = min(scored, key=lambda c: c.cv_rmse_px)
     for c in scored:
-        diff, se = paired_difference(c, best)
-        c.within_noise = diff <= NOISE_SE * se
+        excess, limit = excess_over(c, best)
+        c.within_noise = excess <= limit
     chosen = next(c for c in sorted(scored, key=lambda c: list(LENSES).index(c.lens)) if c.within_noise)
     chosen.chosen = True
     return chosen
 
 
-def paired_difference(c: Candidate, best: Candidate) -> tuple[float, float]:
-    """How much larger c's cross-validated mean squared error is than best's (px^2), and the standard
-    error of that difference over the left-out groups (each group's difference weighted by its size)."""
+def excess_over(c: Candidate, best: Candidate) -> tuple[float, float]:
+    """How much worse c is than best on the left-out groups, and the most that still counts as noise,
+    both as log ratios of mean squared errors.
+
+    The excess is the mean over groups (weighted by their observations) of the log ratio of the two
+    models' mean squared errors: logs, because a model's misfit grows by factors from one group to the
+    next (a view reaching into the image corner), which would swamp a plain mean and its spread. The
+    limit is the larger of the paired difference's standard error times Student's t (97.5 %, groups - 1
+    degrees of freedom; about 2 for many groups) and 1/sqrt(N), the sampling noise of a mean squared
+    error over N left-out observations: a difference that small is not resolved however consistent."""
     n = np.asarray(best.count, dtype=float)
     keep = n > 0
     n = n[keep]
-    delta = (np.asarray(c.sse, dtype=float)[keep] - np.asarray(best.sse, dtype=float)[keep]) / n
+    mse_c = np.asarray(c.sse, dtype=float)[keep] / n
+    mse_b = np.asarray(best.sse, dtype=float)[keep] / n
+    floor = 1e-12 + 1e-6 * float(np.mean(mse_b))
+    delta = np.log((mse_c + floor) / (mse_b + floor))
     w = n / n.sum()
     mean = float(np.sum(w * delta))
     g = len(delta)
+    resolution = 1.0 / np.sqrt(n.sum())
     if g < 2:
-        return mean, 0.0
-    return mean, float(np.sqrt(g / (g - 1) * np.sum((w * (delta - mean)) ** 2)))
+        return mean, resolution
+    se = float(np.sqrt(g / (g - 1) * np.sum((w * (delta - mean)) ** 2)))
+    return mean, max(float(student_t.ppf(0.975, g - 1)) * se, resolution)
 
 
 def report(candidates: list[Candidate], groups_kind: str, n_groups: int, n_folds: int) -> dict:
     chosen = next((c.lens for c in candidates if c.chosen), None)
     return {"chosen": chosen, "cross_validation": f"{n_folds} folds of whole {groups_kind} ({n_groups} in all)",
-            "rule": "simplest model within one standard error of the best cross-validated error",
+            "rule": "simplest model not worse than the best beyond noise: t(97.5 %) standard errors of the "
+                    "paired log ratio of mean squared errors over the left-out groups, at least 1/sqrt(points)",
             "candidates": [c.row() for c in candidates]}
