@@ -15,6 +15,7 @@ $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/pip install --disable-pip-version-check -q "torch==2.13.0"
 	$(BIN)/pip install --disable-pip-version-check -q -e ".[dev]"
 	$(BIN)/python -m sandtrack_tui.tracking.kernels  # compile the tracker's kernels once (cached)
+	$(BIN)/python -m sandtrack_tui.triangulation  # and the triangulation's
 	@touch $(STAMP)
 
 install: $(STAMP)

@@ -203,3 +203,18 @@ def fundamental_matrix(calibration: Calibration, cam_a: str, cam_b: str) -> np.n
     tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
     E = tx @ R
     return np.linalg.inv(B.matrix).T @ E @ np.linalg.inv(A.matrix)
+
+
+def warm_up() -> None:
+    """Compile (or load) the triangulation kernels once, on two cameras and a few points: run after
+    installing, so the first `sandtrack xyz` does not pay the compilation (a few seconds)."""
+    cams = {n: Camera(n, 640, 480, [[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]], [-0.1, 0.01, 0, 0, 0],
+                      rvec=[0.0, ry, 0.0], tvec=[tx, 0.0, 0.0]) for n, ry, tx in (("a", 0.0, 0.0), ("b", -0.3, -200))}
+    cal = Calibration(cameras=cams)
+    X = np.array([[10.0, 5.0, 900.0], [-40.0, 20.0, 1100.0]])
+    for refine in (False, True):
+        triangulate(cal, {n: c.project(X) for n, c in cams.items()}, refine=refine)
+
+
+if __name__ == "__main__":
+    warm_up()
