@@ -91,7 +91,7 @@ def run(minutes: float | None = None) -> dict:
         subprocess.run([*sandtrack, "new", proj, "--side", long, "--front", long], check=True,
                        capture_output=True)
         t0 = time.perf_counter()
-        child = subprocess.Popen([*sandtrack, "track", proj, "--auto-seed", "--json"],
+        child = subprocess.Popen([*sandtrack, "track", proj, "--auto-seed", "--allow-unsynced", "--json"],
                                  stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
         samples = []
         conn = sqlite3.connect(f"file:{proj}?mode=ro", uri=True)

@@ -2,12 +2,27 @@
 
 from __future__ import annotations
 
+import os
 from fractions import Fraction
 from pathlib import Path
 
 import av
 import numpy as np
 import pytest
+from hypothesis import settings
+
+# `make test` draws the same examples on every run (a seed derived from each test's source, no example database):
+# it cannot fail by chance. `make fuzz` (SANDTRACK_FUZZ=deep) draws new random examples, FUZZ_FACTOR times as many.
+DEEP = os.environ.get("SANDTRACK_FUZZ", "") == "deep"
+FUZZ_FACTOR = int(os.environ.get("SANDTRACK_FUZZ_FACTOR", "30")) if DEEP else 1
+settings.register_profile("deterministic", derandomize=True, deadline=None, database=None, print_blob=True)
+settings.register_profile("deep", derandomize=False, deadline=None, database=None, print_blob=True)
+settings.load_profile("deep" if DEEP else "deterministic")
+
+
+def examples(n: int) -> int:
+    """A property test's number of examples: n in `make test`, FUZZ_FACTOR x n in the deep run."""
+    return n * FUZZ_FACTOR
 
 SAMPLE_DATA = Path(__file__).resolve().parents[1] / "sample_data"
 SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"

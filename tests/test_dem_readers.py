@@ -10,6 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from conftest import examples
 from sandtrack_tui import dem
 from sandtrack_tui.errors import SandtrackError
 
@@ -101,7 +102,7 @@ _cell = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-1
                   st.sampled_from(["", "x", "NaN", "1e400"]))
 
 
-@settings(max_examples=80, deadline=None)
+@settings(max_examples=examples(80))
 @given(cols=st.lists(st.sampled_from(["particle_id", "time_s", "x", "y", "z", "x_mm", "id", "t", "q"]),
                      max_size=6),
        rows=st.lists(st.lists(_cell, min_size=0, max_size=6), max_size=5),
@@ -119,7 +120,7 @@ def test_fuzz_exchange_csv(tmp_path_factory, cols, rows, units):
     assert np.abs(d[["X_mm", "Y_mm", "Z_mm"]].to_numpy()).max() <= dem.MAX_ABS_MM
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=examples(60))
 @given(text=st.lists(st.sampled_from(["ITEM: TIMESTEP", "0", "100", "ITEM: TIME", "0.5", "ITEM: NUMBER OF ATOMS",
                                       "ITEM: BOX BOUNDS pp pp pp", "0 1", "ITEM: ATOMS id type x y z",
                                       "ITEM: ATOMS id xs ys zs", "1 1 0.1 0.2 0.3", "2 1 nan 0 0", "3 1 0.1",

@@ -13,6 +13,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 sys.path.insert(0, str(Path(__file__).parent))
+from conftest import examples
 from sandtrack_tui import trajectories as tr  # noqa: E402
 from sandtrack_tui.cli import main  # noqa: E402
 from sandtrack_tui.errors import SandtrackError  # noqa: E402
@@ -183,7 +184,7 @@ def csv_texts(draw):
     return "\n".join(lines) + draw(st.sampled_from(["", "\n"]))
 
 
-@settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=examples(120), suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(text=csv_texts(), fmt=st.sampled_from(["davinci", "dltdv"]), y_units=st.sampled_from(["height", "width"]))
 def test_fuzz_importers_never_crash_nor_write_half(project, tmp_path, text, fmt, y_units):
     f = tmp_path / "fuzz.csv"
@@ -204,7 +205,7 @@ def test_fuzz_importers_never_crash_nor_write_half(project, tmp_path, text, fmt,
     assert _snapshot(project)[:2] == before[:2]
 
 
-@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=examples(40), suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(xs=st.lists(st.one_of(st.floats(-1e6, 1e6), st.just(float("nan")), st.just(float("inf"))),
                    min_size=1, max_size=8),
        frames=st.lists(st.integers(-5, N_FRAMES + 5), min_size=1, max_size=8))

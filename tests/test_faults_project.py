@@ -61,6 +61,7 @@ def make_project(root: Path, cal, name: str, side: str = "side.mp4") -> Path:
         Path(f"{path}{suffix}").unlink(missing_ok=True)
     with Project.create(path, {"side": root / side, "front": root / "front.mp4"}) as proj:
         proj.set_calibration(cal)
+        proj.set("sync_offset_s", 0.0)  # the rendered cameras are frame-locked
     path.chmod(0o666)
     return path
 
@@ -182,12 +183,21 @@ def test_sigkill_while_tracking_loses_nothing_and_resumes(media):
 
 
 # -- read-only project, full disk -------------------------------------------------------------
-def unprivileged() -> str | None:
-    """Root ignores file permissions: run the child as `nobody` then (None: we are not root)."""
+def unprivileged(media_root: Path) -> str | None:
+    """Root ignores file permissions: run the child as `nobody` then (None: we are not root).
+
+    Skips when this machine cannot run the child that way: no setpriv, or a checkout, interpreter or media
+    folder that `nobody` cannot read (a clone inside a private folder): that is the machine, not the product."""
     if os.geteuid() != 0:
         return None
     if shutil.which("setpriv") is None:
         pytest.skip("running as root without setpriv: cannot make a file read-only for the child")
+    probe = sandtrack("--version", user="nobody", cwd=media_root)
+    out, err = probe.communicate(timeout=120)
+    if probe.returncode != 0:
+        reason = (err.strip().splitlines() or ["no output"])[-1]
+        pytest.skip(f"the unprivileged user 'nobody' cannot run this checkout's sandtrack ({reason}); "
+                    "clone into a folder other users can read to run this test as root")
     return "nobody"
 
 
@@ -206,7 +216,7 @@ def test_read_only_project_is_one_clear_line_and_unchanged(media, folder_writabl
     path.chmod(0o444)
     folder.chmod(0o777 if folder_writable else 0o555)
     try:
-        child = sandtrack("track", path, "--auto-seed", user=unprivileged())
+        child = sandtrack("track", path, "--auto-seed", user=unprivileged(root), cwd=root)
         _, err = child.communicate(timeout=180)
         line = one_line_error(child, err)
         assert "read-only" in line, line

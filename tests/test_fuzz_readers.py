@@ -15,7 +15,7 @@ import os
 import shutil
 import sqlite3
 import tempfile
-from contextlib import suppress
+from contextlib import closing, suppress
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +25,7 @@ import tomli_w
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
+from conftest import examples
 from sandtrack_tui.board import BoardSpec, board_from_dict, load_board
 from sandtrack_tui.calibration.caliscope import export_caliscope, import_caliscope
 from sandtrack_tui.calibration.from_points import calibrate_from_points, read_points_table
@@ -35,17 +36,22 @@ from sandtrack_tui.regression.dataset import POINT_COLUMNS, check_points, load_p
 from sandtrack_tui.regression.synthetic import calibration_points, study_rig
 from sandtrack_tui.store import Project
 
-# SANDTRACK_FUZZ_EXAMPLES=2000 for a deeper run than the suite's.
-EXAMPLES = int(os.environ.get("SANDTRACK_FUZZ_EXAMPLES", "60"))
+# `make fuzz` runs these FUZZ_FACTOR times deeper with fresh random examples; SANDTRACK_FUZZ_EXAMPLES sets the count.
+EXAMPLES = int(os.environ.get("SANDTRACK_FUZZ_EXAMPLES", examples(60)))
 PHASES = [Phase.explicit, Phase.reuse, Phase.generate] + ([] if os.environ.get("SANDTRACK_FUZZ_NO_SHRINK") else
                                                            [Phase.shrink])
-FUZZ = settings(max_examples=EXAMPLES, phases=PHASES, deadline=None,
+FUZZ = settings(max_examples=EXAMPLES, phases=PHASES,
                 suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 
 
 @pytest.fixture(scope="module")
 def scratch(tmp_path_factory):
     return tmp_path_factory.mktemp("fuzz")
+
+
+def fresh(scratch: Path, name: str) -> Path:
+    """A path in a folder of its own: no example sees a file (or an SQLite -wal/-shm) of an earlier one."""
+    return Path(tempfile.mkdtemp(dir=scratch)) / name
 
 
 def read_or_error(fn, *args, **kw):
@@ -130,7 +136,7 @@ def check_board(spec) -> None:
 @given(doc=st.one_of(OUR_BOARD, CALISCOPE_BOARD, CALISCOPE_BOARD.map(lambda d: {"charuco": d}),
                      st.dictionaries(st.text(max_size=6), VALUES, max_size=4)))
 def test_fuzz_board_documents(scratch, doc):
-    path = scratch / "board.toml"
+    path = fresh(scratch, "board.toml")
     write(path, tomli_w.dumps(doc))
     check_board(read_or_error(load_board, path))
     check_board(read_or_error(board_from_dict, doc))
@@ -140,7 +146,7 @@ def test_fuzz_board_documents(scratch, doc):
 @given(text=st.one_of(mutated(BOARD_TEXT), st.text(max_size=200)), raw=st.binary(max_size=64))
 def test_fuzz_board_text(scratch, text, raw):
     for content in (text, raw):
-        path = scratch / "board.toml"
+        path = fresh(scratch, "board.toml")
         write(path, content)
         check_board(read_or_error(load_board, path))
 
@@ -189,7 +195,7 @@ def check_calibration(cal) -> None:
 @FUZZ
 @given(doc=CALIBRATION_DOCS)
 def test_fuzz_calibration_documents(scratch, doc):
-    path = scratch / "calibration.toml"
+    path = fresh(scratch, "calibration.toml")
     write(path, tomli_w.dumps(doc))
     check_calibration(read_or_error(Calibration.load, path))
 
@@ -198,7 +204,7 @@ def test_fuzz_calibration_documents(scratch, doc):
 @given(text=mutated(RIG.to_toml()), raw=st.binary(max_size=64))
 def test_fuzz_calibration_text(scratch, text, raw):
     for content in (text, raw, b"\xff\xfe" + text.encode()):
-        path = scratch / "calibration.toml"
+        path = fresh(scratch, "calibration.toml")
         write(path, content)
         check_calibration(read_or_error(Calibration.load, path))
 
@@ -225,7 +231,7 @@ CALISCOPE_DOCS = st.one_of(
 @given(doc=CALISCOPE_DOCS, names=st.none() | st.lists(st.sampled_from(["side", "front", "top"]), min_size=1,
                                                        max_size=3, unique=True))
 def test_fuzz_caliscope_documents(scratch, doc, names):
-    path = scratch / "camera_array.toml"
+    path = fresh(scratch, "camera_array.toml")
     write(path, tomli_w.dumps(doc))
     cal = read_or_error(import_caliscope, path, names)
     check_calibration(cal)
@@ -236,12 +242,12 @@ def test_fuzz_caliscope_documents(scratch, doc, names):
 @FUZZ
 @given(data=st.data(), raw=st.binary(max_size=64))
 def test_fuzz_caliscope_text(scratch, data, raw):
-    exported = scratch / "exported.toml"
+    exported = fresh(scratch, "exported.toml")
     if not exported.exists():
         export_caliscope(RIG, exported)
     text = data.draw(mutated(exported.read_text()))
     for content in (text, raw):
-        path = scratch / "camera_array.toml"
+        path = fresh(scratch, "camera_array.toml")
         write(path, content)
         check_calibration(read_or_error(import_caliscope, path))
 
@@ -272,7 +278,7 @@ def check_points_table(df) -> None:
 @given(text=csv_texts(POINT_COLUMNS), raw=st.binary(max_size=64))
 def test_fuzz_points_csv(scratch, text, raw):
     for content in (text, raw):
-        path = scratch / "points.csv"
+        path = fresh(scratch, "points.csv")
         write(path, content)
         check_points_table(read_or_error(load_points, path))
 
@@ -289,7 +295,7 @@ FROM_POINTS_COLUMNS = ["xs", "ys", "xf", "yf", "X_mm", "Y_mm", "Z_mm"]
 TRUE_POINTS = calibration_points(n_points=200, seed=5)
 
 
-@settings(max_examples=max(EXAMPLES // 3, 10), deadline=None, phases=PHASES,
+@settings(max_examples=max(EXAMPLES // 3, 10), phases=PHASES,
           suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(text=st.one_of(csv_texts(FROM_POINTS_COLUMNS), mutated(TRUE_POINTS.to_csv(index=False))),
        raw=st.binary(max_size=64))
@@ -302,7 +308,7 @@ def test_fuzz_from_points_csv(scratch, text, raw):
         return calibrate_from_points(df, cams)
 
     for content in (text, raw):
-        path = scratch / "known.csv"
+        path = fresh(scratch, "known.csv")
         write(path, content)
         cal = read_or_error(read_and_fit, path)
         if cal is not None:
@@ -320,7 +326,7 @@ def test_fuzz_seeds_csv(scratch, text, raw):
     from sandtrack_tui.cli.cmd_track import read_seeds_csv
 
     for content in (text, raw):
-        path = scratch / "seeds.csv"
+        path = fresh(scratch, "seeds.csv")
         write(path, content)
         seeds = read_or_error(read_seeds_csv, path)
         if seeds is not None:
@@ -341,7 +347,7 @@ def model_bytes() -> bytes:
     return data
 
 
-@settings(max_examples=max(EXAMPLES // 3, 10), deadline=None, phases=PHASES,
+@settings(max_examples=max(EXAMPLES // 3, 10), phases=PHASES,
           suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(cut=st.floats(0, 1), flips=st.lists(st.tuples(st.floats(0, 1), st.integers(0, 255)), max_size=8),
        raw=st.binary(max_size=64))
@@ -354,7 +360,7 @@ def test_fuzz_model_file(scratch, cut, flips, raw):
         if damaged:
             damaged[int(pos * (len(damaged) - 1))] = value
     for content in (bytes(damaged), raw):
-        path = scratch / "model.pt"
+        path = fresh(scratch, "model.pt")
         write(path, content)
         model = read_or_error(load_model, path)
         if model is not None:  # a flip the format cannot notice (e.g. inside a weight) still gives a model
@@ -399,21 +405,19 @@ def test_fuzz_damaged_project_file(scratch, cut, flips):
     for pos, value in flips:
         if len(data) > 100:
             data[100 + int(pos * (len(data) - 101))] = value  # past the header, into pages and rows
-    path = scratch / "damaged.sandtrack"
-    for suffix in ("-wal", "-shm"):
-        Path(f"{path}{suffix}").unlink(missing_ok=True)
+    path = fresh(scratch, "damaged.sandtrack")
     write(path, bytes(data))
     use_project(path)
+    shutil.rmtree(path.parent)
 
 
 @FUZZ
 @given(raw=st.binary(max_size=300), header=st.booleans())
 def test_fuzz_random_bytes_as_project(scratch, raw, header):
-    path = scratch / "random.sandtrack"
-    for suffix in ("-wal", "-shm"):
-        Path(f"{path}{suffix}").unlink(missing_ok=True)
+    path = fresh(scratch, "random.sandtrack")
     write(path, (b"SQLite format 3\x00" if header else b"") + raw)
     use_project(path)
+    shutil.rmtree(path.parent)
 
 
 SQL_VALUES = st.one_of(st.none(), st.integers(-2 ** 63, 2 ** 63 - 1), st.floats(), st.text(max_size=12),
@@ -432,17 +436,15 @@ GARBAGE = st.sampled_from([
 @FUZZ
 @given(changes=st.lists(st.tuples(GARBAGE, st.lists(SQL_VALUES, min_size=7, max_size=7)), min_size=1, max_size=4))
 def test_fuzz_wrong_schema_and_garbage_rows(scratch, changes):
-    path = scratch / "garbage.sandtrack"
-    for suffix in ("-wal", "-shm"):
-        Path(f"{path}{suffix}").unlink(missing_ok=True)
+    path = fresh(scratch, "garbage.sandtrack")
     write(path, project_bytes())
-    conn = sqlite3.connect(path)
-    for sql, values in changes:
-        with suppress(sqlite3.Error):  # e.g. the table was dropped by an earlier change
-            conn.execute(sql, values[: sql.count("?")])
-    conn.commit()
-    conn.close()
+    with closing(sqlite3.connect(path)) as conn:
+        for sql, values in changes:
+            with suppress(sqlite3.Error):  # e.g. the table was dropped by an earlier change
+                conn.execute(sql, values[: sql.count("?")])
+        conn.commit()
     use_project(path)
+    shutil.rmtree(path.parent)
 
 
 # -- the same bad files through the CLI ----------------------------------------------------------
@@ -499,3 +501,52 @@ def test_new_with_bad_board_writes_no_project(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "Traceback" not in err and len(err.strip().splitlines()) == 1 and "board" in err
     assert not (tmp_path / "e.sandtrack").exists()
+
+
+def _open_descriptors() -> int:
+    return len(os.listdir("/proc/self/fd"))
+
+
+def _damaged_variants(real: bytes, count: int):
+    """`count` damaged copies of a real project: cut short, bytes flipped, schema rows changed, random pages."""
+    rng = np.random.default_rng(5)
+    schema_edits = ["UPDATE meta SET value='999' WHERE key='schema_version'", "DELETE FROM meta",
+                    "UPDATE meta SET value='x' WHERE key='schema_version'", "DROP TABLE meta",
+                    "UPDATE meta SET value='0' WHERE key='schema_version'"]
+    for i in range(count):
+        kind = i % 4
+        if kind == 0:
+            yield real[: int(rng.integers(17, len(real)))], None
+        elif kind == 1:
+            data = bytearray(real)
+            for pos in rng.integers(100, len(real), int(rng.integers(1, 40))):
+                data[pos] = int(rng.integers(0, 256))
+            yield bytes(data), None
+        elif kind == 2:
+            yield real, schema_edits[(i // 4) % len(schema_edits)]
+        else:
+            yield b"SQLite format 3\x00" + rng.bytes(int(rng.integers(0, 5000))), None
+
+
+@pytest.mark.skipif(not Path("/proc/self/fd").is_dir(), reason="needs /proc/self/fd to count open descriptors")
+def test_a_thousand_damaged_projects_leave_no_descriptor_open(tmp_path):
+    """Project.open closes its connection on every failure path: 1,000 failed or used opens in one process leave
+    the process's open descriptors where they were."""
+    real = project_bytes()
+    use_project(fresh(tmp_path, "warm-up.sandtrack"))  # imports and caches made before counting
+    before = _open_descriptors()
+    refused = 0
+    for k, (data, sql) in enumerate(_damaged_variants(real, 1000)):
+        path = tmp_path / f"{k}.sandtrack"
+        path.write_bytes(data)
+        if sql:
+            with closing(sqlite3.connect(path)) as conn:
+                conn.execute(sql)
+                conn.commit()
+        try:
+            Project.open(path).close()
+        except SandtrackError as exc:
+            assert "\n" not in str(exc)
+            refused += 1
+    assert refused >= 500  # most variants are refused: the failure paths are what this counts
+    assert _open_descriptors() == before

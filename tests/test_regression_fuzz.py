@@ -7,6 +7,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from conftest import examples
 from sandtrack_tui.errors import SandtrackError
 from sandtrack_tui.regression import load_model, load_points
 
@@ -16,7 +17,7 @@ cell = st.one_of(st.integers(-10**20, 10**20).map(str), st.floats(allow_nan=True
 row = st.lists(cell, min_size=0, max_size=11).map(lambda cells: ",".join(cells).encode())
 
 
-@settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=examples(120), suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(body=st.one_of(st.binary(max_size=300), st.lists(row, max_size=6).map(lambda rows: HEADER + b"\n".join(rows))))
 def test_points_reader_never_crashes(tmp_path, body):
     path = tmp_path / "points.csv"
@@ -29,7 +30,7 @@ def test_points_reader_never_crashes(tmp_path, body):
     assert len(df) > 0 and list(df.columns)[:3] == ["frame", "corner_id", "xs"]
 
 
-@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=examples(40), suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(body=st.binary(max_size=400))
 def test_model_reader_never_crashes(tmp_path, body):
     path = tmp_path / "model.pt"

@@ -32,6 +32,7 @@ def stereo_data(tmp_path_factory):
 
 def _project(root, cal, tmp_path, cameras=("side", "front")):
     proj = Project.create(tmp_path / "exp.sandtrack", {c: root / c for c in cameras})
+    proj.set("sync_offset_s", 0.0)  # the rendered cameras are frame-locked
     if cal is not None:
         proj.set_calibration(cal)
     return proj

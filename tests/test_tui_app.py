@@ -215,7 +215,7 @@ async def test_table_and_export_give_true_xyz(tmp_path, frames):
         # the front view shows the side point's epipolar curve through the true front position
         app.active = "side"
         app.update_overlays()
-        curve = app.view("front").overlays.epipolar
+        (curve, _colour), = app.view("front").overlays.epipolar  # one other view: one curve
         fx, fy = true_xy(2, 0, "front")
         a, b = curve[:-1], curve[1:]
         t = np.clip(np.sum((np.array([fx, fy]) - a) * (b - a), 1) / np.sum((b - a) ** 2, 1), 0, 1)

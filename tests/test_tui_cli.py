@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from conftest import write_clip
+from conftest import SAMPLE_DATA, write_clip
 from sandtrack_tui.cli import main
 from sandtrack_tui.cli.cmd_tui import relink, sample_project
 from sandtrack_tui.errors import SandtrackError
@@ -67,3 +67,23 @@ def test_relink_moved_video(sample_dir, tmp_path):
         assert proj.video_problems() == []
     with pytest.raises(SandtrackError, match="CAMERA=PATH"):
         relink(target, ["front"])
+
+
+@pytest.mark.skipif(not (SAMPLE_DATA / "model.pt").is_file(), reason="sample_data/model.pt is not in this checkout")
+def test_sample_project_gets_the_bundled_network_once(sample_dir, tmp_path):
+    import shutil
+
+    target = tmp_path / "data" / "sample.sandtrack"
+    p = sample_project(sample_dir, target)
+    with Project.open(p) as proj:  # these clips have no audio and no network: left for F2 and F4
+        assert not proj.sync_confirmed() and proj.get("model") is None
+    shutil.copy(SAMPLE_DATA / "model.pt", sample_dir / "model.pt")  # a version that bundles the network
+    with Project.open(p) as proj:
+        proj.conn.execute("DELETE FROM meta WHERE key='sample_setup'")  # as made by an older version
+    sample_project(sample_dir, target)
+    with Project.open(target) as proj:
+        assert proj.get("model")["path"] == str((sample_dir / "model.pt").resolve())
+        assert proj.undo() == "sample network"  # the user takes it back
+    sample_project(sample_dir, target)
+    with Project.open(target) as proj:
+        assert proj.get("model") is None  # and it stays back

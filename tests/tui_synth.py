@@ -19,16 +19,20 @@ MARKERS = {1: ((-120.0, -40.0, 1000.0), (2.5, 0.6, 0.0)), 2: ((110.0, 40.0, 1040
            3: ((20.0, -70.0, 980.0), (0.6, 1.2, 0.5))}
 
 
-def calibration() -> Calibration:
+def calibration(cameras=("side", "front")) -> Calibration:
+    """The synthetic rig: side (the rig frame), front 250 mm to its right, top 250 mm above it."""
     K = [[FOCAL, 0, WIDTH / 2], [0, FOCAL, HEIGHT / 2], [0, 0, 1]]
-    R = cv2.Rodrigues(np.array([0.0, 0.25, 0.0]))[0]
-    centre = np.array([250.0, 0.0, 0.0])
-    cams = {"side": Camera("side", WIDTH, HEIGHT, K, np.zeros(5)),
-            "front": Camera("front", WIDTH, HEIGHT, K, np.zeros(5), cv2.Rodrigues(R)[0].ravel(), -R @ centre)}
+    poses = {"side": (np.zeros(3), np.zeros(3)), "front": (np.array([0.0, 0.25, 0.0]), np.array([250.0, 0.0, 0.0])),
+             "top": (np.array([0.25, 0.0, 0.0]), np.array([0.0, -250.0, 0.0]))}
+    cams = {}
+    for name in cameras:
+        rvec, centre = poses[name]
+        R = cv2.Rodrigues(rvec)[0]
+        cams[name] = Camera(name, WIDTH, HEIGHT, K, np.zeros(5), rvec, -R @ centre)
     return Calibration(cams)
 
 
-_CAL = calibration()
+_CAL = calibration(("side", "front", "top"))
 
 
 def true_xyz(marker: int, frame: int) -> np.ndarray:
@@ -46,7 +50,7 @@ _SAND: dict[str, np.ndarray] = {}
 
 def _sand(camera: str) -> np.ndarray:
     if camera not in _SAND:
-        rng = np.random.default_rng(1 + (camera == "front"))
+        rng = np.random.default_rng(1 + ("side", "front", "top").index(camera))
         base = np.array([120, 170, 200], np.float32)  # BGR
         img = np.clip(base + rng.normal(0, 18, (HEIGHT, WIDTH, 3)), 0, 255).astype(np.uint8)
         _SAND[camera] = cv2.GaussianBlur(img, (3, 3), 0)
@@ -63,8 +67,8 @@ def render(frame: int, camera: str) -> np.ndarray:
     return img
 
 
-def make_frames(folder: Path) -> Path:
-    for cam in ("side", "front"):
+def make_frames(folder: Path, cameras=("side", "front")) -> Path:
+    for cam in cameras:
         d = folder / cam
         d.mkdir(parents=True, exist_ok=True)
         for i in range(N_FRAMES):
@@ -73,10 +77,13 @@ def make_frames(folder: Path) -> Path:
 
 
 def make_project(folder: Path, name: str = "synthetic", frames: Path | None = None,
-                 calibrated: bool = False) -> Project:
-    """A project in `folder` linking the frames in `frames` (rendered into `folder` if not given)."""
+                 calibrated: bool = False, synced: bool = True) -> Project:
+    """A project in `folder` linking the frames in `frames` (rendered into `folder` if not given).
+    synced: the cameras' sync offset (0: the rendered cameras are frame-locked) is stored, as if set in F2."""
     frames = frames or make_frames(folder)
     proj = Project.create(folder / f"{name}.sandtrack", {"side": frames / "side", "front": frames / "front"})
+    if synced:
+        proj.set("sync_offset_s", 0.0)
     if calibrated:
         proj.set_calibration(calibration())
     return proj

@@ -123,3 +123,40 @@ def swap_markers(project: Project, m1: int, m2: int, frames, cameras: list[str] 
         ed.delete(both[["frame", "camera", "marker"]].itertuples(index=False, name=None))
         ed.write(swapped)
     return len(both)
+
+
+# Which of two points at one frame and camera a merge keeps: the better-founded status first.
+MERGE_PREFERENCE = ("manual", "tracked", "imported", "interpolated", "occluded", "lost")
+
+
+def merge_markers(project: Project, keep: int, drop: int) -> int:
+    """Make `drop` part of `keep` (two ids given to one bead), as one edit: where only `drop` has a
+    point it becomes `keep`'s; where both have one, the point with the better status stays
+    (MERGE_PREFERENCE; `keep`'s on a tie); marker `drop` is removed. Returns the points taken from
+    `drop`."""
+    if keep == drop:
+        raise SandtrackError("choose two different markers to merge")
+    ids = set(project.markers()["id"].tolist())
+    theirs = project.points(marker=drop)
+    if drop not in ids and theirs.empty:
+        raise SandtrackError(f"no marker {drop}")
+    ensure_marker(project, keep)
+    ours = project.points(marker=keep)
+    rank = {s: k for k, s in enumerate(MERGE_PREFERENCE)}
+    both = theirs.merge(ours[["frame", "camera", "status"]], on=["frame", "camera"], how="left",
+                        suffixes=("", "_keep"))
+    their_rank = both["status"].map(rank).fillna(len(rank))
+    our_rank = both["status_keep"].map(rank).fillna(len(rank) + 1)  # no point of `keep` there: theirs wins
+    taken = both.loc[their_rank < our_rank, theirs.columns].assign(marker=keep)
+    with project.edit(f"merge marker {drop} into {keep}") as ed:
+        # written before `drop` goes, so an interrupted merge leaves a copy, never a loss (undo mends either)
+        ed.write(taken)
+        ed.delete(theirs[["frame", "camera", "marker"]].itertuples(index=False, name=None))
+        ed.delete_marker(drop)
+    return len(taken)
+
+
+def rename_marker(project: Project, marker: int, label: str) -> None:
+    """Give a marker a new label (its id, used in exports, stays)."""
+    ensure_marker(project, marker)
+    project.rename_marker(marker, label)

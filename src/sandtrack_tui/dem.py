@@ -104,9 +104,11 @@ def guess_units(xyz: np.ndarray) -> str:
 
 
 def to_rig(particle_id, time_s, xyz, units: str | None = "m", axes: str = "x,y,z",
-           offset_mm: Sequence[float] = (0.0, 0.0, 0.0), time_offset_s: float = 0.0, source: str = "") -> pd.DataFrame:
+           offset_mm: Sequence[float] = (0.0, 0.0, 0.0), time_offset_s: float = 0.0, source: str = "",
+           extra: dict | None = None) -> pd.DataFrame:
     """Scale, permute/flip axes and shift DEM positions into the tidy DEM table (mm, rig frame).
-    units None: guessed (see module docstring), recorded in ``df.attrs["units_guessed"]``."""
+    units None: guessed (see module docstring), recorded in ``df.attrs["units_guessed"]``.
+    `extra`: more per-row columns to carry (a ``radius`` is scaled to mm like the positions)."""
     guessed = None
     if units is None:
         units = guessed = guess_units(xyz)
@@ -118,6 +120,9 @@ def to_rig(particle_id, time_s, xyz, units: str | None = "m", axes: str = "x,y,z
     t = np.asarray(time_s, dtype=np.float64) + float(time_offset_s)
     df = pd.DataFrame({"particle_id": np.asarray(particle_id).astype(np.int64), "time_s": t,
                        "X_mm": xyz[:, 0], "Y_mm": xyz[:, 1], "Z_mm": xyz[:, 2]})
+    for name, values in (extra or {}).items():
+        v = np.asarray(values, dtype=np.float64)
+        df["radius_mm" if name == "radius" else name] = v * UNIT_TO_MM[units] if name == "radius" else v
     df = _validate(df, source)
     df.attrs["units"] = units
     if guessed:
@@ -142,8 +147,10 @@ def _validate(df: pd.DataFrame, source: str) -> pd.DataFrame:
 
 
 def read_exchange_csv(path: str | Path, units: str | None = None, axes: str = "x,y,z",
-                      offset_mm: Sequence[float] = (0.0, 0.0, 0.0), time_offset_s: float = 0.0) -> pd.DataFrame:
-    """The exchange CSV (see module docstring). `units` None: from column names (x_mm), else guessed."""
+                      offset_mm: Sequence[float] = (0.0, 0.0, 0.0), time_offset_s: float = 0.0,
+                      extra: Sequence[str] = ()) -> pd.DataFrame:
+    """The exchange CSV (see module docstring). `units` None: from column names (x_mm), else guessed.
+    `extra`: further numeric columns to keep when the file has them (e.g. "type", "radius")."""
     p = Path(path)
     if not p.is_file():
         raise SandtrackError(f"file not found: {p}")
@@ -182,8 +189,12 @@ def read_exchange_csv(path: str | Path, units: str | None = None, axes: str = "x
     if np.any(np.abs(ids[ok] - np.round(ids[ok])) > 1e-9) or (ok.any() and np.abs(ids[ok]).max() > 2 ** 62):
         raise SandtrackError(f"{p}: particle ids must be whole numbers")
     xyz = np.column_stack([num[c] for c in pos])[ok]
+    more = {}
+    for name in extra:
+        if name in cols:
+            more[name] = pd.to_numeric(df[cols[name]], errors="coerce").to_numpy(float)[ok]
     return to_rig(np.round(ids[ok]), num[tcol][ok], xyz, units or found_unit, axes, offset_mm,
-                  time_offset_s, str(p))
+                  time_offset_s, str(p), more)
 
 
 def _open_text(p: Path) -> str:
@@ -220,29 +231,33 @@ def _natural_key(s: str):
 
 def read_lammps_dump(paths, dt: float | None = None, units: str | None = None, axes: str = "x,y,z",
                      offset_mm: Sequence[float] = (0.0, 0.0, 0.0), time_offset_s: float = 0.0,
-                     particle_ids: Sequence[int] | None = None) -> pd.DataFrame:
-    """LIGGGHTS/LAMMPS ``dump custom`` file(s) -> the tidy DEM table (see module docstring)."""
-    ids_all, t_all, xyz_all = [], [], []
+                     particle_ids: Sequence[int] | None = None, extra: Sequence[str] = ()) -> pd.DataFrame:
+    """LIGGGHTS/LAMMPS ``dump custom`` file(s) -> the tidy DEM table (see module docstring).
+    `extra`: ATOMS columns to keep as well when every step has them (e.g. "type", "radius")."""
+    ids_all, t_all, xyz_all, more_all = [], [], [], []
     keep = None if particle_ids is None else np.asarray(sorted(set(int(i) for i in particle_ids)))
     for p in _dump_paths(paths):
         text = _open_text(p)
         if "ITEM: TIMESTEP" not in text:
             raise SandtrackError(f"{p}: not a LAMMPS/LIGGGHTS dump (no 'ITEM: TIMESTEP')")
         for block in text.split("ITEM: TIMESTEP")[1:]:
-            ids, t, xyz = _parse_block(block, dt, p)
+            ids, t, xyz, more = _parse_block(block, dt, p, extra)
             if keep is not None:
                 m = np.isin(ids, keep)
-                ids, xyz = ids[m], xyz[m]
+                ids, xyz, more = ids[m], xyz[m], {k: v[m] for k, v in more.items()}
             ids_all.append(ids)
             t_all.append(np.full(len(ids), t))
             xyz_all.append(xyz)
+            more_all.append(more)
     if not ids_all or sum(len(i) for i in ids_all) == 0:
         raise SandtrackError("the dump holds no (selected) particles")
+    shared = [k for k in extra if all(k in m for m in more_all)]
     return to_rig(np.concatenate(ids_all), np.concatenate(t_all), np.concatenate(xyz_all), units, axes,
-                  offset_mm, time_offset_s, str(paths if isinstance(paths, (str, Path)) else "dump"))
+                  offset_mm, time_offset_s, str(paths if isinstance(paths, (str, Path)) else "dump"),
+                  {k: np.concatenate([m[k] for m in more_all]) for k in shared})
 
 
-def _parse_block(block: str, dt: float | None, p: Path):
+def _parse_block(block: str, dt: float | None, p: Path, extra: Sequence[str] = ()):
     sections = re.split(r"^ITEM: ", block, flags=re.MULTILINE)
     try:
         step = int(sections[0].split()[0])
@@ -282,7 +297,7 @@ def _parse_block(block: str, dt: float | None, p: Path):
         raise SandtrackError(f"{p}: ATOMS columns lack positions x y z ({' '.join(atoms_header)})")
     names, scaled = found
     if not atoms_text.strip():
-        return np.zeros(0, np.int64), time_value, np.zeros((0, 3))
+        return np.zeros(0, np.int64), time_value, np.zeros((0, 3)), {k: np.zeros(0) for k in extra if k in atoms_header}
     try:
         arr = np.loadtxt(io.StringIO(atoms_text), ndmin=2)
     except ValueError as exc:
@@ -295,7 +310,8 @@ def _parse_block(block: str, dt: float | None, p: Path):
         if bounds is None or bounds.shape != (3, 2):
             raise SandtrackError(f"{p}: scaled positions need ITEM: BOX BOUNDS")
         xyz = bounds[:, 0] + xyz * (bounds[:, 1] - bounds[:, 0])
-    return arr[:, col["id"]].astype(np.int64), time_value, xyz
+    more = {k: arr[:, col[k]] for k in extra if k in col}
+    return arr[:, col["id"]].astype(np.int64), time_value, xyz, more
 
 
 def read_dem(path, fmt: str | None = None, **kw) -> pd.DataFrame:

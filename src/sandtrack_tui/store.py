@@ -5,7 +5,8 @@ dropped SSH link loses nothing; there is no save step. Long runs (tracking) comm
 without waiting for the disk and sync once at the end (`Project.edit(sync_each_write=False)`).
 
 Tables
-- ``meta(key, value)``: ``schema_version`` and creation time.
+- ``meta(key, value)``: ``schema_version``, creation time, and other facts about the file that are
+  not edits (undo leaves them).
 - ``videos(camera, path, fingerprint, width, height, fps, frames)``: one row per camera
   ("side", "front", or any name for more cameras).
 - ``settings(key, value)``: JSON values: ``sync_offset_s`` (s; front started that much later),
@@ -39,6 +40,7 @@ import pandas as pd
 from .errors import SandtrackError
 
 SCHEMA_VERSION = 3
+LABEL_MAX = 16  # characters of a marker label
 STATUSES = ("tracked", "occluded", "lost", "manual", "interpolated", "imported")
 POINT_COLUMNS = ["frame", "camera", "marker", "x_px", "y_px", "status", "score", "psr", "colour_frac"]
 _POINT_VALUES = POINT_COLUMNS[3:]
@@ -88,6 +90,27 @@ def _key(path: Path) -> str:
         return str(path)
 
 
+# A damaged file shows as an SQLite error, or as text that is not UTF-8 where SQLite returns text.
+_DAMAGE = (sqlite3.DatabaseError, UnicodeDecodeError)
+
+
+def _open_error(path: Path, exc: Exception) -> SandtrackError:
+    if "readonly" in str(exc) or "unable to open" in str(exc):
+        return SandtrackError(f"{path}: cannot open the project: the file or its folder is read-only "
+                              f"(SQLite needs to write beside it; use a writable copy)")
+    return SandtrackError(f"{path}: project file is damaged ({str(exc).splitlines()[0][:200]})")
+
+
+def _check_version(path: Path, version: int | None) -> None:
+    if version is None:
+        raise SandtrackError(f"{path}: not a sandtrack project (no schema version)")
+    if version < 1:
+        raise SandtrackError(f"{path}: project file is damaged (schema version {version})")
+    if version > SCHEMA_VERSION:
+        raise SandtrackError(
+            f"{path}: made by a newer sandtrack (schema {version}, this one reads up to {SCHEMA_VERSION}); upgrade")
+
+
 @dataclass
 class VideoRef:
     camera: str
@@ -128,9 +151,13 @@ class Project:
     @staticmethod
     def _connect(path: Path) -> sqlite3.Connection:
         conn = sqlite3.connect(str(path), timeout=10.0, isolation_level=None, check_same_thread=False)
-        conn.execute("PRAGMA journal_mode=WAL")
-        conn.execute("PRAGMA synchronous=FULL")
-        conn.execute("PRAGMA foreign_keys=ON")
+        try:
+            conn.execute("PRAGMA journal_mode=WAL")
+            conn.execute("PRAGMA synchronous=FULL")
+            conn.execute("PRAGMA foreign_keys=ON")
+        except BaseException:
+            conn.close()  # a damaged file fails here: no connection may outlive the failed open
+            raise
         return conn
 
     @classmethod
@@ -149,11 +176,15 @@ class Project:
         except sqlite3.Error as exc:
             raise SandtrackError(f"cannot create {p}: {exc}") from None
         proj = cls(p, conn)
-        proj._migrate(0)
-        with proj._tx():
-            conn.execute("INSERT OR REPLACE INTO meta VALUES ('created', ?)", (str(time.time()),))
-        for camera, vpath in (videos or {}).items():
-            proj.link_video(camera, vpath)
+        try:
+            proj._migrate(0)
+            with proj._tx():
+                conn.execute("INSERT OR REPLACE INTO meta VALUES ('created', ?)", (str(time.time()),))
+            for camera, vpath in (videos or {}).items():
+                proj.link_video(camera, vpath)
+        except BaseException:
+            proj.close()
+            raise
         return proj
 
     @classmethod
@@ -175,28 +206,27 @@ class Project:
                 raise SandtrackError(f"{p}: not a sandtrack project (not an SQLite file)")
         try:
             conn = cls._connect(p)
+        except _DAMAGE as exc:
+            raise _open_error(p, exc) from None
+        try:
             version = cls._read_version(conn)
-        except sqlite3.DatabaseError as exc:
-            if "readonly" in str(exc) or "unable to open" in str(exc):
-                raise SandtrackError(f"{p}: cannot open the project: the file or its folder is read-only "
-                                     f"(SQLite needs to write beside it; use a writable copy)") from None
-            raise SandtrackError(f"{p}: project file is damaged ({exc})") from None
-        except ValueError:
-            raise SandtrackError(f"{p}: project file is damaged (bad schema version)") from None
-        if version is None:
+            _check_version(p, version)
+            proj = cls(p, conn)
+        except BaseException as exc:
             conn.close()
-            raise SandtrackError(f"{p}: not a sandtrack project (no schema version)")
-        if version < 1:
-            conn.close()
-            raise SandtrackError(f"{p}: project file is damaged (schema version {version})")
-        if version > SCHEMA_VERSION:
-            conn.close()
-            raise SandtrackError(
-                f"{p}: made by a newer sandtrack (schema {version}, this one reads up to {SCHEMA_VERSION}); upgrade"
-            )
-        proj = cls(p, conn)
+            if isinstance(exc, _DAMAGE):
+                raise _open_error(p, exc) from None
+            if isinstance(exc, ValueError):
+                raise SandtrackError(f"{p}: project file is damaged (bad schema version)") from None
+            raise
         if version < SCHEMA_VERSION:
-            proj._migrate(version)
+            try:
+                proj._migrate(version)
+            except BaseException as exc:
+                proj.close()
+                if isinstance(exc, _DAMAGE):
+                    raise _open_error(p, exc) from None
+                raise
         return proj
 
     @staticmethod
@@ -265,7 +295,7 @@ class Project:
         """Damage inside the file only shows when its pages are read: one line instead of a traceback."""
         try:
             yield
-        except (sqlite3.DatabaseError, pd.errors.DatabaseError, json.JSONDecodeError) as exc:
+        except (*_DAMAGE, pd.errors.DatabaseError, json.JSONDecodeError) as exc:
             cause = exc.__cause__ if isinstance(exc.__cause__, sqlite3.Error) else exc
             raise SandtrackError(f"{self.path}: cannot read the project file, it is damaged "
                                  f"({str(cause).splitlines()[0][:200]})") from None
@@ -316,6 +346,17 @@ class Project:
             raise SandtrackError("; ".join(p.message() for p in problems))
         return {c: FrameSource(self.videos()[c].path, cache_mb=cache_mb) for c in self.cameras()}
 
+    # -- facts about the file (not edits: undo leaves them) -----------------------------------
+    def meta(self, key: str) -> str | None:
+        with self._reading():
+            row = self.conn.execute("SELECT value FROM meta WHERE key=?", (key,)).fetchone()
+        return None if row is None else str(row[0])
+
+    def set_meta(self, key: str, value: str) -> None:
+        if key in ("schema_version", "created"):
+            raise SandtrackError(f"meta key {key!r} is the store's own")
+        self._write(lambda: self.conn.execute("INSERT OR REPLACE INTO meta VALUES (?, ?)", (key, str(value))))
+
     # -- settings ------------------------------------------------------------------------------
     def get(self, key: str, default=None):
         with self._reading():
@@ -339,6 +380,11 @@ class Project:
     @property
     def sync_offset_s(self) -> float:
         return float(self.get("sync_offset_s", 0.0))
+
+    def sync_confirmed(self) -> bool:
+        """True once a sync offset was stored (measured, typed in, or 0 set on purpose); before that
+        `sync_offset_s` is a default of 0, which is wrong for cameras started by hand."""
+        return self.get("sync_offset_s") is not None
 
     def calibration(self):
         from .camera import Calibration
@@ -378,7 +424,20 @@ class Project:
         return self._write(fn)
 
     def rename_marker(self, marker_id: int, label: str) -> None:
-        self.add_marker(label, marker_id)
+        """Give a marker a new label (the name shown everywhere; its id stays), as one undoable edit."""
+        label = str(label).strip()
+        if not label or len(label) > LABEL_MAX or not label.isprintable():
+            raise SandtrackError(f"a marker label is 1-{LABEL_MAX} printable characters, not {label!r}")
+
+        def fn():
+            old = self.conn.execute("SELECT label FROM markers WHERE id=?", (marker_id,)).fetchone()
+            if old is None:
+                raise SandtrackError(f"no marker {marker_id}")
+            eid = self._new_edit("marker", f"rename marker {old[0]} to {label}")
+            self._log_row(eid, 0, "markers", str(marker_id), json.dumps(old[0]), json.dumps(label))
+            self.conn.execute("UPDATE markers SET label=? WHERE id=?", (label, marker_id))
+
+        self._write(fn)
 
     def delete_marker(self, marker_id: int) -> None:
         """Delete a marker and all its points (undoable)."""
@@ -630,6 +689,22 @@ class _Edit:
 
         self.project._write(fn)
         return len(keys)
+
+    def delete_marker(self, marker_id: int) -> None:
+        """Remove a marker's row (its points are this edit's business) as part of this edit."""
+        conn = self.project.conn
+
+        def fn():
+            if self.edit_id is None:
+                self.edit_id = self.project._new_edit(self.kind, self.description)
+            old = conn.execute("SELECT label FROM markers WHERE id=?", (int(marker_id),)).fetchone()
+            if old is None:
+                return
+            self.project._log_row(self.edit_id, self.seq, "markers", str(int(marker_id)), json.dumps(old[0]), None)
+            self.seq += 1
+            conn.execute("DELETE FROM markers WHERE id=?", (int(marker_id),))
+
+        self.project._write(fn)
 
 
 def _existing_values(conn, records) -> dict:

@@ -331,18 +331,21 @@ class PairedIndex:
 class FramePair:
     """Side and front frames paired by a sync offset (s; front started `offset_s` later)."""
 
-    def __init__(self, side: FrameSource, front: FrameSource, offset_s: float = 0.0):
+    def __init__(self, side: FrameSource, front: FrameSource, offset_s: float = 0.0,
+                 names: tuple[str, str] = ("side", "front")):
         self.side = side
         self.front = front
         self.offset_s = float(offset_s)
+        self.names = names
 
     def mismatch_warnings(self) -> list[str]:
         out = []
+        a, b = self.names
         if (self.side.width, self.side.height) != (self.front.width, self.front.height):
-            out.append(f"resolutions differ: side {self.side.width}x{self.side.height}, "
-                       f"front {self.front.width}x{self.front.height}")
+            out.append(f"resolutions differ: {a} {self.side.width}x{self.side.height}, "
+                       f"{b} {self.front.width}x{self.front.height}")
         if abs(self.side.fps - self.front.fps) > 1e-3:
-            out.append(f"frame rates differ: side {self.side.fps:g} fps, front {self.front.fps:g} fps")
+            out.append(f"frame rates differ: {a} {self.side.fps:g} fps, {b} {self.front.fps:g} fps")
         return out
 
     def front_time(self, side_index: int) -> float:
@@ -369,3 +372,44 @@ class FramePair:
     def __getitem__(self, side_index: int) -> tuple[np.ndarray, np.ndarray, PairedIndex]:
         p = self.index(side_index)
         return self.side.frame(p.side), self.front.frame(p.front), p
+
+
+# -- any number of cameras --------------------------------------------------------------------
+def synced_camera(cameras: list[str]) -> str | None:
+    """The camera the project's one sync offset belongs to: the front camera, or with two cameras the
+    second, whatever its name; None when no camera takes it (one camera, or several without a front
+    camera, which are taken as started together)."""
+    if "front" in cameras[1:]:
+        return "front"
+    return cameras[1] if len(cameras) == 2 else None
+
+
+def camera_offsets(cameras: list[str], sync_offset_s: float) -> dict[str, float]:
+    """How much later (s) each camera started recording than the first one (see synced_camera)."""
+    synced = synced_camera(cameras)
+    return {c: float(sync_offset_s) if c == synced else 0.0 for c in cameras}
+
+
+def nearest_frames(ref: FrameSource, other: FrameSource, offset_s: float) -> np.ndarray:
+    """Index of `other`'s frame nearest in time to each frame of `ref` (other started offset_s later)."""
+    t = ref.times_s - offset_s
+    if len(other.times_s) < 2:
+        return np.zeros(len(t), int)
+    j = np.clip(np.searchsorted(other.times_s, t), 1, len(other.times_s) - 1)
+    nearer_left = (t - other.times_s[j - 1]) <= (other.times_s[j] - t)
+    return np.where(nearer_left, j - 1, j).astype(int)
+
+
+def common_range(sources: dict, offsets: dict[str, float], ref: str) -> tuple[int, int]:
+    """[first, last] frames of camera `ref` that every other camera also recorded (±half a frame)."""
+    ok = np.ones(len(sources[ref]), bool)
+    for c, src in sources.items():
+        if c == ref:
+            continue
+        half = 0.5 / src.fps
+        t = sources[ref].times_s - offsets.get(c, 0.0)
+        ok &= (t >= src.times_s[0] - half) & (t <= src.times_s[-1] + half)
+    idx = np.nonzero(ok)[0]
+    if len(idx) == 0:
+        raise SandtrackError("the videos do not overlap in time for this sync offset")
+    return int(idx[0]), int(idx[-1])

@@ -15,7 +15,7 @@ from ..errors import NotAvailableYet, SandtrackError
 
 COMMANDS = [
     "tui", "new", "sample", "calibrate", "sync", "train", "track", "xyz", "export", "import", "compare", "demo",
-    "relink",
+    "relink", "repose", "sweep",
 ]
 
 

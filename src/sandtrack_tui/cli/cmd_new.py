@@ -1,10 +1,11 @@
-"""`sandtrack new EXP.sandtrack --side SIDE --front FRONT [--board BOARD.toml]`."""
+"""`sandtrack new EXP.sandtrack --side SIDE [--front FRONT] [--camera NAME=PATH ...] [--board BOARD.toml]`."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 from ..board import load_board
+from ..errors import SandtrackError
 from ..store import Project
 from ..video import FramePair, FrameSource
 from .common import add_json_flag, emit, log
@@ -15,6 +16,8 @@ def register(sub) -> None:
     p.add_argument("project", help="project file to create (NAME.sandtrack)")
     p.add_argument("--side", required=True, help="side camera video (or image folder)")
     p.add_argument("--front", help="front camera video (or image folder); omit for a 2D-only project")
+    p.add_argument("--camera", action="append", default=[], metavar="NAME=PATH",
+                   help="another camera's video or image folder (repeatable; three or more cameras)")
     p.add_argument("--board", help="calibration board file (board.toml or Caliscope charuco.toml)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing project file")
     add_json_flag(p)
@@ -25,6 +28,14 @@ def run(args) -> int:
     videos = {"side": args.side}
     if args.front:
         videos["front"] = args.front
+    for spec in args.camera:
+        name, sep, path = spec.partition("=")
+        name = name.strip()
+        if not sep or not name or not path:
+            raise SandtrackError(f"--camera wants NAME=PATH, not {spec!r}")
+        if name in videos:
+            raise SandtrackError(f"camera {name!r} given twice")
+        videos[name] = path
     sources = {c: FrameSource(v, cache_mb=16) for c, v in videos.items()}  # validates before creating
     warnings = []
     if "front" in sources:

@@ -20,10 +20,11 @@ def register(sub) -> None:
     )
     p.add_argument("out_dir", help="output folder (created if missing; files in it are overwritten)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--preset", choices=["small", "full", "tiny"], default="small",
+    p.add_argument("--preset", choices=["small", "full", "tiny", "repose"], default="small",
                    help="small: 8.8 s experiment + 8 s calibration (the bundled sample_data); "
                         "full: same experiment + 42 s calibration (>= 44,130 two-view corner observations); "
-                        "tiny: a few frames, for tests")
+                        "tiny: a few frames, for tests; "
+                        "repose: heaps of known angle of repose, photos and DEM dumps, under OUT/repose/")
     p.add_argument("--workers", type=int, default=2, help="worker processes (default 2)")
     add_json_flag(p)
     p.set_defaults(func=run)
@@ -36,6 +37,12 @@ def run(args: argparse.Namespace) -> int:
     if args.workers < 1:
         raise SandtrackError("--workers must be at least 1")
     result = render_sample(args.out_dir, seed=args.seed, preset=args.preset, workers=args.workers, log=log)
+    if args.preset == "repose":
+        text = (f"rendered the repose preset (seed {args.seed}) into {result['out_dir']}/repose in "
+                f"{result['render_s']} s: {result['heaps']} files of known angle (ground_truth/repose.json), "
+                f"{result['total_bytes'] / 1e6:.1f} MB")
+        emit(result, args.json, text)
+        return 0
     text = (
         f"rendered {args.preset} sample (seed {args.seed}) into {result['out_dir']} in {result['render_s']} s: "
         f"{result['experiment_frames']} experiment and {result['calibration_frames']} calibration frames per camera, "

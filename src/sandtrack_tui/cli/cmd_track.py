@@ -34,6 +34,9 @@ def register(sub) -> None:
     p.add_argument("--to", dest="stop", type=int, metavar="M", help="last frame (inclusive); default: the end")
     p.add_argument("--backward", action="store_true", help="track backward in time")
     p.add_argument("--markers", metavar="LIST", help="comma-separated marker ids (default: all)")
+    p.add_argument("--allow-unsynced", action="store_true",
+                   help="track a project of several cameras whose sync offset was never set (taken as 0): only "
+                        "right for cameras that start together; otherwise run `sandtrack sync PROJECT` first")
     add_json_flag(p)
     p.set_defaults(func=run)
 
@@ -85,6 +88,17 @@ def _check_seeds(project, seeds: pd.DataFrame) -> None:
                                  f"{v.width}x{v.height} image")
 
 
+def _check_sync(proj, args) -> None:
+    """Several cameras and no sync offset yet: refuse, unless told the cameras start together."""
+    if len(proj.cameras()) < 2 or proj.sync_confirmed():
+        return
+    if not args.allow_unsynced:
+        raise SandtrackError(f"{args.project}: the cameras are not synced yet; run `sandtrack sync {args.project}` "
+                             "first (with an offset of 0 the stereo check throws good views away once the markers "
+                             "move), or pass --allow-unsynced if the cameras start together")
+    log("warning: the cameras were never synced; tracking with an offset of 0 s (--allow-unsynced)")
+
+
 def run(args) -> int:
     from ..store import Project
     from ..tracking.run import accept_seeds, auto_seed, track_project
@@ -96,6 +110,7 @@ def run(args) -> int:
         except ValueError:
             raise SandtrackError(f"--markers: give ids separated by commas, not {args.markers!r}") from None
     with Project.open(args.project) as proj:
+        _check_sync(proj, args)
         seeded = 0
         if args.seeds:
             seeds = read_seeds_csv(args.seeds)

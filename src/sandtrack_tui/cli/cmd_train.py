@@ -24,6 +24,8 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="random seed (split, weights, batches); default 0")
     p.add_argument("--fast", action="store_true", help="a quick, rougher model (few epochs): for tests and previews")
     p.add_argument("--no-residual", action="store_true", help="skip the residual variant")
+    p.add_argument("--threads", type=int, help="CPU threads (default: all cores, or 1 when they are busy); the "
+                                               "same seed and thread count give the same weights")
     add_json_flag(p)
     p.set_defaults(func=run)
 
@@ -38,6 +40,10 @@ def run(args) -> int:
     if not out.parent.exists():
         raise SandtrackError(f"folder does not exist: {out.parent}")
     kw = {"seed": args.seed, "residual": not args.no_residual}
+    if args.threads is not None:
+        if args.threads < 1:
+            raise SandtrackError("--threads must be at least 1")
+        kw["threads"] = args.threads
     if args.epochs is not None:
         if args.epochs < 1:
             raise SandtrackError("--epochs must be at least 1")

@@ -22,6 +22,8 @@ import numpy as np
 import pandas as pd
 
 from ..errors import SandtrackError
+from ..video import camera_offsets as video_offsets
+from . import identity
 from .chroma import Chroma420Frame, block_replicated
 from .decoding import prefetch
 from .engine import Engine
@@ -33,6 +35,8 @@ from .tracker import DEFAULT_BOX_PX, LOST, MANUAL, OCCLUDED, TRACKED, MarkerTrac
 __all__ = ["auto_seed", "accept_seeds", "seed_marker", "track_project", "snap_to_marker", "SEED_COLUMNS"]
 
 SEED_COLUMNS = ["marker", "camera", "frame", "x_px", "y_px", "w", "h", "epipolar_px"]
+# auto-seed matches blobs to markers known this many frames before or after the seeded frame
+MATCH_WINDOW_FRAMES = 500
 BOXES_KEY = "tracking_boxes"
 _USABLE = (MANUAL, TRACKED, "interpolated", "imported")
 # Frame cache per camera when track_project opens the videos itself: tracking reads each frame
@@ -45,10 +49,7 @@ BATCH_STEPS = 4  # steps tracked in one run once their frames are decoded (decod
 # -- clocks and pairing -----------------------------------------------------------------------
 def camera_offsets(project, cameras: list[str]) -> dict[str, float]:
     """Offset (s) of each camera's clock behind the first camera's: event at t is at t - offset."""
-    off = {cameras[0]: 0.0}
-    for c in cameras[1:]:
-        off[c] = project.sync_offset_s if c == "front" or len(cameras) == 2 else 0.0
-    return off
+    return video_offsets(cameras, project.sync_offset_s)
 
 
 def paired_frame(sources: dict, offsets: dict, ref: str, ref_index: int, cam: str):
@@ -91,7 +92,9 @@ def auto_seed(project, frame: int | None = 0, sources: dict | None = None,
     """Every blue marker in `frame` (first camera's index; the others at the paired frame; None =
     the first frame all cameras recorded), paired across cameras by epipolar distance when the
     project holds a calibration. A proposal only: nothing is written. Unpaired detections get
-    their own marker ids (epipolar_px NaN)."""
+    their own proposal (epipolar_px NaN). A proposal that is a marker the project already has
+    (identity.py: where the marker is in this frame, or was last seen) takes its id (`existing`
+    True, `match_px` the distance); the rest are numbered after the highest id in use."""
     own = sources is None
     sources = sources or project.open_sources()
     try:
@@ -109,9 +112,8 @@ def auto_seed(project, frame: int | None = 0, sources: dict | None = None,
                 continue
             frames[c] = pf[0]
             dets[c] = detect_markers(sources[c].frame(pf[0]))
-        existing = project.markers()
-        next_id = int(existing["id"].max()) + 1 if len(existing) else 1
         rows = []
+        proposal = 1
         stereo = _stereo_for(project, cams)
         used = {c: set() for c in dets}
         if stereo is not None and all(c in dets for c in stereo.cams):
@@ -121,18 +123,26 @@ def auto_seed(project, frame: int | None = 0, sources: dict | None = None,
             for ia, ib, d in pairs:
                 for c, i in ((a, ia), (b, ib)):
                     r = dets[c].iloc[i]
-                    rows.append((next_id, c, frames[c], r.x_px, r.y_px, r.w, r.h, d))
+                    rows.append((proposal, c, frames[c], r.x_px, r.y_px, r.w, r.h, d))
                     used[c].add(i)
-                next_id += 1
+                proposal += 1
         for c, det in dets.items():
             order = det.sort_values(["x_px", "y_px"]).index
             for i in order:
                 if i in used[c]:
                     continue
                 r = det.loc[i]
-                rows.append((next_id, c, frames[c], r.x_px, r.y_px, r.w, r.h, np.nan))
-                next_id += 1
-        return pd.DataFrame(rows, columns=SEED_COLUMNS)
+                rows.append((proposal, c, frames[c], r.x_px, r.y_px, r.w, r.h, np.nan))
+                proposal += 1
+        proposals = pd.DataFrame(rows, columns=SEED_COLUMNS)
+        existing = project.markers()
+        next_id = int(existing["id"].max()) + 1 if len(existing) else 1
+        points = pd.concat([project.points(camera=c, frames=(f - MATCH_WINDOW_FRAMES, f + MATCH_WINDOW_FRAMES))
+                            for c, f in frames.items()], ignore_index=True)
+        if len(points):
+            next_id = max(next_id, int(points["marker"].max()) + 1)
+        matches = identity.match_proposals(proposals, identity.known_positions(points, frames))
+        return identity.number_proposals(proposals, matches, next_id)
     finally:
         if own:
             _close(sources)

@@ -1,4 +1,8 @@
-"""The sandtrack terminal UI: step through both cameras, seed, track, correct, and watch XYZ live.
+"""The sandtrack terminal UI: step through the cameras, seed, track, correct, and watch XYZ live.
+
+One view per camera: one camera (2D tracking, mm from a scale), two side by side, three or more
+in a grid. Frames are those of the first camera ("side"); every other camera shows its frame
+nearest in time (video.camera_offsets, the sync offset).
 
 The app only calls the core (store, video, tracking, corrections, xyz, ...). Decoding and
 downscaling run on a feeder thread, tracking/sync/training in Textual thread workers that post
@@ -8,6 +12,7 @@ messages; widgets are only touched on the UI thread.
 from __future__ import annotations
 
 import math
+import re
 import time
 import traceback
 from pathlib import Path
@@ -16,27 +21,31 @@ import numpy as np
 import pandas as pd
 from textual import on
 from textual.app import App, ComposeResult, SystemCommand
-from textual.containers import Horizontal
+from textual.containers import Grid, Horizontal
 from textual.message import Message
 from textual.screen import Screen
 from textual.widgets import Footer, Label, ProgressBar, Static
 
 from ..errors import NotAvailableYet, SandtrackError
 from ..store import Project
-from ..video import FramePair
+from ..video import FramePair, camera_offsets, common_range, nearest_frames
 from .core import core
 from .editing import EditingMixin
 from .feeder import FrameFeeder, FrameRequest, FrameResult
-from .frame_view import FrameView, MarkerMark, Overlays, ViewTransform
+from .frame_view import CAMERA_RGB, FrameView, MarkerMark, Overlays, ViewTransform
 from .keys import ANYWHERE, KEY_DISPLAY, KEYS, bindings
+from .markers import MarkersMixin
 from .screens.help import HelpScreen
 from .screens.prompts import AskNumber, Confirm
 from .seeding import SeedingMixin
 from .table import MarkerRow, MarkerTable
 from .tasks import Task, TasksMixin, guarded
+from .termcaps import Graphics
+from .tiles import ScreenGraphics
 from .timeline import Timeline, next_problem, status_codes
 
 GOOD = ("tracked", "manual", "interpolated", "imported")
+FRAME_CACHE_MB = 320  # decoded frames kept for stepping, shared by the cameras
 
 class TableReady(Message):
     def __init__(self, frame: int, rows, error: str | None = None) -> None:
@@ -50,12 +59,13 @@ class FrameReady(Message):
         self.result = result
 
 
-class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, App):
+class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, MarkersMixin, App):
     TITLE = "sandtrack"
     CSS = """
     Screen { layout: vertical; }
     #status { height: 1; background: $panel; color: $text; padding: 0 1; }
     #views { height: 1fr; min-height: 6; }
+    Grid#views { grid-size: 2; grid-gutter: 0; }
     #task { height: 1; display: none; padding: 0 1; }
     #task.-running { display: block; }
     #task Label { width: auto; margin-right: 1; }
@@ -65,19 +75,24 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, App):
     """
     BINDINGS = bindings()
 
-    def __init__(self, project: Project | str | Path, colors: str | None = None, prefetch: int = 4):
+    def __init__(self, project: Project | str | Path, colors: str | None = None, prefetch: int = 4,
+                 graphics: Graphics | None = None):
         super().__init__()
+        self.pixels = ScreenGraphics(self, graphics or Graphics("blocks"))
         self.project = project if isinstance(project, Project) else Project.open(project)
-        self.sources = self.project.open_sources(cache_mb=160)
         cams = self.project.cameras()
-        if "side" not in self.sources or "front" not in self.sources:
-            raise SandtrackError(f"{self.project.path}: needs a side and a front video (has {', '.join(cams)})")
-        self.cameras = ["side", "front"]
-        self.pair = FramePair(self.sources["side"], self.sources["front"], self.project.sync_offset_s)
-        self.n_frames = len(self.sources["side"])
+        if not cams:
+            raise SandtrackError(f"{self.project.path}: the project has no video (add one: sandtrack relink "
+                                 "PROJECT --side PATH)")
+        self.sources = self.project.open_sources(cache_mb=max(FRAME_CACHE_MB / len(cams), 40))
+        self.cameras = [c for c in cams if c in self.sources]
+        self.ref = self.cameras[0]
+        self.offsets = camera_offsets(self.cameras, self.project.sync_offset_s)
+        self.n_frames = len(self.sources[self.ref])
         self.frame = 0
         self.selected: int | None = None
-        self.active = "side"
+        self.active = self.ref
+        self.unsynced_ok = False  # "track anyway" was chosen once: not asked again in this session
         self.cursor: dict[str, tuple[float, float]] = {
             c: (self.sources[c].width / 2, self.sources[c].height / 2) for c in self.cameras}
         self.zoom = {c: 1.0 for c in self.cameras}
@@ -98,7 +113,7 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, App):
         self.points = pd.DataFrame()
         self._by_cam_frame: dict[tuple[str, int], list] = {}
         self.marker_list: list[tuple[int, str]] = []
-        self._side_to: dict[str, np.ndarray | None] = {}
+        self._ref_to: dict[str, np.ndarray | None] = {}
         self._calibration = None
         self._labels: dict[int, str] = {}
         self._xyz_note_shown = False
@@ -112,11 +127,16 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, App):
     # -- layout ------------------------------------------------------------------------------
     def compose(self) -> ComposeResult:
         yield Static("", id="status")
-        with Horizontal(id="views"):
-            yield FrameView("side", id="view-side", classes="-active")
-            yield FrameView("front", id="view-front")
+        views = [FrameView(c, id=self._view_id(c), classes="-active" if c == self.active else None)
+                 for c in self.cameras]
+        if len(views) <= 2:
+            yield Horizontal(*views, id="views")
+        else:
+            grid = Grid(*views, id="views")
+            grid.styles.grid_size_columns = 2 if len(views) <= 4 else 3
+            yield grid
         yield Timeline(id="timeline")
-        yield MarkerTable(id="table")
+        yield MarkerTable(self.cameras, id="table")
         with Horizontal(id="task"):
             yield Label("", id="task-label")
             yield ProgressBar(id="task-bar", show_eta=True)
@@ -129,11 +149,16 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, App):
         colors = self.colors_override or (self.console.color_system or "256")
         for v in self.views():
             v.color_mode = "truecolor" if colors == "truecolor" else "256"
-            v.border_title = v.camera
+            if len(self.cameras) > 2:  # the colour of the curves this camera casts into the other views
+                r, g, b = self._camera_rgb(v.camera)
+                v.border_title = f"[rgb({r},{g},{b})]{v.camera}[/]"
+            else:
+                v.border_title = v.camera
         if colors != "truecolor":
             self.notify("256 colours: the frames are drawn in grey (markers in blue). For colour, start with "
                         "COLORTERM=truecolor (ssh does not pass it on); in tmux also set "
                         "terminal-features ',*:RGB'.", timeout=12)
+        self.pixels.start(self.views())
         self.feeder = FrameFeeder(self.sources, lambda r: self.post_message(FrameReady(r)), self.prefetch)
         if self.size.height < 40:
             self._set_layout(1)
@@ -143,13 +168,16 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, App):
             self.selected = self.marker_list[0][0]
         self.call_after_refresh(self.refresh_all)
         todo = []
-        if self.project.get("sync_offset_s") is None:
+        if len(self.cameras) > 1 and not self.project.sync_confirmed():
             todo.append("the cameras are not synced yet (F2)")
-        if self._calibration is None:
+        if self._calibration is None and len(self.cameras) > 1:
             todo.append("no calibration yet, so no XYZ or stereo check (F3)")
+        if len(self.cameras) == 1 and self._scale() is None:
+            todo.append("one camera: set a px -> mm scale from a known length (c), or add a calibration (F3)")
         if todo:
             self.notify("; ".join(todo) + ". ? shows every key.", timeout=10)
-        warnings = self.pair.mismatch_warnings()
+        warnings = [w for c in self.cameras[1:] for w in FramePair(
+            self.sources[self.ref], self.sources[c], names=(self.ref, c)).mismatch_warnings()]
         if warnings:
             self.notify("; ".join(warnings), severity="warning", timeout=8)
 
@@ -161,11 +189,40 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, App):
         if self.feeder is not None:
             self.feeder.stop()
 
+    # -- real pixels (kitty graphics / sixel): tiles.py does the work ---------------------------
+    def write_graphics(self, data: str) -> None:
+        """Escape codes straight to the terminal, in order with the UI's own output (the driver's
+        writer thread); nothing in a headless run."""
+        driver = self._driver
+        if driver is not None and not self.is_headless:
+            driver.write(data)
+            driver.flush()
+
+    def exit(self, *args, **kwargs) -> None:
+        if hasattr(self, "_w"):  # kitty's images leave with the app, while its screen is still up
+            self.pixels.stop(self.views())
+        super().exit(*args, **kwargs)
+
+    def _display(self, screen: Screen, renderable) -> None:
+        # Textual's write of a screen update: a private hook, the only place that knows which cells
+        # were written (sixel pictures under them are drawn again right after the text)
+        super()._display(screen, renderable)
+        if hasattr(self, "_w"):
+            self.pixels.after_display(self.views(), renderable, self.screen is self._main_screen)
+
     def views(self) -> list[FrameView]:
-        return [self._w[f"view-{c}"] for c in self.cameras]
+        return [self._w[self._view_id(c)] for c in self.cameras]
 
     def view(self, camera: str) -> FrameView:
-        return self._w[f"view-{camera}"]
+        return self._w[self._view_id(camera)]
+
+    def _view_id(self, camera: str) -> str:
+        if re.fullmatch(r"[A-Za-z_][A-Za-z0-9_-]*", camera):
+            return f"view-{camera}"
+        return f"view-{self.cameras.index(camera)}"
+
+    def _camera_rgb(self, camera: str) -> tuple[int, int, int]:
+        return CAMERA_RGB[self.cameras.index(camera) % len(CAMERA_RGB)]
 
     def on_resize(self, event) -> None:
         self.call_after_refresh(self.request_frames)
@@ -187,16 +244,18 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, App):
 
     # -- frame bookkeeping -------------------------------------------------------------------
     def _compute_frame_maps(self) -> None:
-        side, front = self.sources["side"], self.sources["front"]
-        tf = side.times_s - self.pair.offset_s
-        j = np.clip(np.searchsorted(front.times_s, tf), 1, len(front.times_s) - 1)
-        nearer_left = (tf - front.times_s[j - 1]) <= (front.times_s[j] - tf)
-        self._side_to = {"side": None, "front": np.where(nearer_left, j - 1, j).astype(int)}
+        ref = self.sources[self.ref]
+        self._ref_to = {c: None if c == self.ref else nearest_frames(ref, self.sources[c], self.offsets[c])
+                        for c in self.cameras}
 
     def cam_index(self, camera: str, frame: int | None = None) -> int:
         f = self.frame if frame is None else frame
-        m = self._side_to.get(camera)
+        m = self._ref_to.get(camera)
         return f if m is None else int(m[f])
+
+    def common_range(self) -> tuple[int, int]:
+        """First and last frames every camera recorded."""
+        return common_range(self.sources, self.offsets, self.ref)
 
     def _load_calibration(self):
         try:
@@ -222,7 +281,7 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, App):
         for mid, _ in self.marker_list:
             for cam in self.cameras:
                 codes[(mid, cam)] = status_codes(groups.get((mid, cam), empty), None, None, self.n_frames,
-                                                 self._side_to[cam])
+                                                 self._ref_to[cam])
         self.codes = codes
         self._w['timeline'].set_data(self.marker_list, codes, self.n_frames, self.cameras)
 
@@ -252,7 +311,7 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, App):
             tf = self._transform(cam)
             if tf is None:
                 continue
-            req = FrameRequest(cam, self.cam_index(cam), tf, self.boost)
+            req = FrameRequest(cam, self.cam_index(cam), tf, self.boost, self.pixels.cell_px)
             self._wanted[cam] = req.key
             v = self.view(cam)
             if v.pixels_key == req.key:
@@ -335,18 +394,23 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, App):
         px, py = kf.position
         return (float(px), float(py), min(hx, cap), min(hy, cap))
 
-    def _epipolar(self, camera: str):
-        """The selected marker's epipolar curve from the other (active) view, drawn in this view."""
-        if self._calibration is None or self.selected is None or camera == self.active:
-            return None
-        rec = self.point(self.active, self.selected)
-        if rec is None or rec.x_px is None or not np.isfinite(rec.x_px):
-            return None
-        if self.active not in self._calibration.cameras or camera not in self._calibration.cameras:
-            return None
+    def _epipolar(self, camera: str) -> list:
+        """The selected marker's epipolar curves in this view: one from every other view where it has a
+        point, in that view's colour (where the curves cross is where the marker must be)."""
+        cal = self._calibration
+        if cal is None or self.selected is None or camera not in cal.cameras:
+            return []
         from ..epipolar import epipolar_curve
 
-        return epipolar_curve(self._calibration, self.active, (rec.x_px, rec.y_px), camera)
+        curves = []
+        for other in self.cameras:
+            if other == camera or other not in cal.cameras:
+                continue
+            rec = self.point(other, self.selected)
+            if rec is None or rec.x_px is None or not np.isfinite(rec.x_px):
+                continue
+            curves.append((epipolar_curve(cal, other, (rec.x_px, rec.y_px), camera), self._camera_rgb(other)))
+        return curves
 
     def refresh_all(self) -> None:
         self.request_frames()
@@ -359,10 +423,15 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, App):
             self._table_after_frames = True
 
     def update_status(self) -> None:
-        t = float(self.sources["side"].times_s[self.frame])
-        p = self.pair.index(self.frame)
-        front = f"front {p.front} ({p.remainder_frames:+.2f})" if abs(p.remainder_frames) <= 0.5 else \
-            "front [red]not recording[/]"
+        t = float(self.sources[self.ref].times_s[self.frame])
+        others = []
+        for c in self.cameras[1:]:
+            src = self.sources[c]
+            tc = t - self.offsets[c]
+            j = src.index_at(tc)
+            rem = (tc - float(src.times_s[j])) * src.fps
+            others.append(f"{c} {j} ({rem:+.2f})" if abs(rem) <= 0.5 else f"{c} [red]not recording[/]")
+        front = "  ".join(others)
         sel = "none" if self.selected is None else dict(self.marker_list).get(self.selected, str(self.selected))
         rng = ""
         if self.range_in is not None or self.range_out is not None:
@@ -373,7 +442,7 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, App):
         play = "  ▶" if self._playing else ""
         self._w['status'].update(
             f"[b]{self.project.path.stem}[/]  frame [b]{self.frame}[/]/{self.n_frames - 1}  t={t:.3f} s  "
-            f"{front}  marker [b]{sel}[/]  view [b]{self.active}[/]"
+            f"{front + '  ' if front else ''}marker [b]{sel}[/]  view [b]{self.active}[/]"
             f"{rng}{zoom}{play}", layout=False)
 
     def update_table(self) -> None:
@@ -418,27 +487,42 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, App):
         rows = []
         for mid, label in self.marker_list:
             r = MarkerRow(mid, label)
-            s, f = self.point("side", mid, frame), self.point("front", mid, frame)
-            if s is not None:
-                r.status_side, r.score = s.status, s.score
-                r.side_px = (s.x_px, s.y_px) if s.x_px is not None else None
-            if f is not None:
-                r.status_front = f.status
-                r.front_px = (f.x_px, f.y_px) if f.x_px is not None else None
-                if r.score is None or (f.score is not None and f.score < r.score):
-                    r.score = f.score
+            for cam in self.cameras:
+                p = self.point(cam, mid, frame)
+                if p is None:
+                    continue
+                r.status[cam] = p.status
+                r.px[cam] = (p.x_px, p.y_px) if p.x_px is not None else None
+                if r.score is None or (p.score is not None and p.score < r.score):
+                    r.score = p.score
             rows.append(r)
         self._fill_xyz(rows, frame, project or self.project)
         return rows
 
     def _fill_xyz(self, rows: list[MarkerRow], frame: int, project: Project) -> None:
-        if not rows or (self._calibration is None and not project.get("model")):
+        """XYZ by triangulation and by the network (a side and a front camera), by triangulation over
+        every camera (other rigs), or x, y in mm through the scale (one camera)."""
+        if not rows:
+            return
+        by_id = {r.marker: r for r in rows}
+        if len(self.cameras) == 1:
+            self._fill_scaled(rows, project)
+            return
+        if self.cameras != ["side", "front"]:
+            if self._calibration is None:
+                return
+            xyz = core("multiview", "xyz_at_frame").xyz_at_frame(project, frame, self.cameras, self._calibration)
+            for rec in xyz.itertuples(index=False):
+                r = by_id.get(int(rec.marker))
+                if r is not None:
+                    r.xyz_tri, r.residual_px = (rec.X_mm, rec.Y_mm, rec.Z_mm), rec.residual_px
+            return
+        if self._calibration is None and not project.get("model"):
             return
         try:
             xyz = core("xyz", "xyz_at_frame").xyz_at_frame(project, frame)
         except SandtrackError:  # e.g. a model file that moved: the table shows no XYZ
             return
-        by_id = {r.marker: r for r in rows}
         for rec in xyz.itertuples(index=False):
             r = by_id.get(int(rec.marker))
             if r is None:
@@ -449,6 +533,21 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, App):
                 r.residual_px = rec.residual_px
             else:
                 r.xyz_net = val
+
+    def _scale(self, project: Project | None = None):
+        """(mm per px, source) of a one-camera project, or None."""
+        return core("scale", "project_scale").project_scale(project or self.project, self.ref, self._calibration)
+
+    def _fill_scaled(self, rows: list[MarkerRow], project: Project) -> None:
+        found = self._scale(project)
+        if found is None:
+            return
+        scale = core("scale", "to_mm")
+        cam = self._calibration.cameras.get(self.ref) if self._calibration is not None else None
+        for r in rows:
+            px = r.px.get(self.ref)
+            if px is not None:
+                r.xy_mm = tuple(scale.to_mm([px], found[0], cam)[0])
 
     # -- navigation --------------------------------------------------------------------------
     def go_to(self, frame: int) -> None:
@@ -515,7 +614,7 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, App):
         self.refresh_all()
 
     def action_switch_view(self) -> None:
-        self.active = "front" if self.active == "side" else "side"
+        self.active = self.cameras[(self.cameras.index(self.active) + 1) % len(self.cameras)]
         for v in self.views():
             v.set_class(v.camera == self.active, "-active")
         self.update_overlays()
@@ -613,7 +712,7 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, App):
     def apply_sync_offset(self, offset_s: float, save: bool = True) -> None:
         if save:
             self.project.set("sync_offset_s", float(offset_s), f"set sync offset to {offset_s * 1000:.2f} ms")
-        self.pair = FramePair(self.sources["side"], self.sources["front"], float(offset_s))
+        self.offsets = camera_offsets(self.cameras, float(offset_s))
         self._compute_frame_maps()
         self.reload_points()
         self.refresh_all()

@@ -14,6 +14,8 @@ WHAT = {
     "regression": "training the regression model",
     "calibration": "calibration",
     "sync": "audio sync",
+    "repose": "the angle of repose",
+    "sweep": "the DEM parameter sweep",
 }
 
 

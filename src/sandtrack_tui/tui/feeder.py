@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .frame_view import ViewTransform, render_pixels
+from .graphics import render_view
 
 
 @dataclass
@@ -24,10 +25,11 @@ class FrameRequest:
     index: int
     tf: ViewTransform
     boost: bool = True
+    cell_px: tuple[int, int] | None = None  # graphics: render at the terminal's pixels, not half-blocks
 
     @property
     def key(self):
-        return (self.index, self.tf, self.boost)
+        return (self.index, self.tf, self.boost, self.cell_px)
 
 
 @dataclass
@@ -92,7 +94,10 @@ class FrameFeeder:
             t0 = time.perf_counter()
             frame = self.sources[req.camera].frame(req.index)
             t1 = time.perf_counter()
-            pixels = render_pixels(frame, req.tf, boost=req.boost)
+            if req.cell_px is None:
+                pixels = render_pixels(frame, req.tf, boost=req.boost)
+            else:
+                pixels = render_view(frame, req.tf, req.cell_px, boost=req.boost)
             t2 = time.perf_counter()
             result = FrameResult(req, pixels, (t1 - t0) * 1000, (t2 - t1) * 1000)
         except Exception as exc:  # noqa: BLE001 - shown to the user, the app keeps running

@@ -49,6 +49,8 @@ STATUS_RGB = {
 SELECTED_RGB = (255, 255, 255)
 CURSOR_RGB = (255, 230, 0)
 EPIPOLAR_RGB = (255, 80, 200)
+# Epipolar curves in a view are drawn in the colour of the camera they come from (shown in its title).
+CAMERA_RGB = [EPIPOLAR_RGB, (90, 200, 255), (255, 170, 60), (150, 255, 120), (255, 255, 120), (200, 150, 255)]
 SEARCH_RGB = (255, 160, 40)
 
 _CUBE = np.array([0, 95, 135, 175, 215, 255], np.int16)
@@ -131,6 +133,11 @@ def render_pixels(frame_bgr: np.ndarray, tf: ViewTransform, boost: bool = True) 
     size = (dc1 - dc0, dr1 - dr0)
     if tf.s <= 1.0:
         small = cv2.resize(crop, size, interpolation=cv2.INTER_NEAREST)
+    elif tf.s < 2.0:
+        # INTER_AREA by a fractional factor costs ~18 ms for a 1080p frame: from 1.5x halve exactly
+        # (area), then interpolate the small rest; below 1.5x interpolate (1-2 ms either way)
+        work = _shrink(crop, 2) if tf.s >= 1.5 else crop
+        small = cv2.resize(work, size, interpolation=cv2.INTER_LINEAR)
     else:
         # INTER_AREA is fast for whole-number factors and slow otherwise, so shrink by whole
         # factors first (2x, then k x) and do the fractional rest on the small image.
@@ -191,24 +198,151 @@ class Overlays:
     marks: list[MarkerMark] = field(default_factory=list)
     cursor: tuple[float, float] | None = None
     search: tuple[float, float, float, float] | None = None  # x, y, half_w, half_h (source px)
-    epipolar: np.ndarray | None = None  # (N, 2) source px along the selected marker's epipolar line
+    # the selected marker's epipolar curves from the other views: (N, 2) source px each, with a colour
+    epipolar: list[tuple[np.ndarray, tuple[int, int, int]]] = field(default_factory=list)
 
 
-def draw_overlays(rgb: np.ndarray, tf: ViewTransform, ov: Overlays) -> dict[tuple[int, int], tuple[str, Style]]:
-    """Draw boxes, crosshair, search window and epipolar line into `rgb` (in place); return the
-    text labels as {(row, col): (char, style)}."""
+@dataclass
+class LabelRequest:
+    """A marker id to place: `anchor` is the marker's cell, `box` the cells around the bead (the spots
+    beside it are just outside), `first` the spot tried first."""
+
+    text: str
+    style: Style
+    anchor: tuple[int, int]  # (row, col)
+    box: tuple[int, int, int, int]  # rows r0..r1, cols c0..c1 (inclusive)
+    first: tuple[int, int] | None = None
+    colour: tuple[int, int, int] = SELECTED_RGB
+
+
+# Spots tried around a marker, nearest first: beside, above, below, then diagonals; further out after.
+_RING1 = ((0, 1), (0, -1), (-1, 0), (1, 0), (-1, 1), (1, 1), (-1, -1), (1, -1))
+
+
+def place_labels(requests: list[LabelRequest], rows: int, cols: int,
+                 blocked: np.ndarray | None = None) -> list[tuple[LabelRequest, int, int, bool]]:
+    """Place every label inside the view where it covers no marker (`blocked` cells; by default the
+    requests' boxes) and no other label, with a free cell between it and any other label on its row, so
+    that two ids never read as one. A label sits beside its marker only where no other marker is
+    nearer; otherwise it goes further out, to the nearest free spot (`far`: the caller draws a leader
+    line to it). Returns (request, row, col, far) per placed label, in the order given; a label is
+    left out only when no free spot lies within FAR_ROWS rows and FAR_COLS columns of its marker."""
+    if blocked is None:
+        blocked = np.zeros((rows, cols), bool)
+        for q in requests:
+            r0, r1, c0, c1 = q.box
+            blocked[max(r0, 0):max(min(r1 + 1, rows), 0), max(c0, 0):max(min(c1 + 1, cols), 0)] = True
+    anchors = np.array([q.anchor for q in requests], float).reshape(-1, 2)
+    labelled = np.zeros((rows, cols), bool)
+    placed = []
+    for k, q in enumerate(requests):
+        n = len(q.text)
+        if n > cols:
+            continue
+        # free[r, c]: a label of n cells can start at (r, c): nothing blocked under it, no label under it
+        # or right beside it
+        near_label = labelled.copy()
+        near_label[:, 1:] |= labelled[:, :-1]
+        near_label[:, :-1] |= labelled[:, 1:]
+        bad = np.zeros((rows, cols + 1), np.int32)
+        np.cumsum(blocked | near_label, axis=1, out=bad[:, 1:])
+        free = (bad[:, n:] - bad[:, :-n]) == 0
+        spot = _near_spot(q, n, k, free, anchors)
+        far = spot is None
+        if far:
+            spot = _far_spot(q, n, free)
+        if spot is None:
+            continue
+        r, c = spot
+        labelled[r, c:c + n] = True
+        placed.append((q, r, c, far))
+    return placed
+
+
+def _near_spot(q: LabelRequest, n: int, k: int, free: np.ndarray, anchors: np.ndarray):
+    """The first free spot beside the marker (`first`, then just outside its box on each side) where
+    no other marker is nearer to the label than its own."""
+    r0, r1, c0, c1 = q.box
+    ar, ac = q.anchor
+    spots = [q.first] if q.first is not None else []
+    for dr, dc in _RING1:
+        spots.append((r0 - 1 if dr < 0 else r1 + 1 if dr > 0 else ar,
+                      c1 + 1 if dc > 0 else c0 - n if dc < 0 else ac - n // 2))
+    for r, c in spots:
+        if not (0 <= r < free.shape[0] and 0 <= c < free.shape[1]) or not free[r, c]:
+            continue
+        if len(anchors) > 1:
+            # a row is about as tall as two columns are wide
+            d = np.hypot(2.0 * (anchors[:, 0] - r), anchors[:, 1] - (c + (n - 1) / 2))
+            if d.min() < d[k]:
+                continue  # it would read as another marker's id
+        return r, c
+    return None
+
+
+_OFFSETS: dict[tuple[int, int, int], tuple[np.ndarray, np.ndarray]] = {}
+FAR_ROWS, FAR_COLS = 30, 60  # how far an id may move from its marker
+
+
+def _far_spot(q: LabelRequest, n: int, free: np.ndarray):
+    """The free spot whose label centre is nearest to the marker (rows count twice), within FAR_ROWS
+    rows and FAR_COLS columns of it."""
+    rows, width = free.shape
+    key = (min(rows, FAR_ROWS), min(width, FAR_COLS), n)
+    if key not in _OFFSETS:
+        h, w = key[0], key[1]
+        dr, dc = np.mgrid[-h:h + 1, -w - n:w + n + 1]
+        order = np.argsort(np.hypot(2.0 * dr, dc + (n - 1) / 2).ravel(), kind="stable")
+        _OFFSETS[key] = dr.ravel()[order], dc.ravel()[order]
+        if len(_OFFSETS) > 64:
+            _OFFSETS.pop(next(iter(_OFFSETS)))
+    dr, dc = _OFFSETS[key]
+    r, c = q.anchor[0] + dr, q.anchor[1] + dc
+    inside = (r >= 0) & (r < rows) & (c >= 0) & (c < width)
+    r, c = r[inside], c[inside]
+    hit = np.flatnonzero(free[r, c])
+    return (int(r[hit[0]]), int(c[hit[0]])) if len(hit) else None
+
+
+def bead_cells(tf: ViewTransform, x: float, y: float, radius: float, out: np.ndarray) -> tuple[int, int, int, int]:
+    """Mark in `out` the cells a bead of `radius` source px at (x, y) covers (cells are s wide and 2s
+    tall); returns their bounding box (r0, r1, c0, c1), which may reach outside the view."""
+    c0, r0 = tf.source_to_cell(x - radius, y - radius)
+    c1, r1 = tf.source_to_cell(x + radius, y + radius)
+    rows, cols = out.shape
+    ra, rb, ca, cb = max(r0, 0), min(r1, rows - 1), max(c0, 0), min(c1, cols - 1)
+    if ra <= rb and ca <= cb:
+        rr, cc = np.mgrid[ra:rb + 1, ca:cb + 1]
+        # distance from the bead's centre to each cell's rectangle
+        dx = np.maximum(np.abs(tf.x0 + (cc + 0.5) * tf.s - x) - 0.5 * tf.s, 0.0)
+        dy = np.maximum(np.abs(tf.y0 + (2 * rr + 1) * tf.s - y) - tf.s, 0.0)
+        out[rr, cc] |= np.hypot(dx, dy) <= radius
+    return r0, r1, c0, c1
+
+
+def draw_overlays(rgb: np.ndarray, tf: ViewTransform, ov: Overlays, place_ids: bool = True,
+                  cells: ViewTransform | None = None) -> dict[tuple[int, int], tuple[str, Style]]:
+    """Draw boxes, crosshair, search window and epipolar curves into `rgb` (in place); return the
+    text labels as {(row, col): (char, style)}: every marker's id, none over another id or a marker,
+    with a leader line where an id had to move away from its marker. place_ids=False: no ids (and
+    no leader lines). `cells`: the view's cells when `rgb` is drawn at a finer scale (`tf`, same
+    region: the terminal's own pixels); the ids are placed in those cells, leader lines drawn in `rgb`."""
     labels: dict[tuple[int, int], tuple[str, Style]] = {}
-    if ov.epipolar is not None and len(ov.epipolar) >= 2:
-        u, v = tf.source_to_display(ov.epipolar[:, 0], ov.epipolar[:, 1])
+    ct = cells or tf  # where ids go
+    scale = ct.s / tf.s  # rgb pixels per half-block pixel
+    for curve, colour in ov.epipolar:
+        if curve is None or len(curve) < 2:
+            continue
+        u, v = tf.source_to_display(curve[:, 0], curve[:, 1])
         ok = np.isfinite(u) & np.isfinite(v) & (np.abs(u) < 1e5) & (np.abs(v) < 1e5)
         pts = np.round(np.stack([u[ok], v[ok]], axis=1)).astype(np.int32)
         if len(pts) >= 2:
-            cv2.polylines(rgb, [pts.reshape(-1, 1, 2)], False, EPIPOLAR_RGB, 1, cv2.LINE_8)
+            cv2.polylines(rgb, [pts.reshape(-1, 1, 2)], False, colour, 1, cv2.LINE_8)
     if ov.search is not None:
         x, y, hw, hh = ov.search
         _rect(rgb, tf, x - hw, y - hh, x + hw, y + hh, SEARCH_RGB)
-    requests = []  # (priority, label, style, candidate cells) for the ids, placed after drawing
-    marker_cells = set()
+    requests = []
+    blocked = np.zeros((ct.rows, ct.cols), bool)
     for m in ov.marks:
         if not (np.isfinite(m.x) and np.isfinite(m.y)):
             continue
@@ -216,35 +350,33 @@ def draw_overlays(rgb: np.ndarray, tf: ViewTransform, ov: Overlays) -> dict[tupl
         style = Style(color=RichColor.from_triplet(_t(colour)), bgcolor=RichColor.from_rgb(0, 0, 0),
                       bold=m.selected, reverse=m.selected)
         hs = max(m.half_size_px, 1.5 * tf.s)
-        mc, mr = tf.source_to_cell(m.x, m.y)
-        marker_cells.add((mr, mc))
+        mc, mr = ct.source_to_cell(m.x, m.y)
+        # the cells of the bead itself (about half its box), which no id may cover
+        br0, br1, bc0, bc1 = bead_cells(ct, m.x, m.y, 0.5 * m.half_size_px, blocked)
+        labelled = ct.contains(m.x, m.y)  # a marker outside the view gets no id
         if hs / tf.s < 2.5 and not m.selected:
             # zoomed out, boxes of neighbouring markers would merge: a status bar under the marker
             u, v = tf.source_to_display(m.x, m.y)
             u, v = int(round(float(u))), int(round(float(v)))
             for du in (-1, 0, 1):
                 _put(rgb, u + du, v + 2, colour)
-            n = len(m.label)
-            spots = [(mr, mc + 1), (mr, mc - n), (mr - 1, mc), (mr + 1, mc)]
-            requests.append((1, m.label, style, spots))
+            if labelled:
+                requests.append((1, LabelRequest(m.label, style, (mr, mc), (br0, br1, bc0, bc1), colour=colour)))
             continue
         _rect(rgb, tf, m.x - hs, m.y - hs, m.x + hs, m.y + hs, SELECTED_RGB if m.selected else colour)
         if m.selected:
             _rect(rgb, tf, m.x - hs - tf.s, m.y - hs - tf.s, m.x + hs + tf.s, m.y + hs + tf.s, colour)
-        col, row = tf.source_to_cell(m.x + hs, m.y - hs)
-        requests.append((0, m.label, style, [(row - 1 if row > 0 else row, col + 1)]))
-    # ids: boxed (and selected) markers first; a crowded id is left out rather than drawn over another
-    # id or over a marker (the timeline and the table name every marker anyway)
-    for prio, text, style, spots in sorted(requests, key=lambda r: r[0]):
-        for r0, c0 in spots:
-            cells = [(r0, c0 + k) for k in range(len(text))]
-            if not all(0 <= r < tf.rows and 0 <= c < tf.cols for r, c in cells):
-                continue
-            if prio and any(cell in labels or cell in marker_cells for cell in cells):
-                continue
-            for cell, ch in zip(cells, text, strict=True):
-                labels[cell] = (ch, style)
-            break
+        if labelled:
+            col1, row0 = ct.source_to_cell(m.x + hs, m.y - hs)
+            first = (row0 - 1 if row0 > 0 else row0, col1 + 1)  # the box's top right corner
+            requests.append((0, LabelRequest(m.label, style, (mr, mc), (br0, br1, bc0, bc1), first, colour)))
+    # boxed (and selected) markers first: their ids sit at the box's corner as far as possible
+    ordered = [q for _prio, q in sorted(requests, key=lambda r: (r[0], r[1].anchor))] if place_ids else []
+    for q, row, col, far in place_labels(ordered, ct.rows, ct.cols, blocked):
+        if far:
+            _leader(rgb, q, row, col, scale)
+        for k, ch in enumerate(q.text):
+            labels[(row, col + k)] = (ch, q.style)
     if ov.cursor is not None:
         u, v = tf.source_to_display(*ov.cursor)
         u, v = int(round(float(u))), int(round(float(v)))
@@ -252,6 +384,18 @@ def draw_overlays(rgb: np.ndarray, tf: ViewTransform, ov: Overlays) -> dict[tupl
             for du, dv in ((d, 0), (-d, 0), (0, d), (0, -d)):
                 _put(rgb, u + du, v + dv, CURSOR_RGB)
     return labels
+
+
+def _leader(rgb: np.ndarray, q: LabelRequest, row: int, col: int, scale: float = 1.0) -> None:
+    """A thin line from a marker to its id placed away from it (display pixels: `scale` per column,
+    2 * `scale` per row); the part under the id's cells is hidden by the id."""
+    ar, ac = q.anchor
+
+    def at(c: int, r: int) -> tuple[int, int]:  # the middle of cell (r, c)
+        return int((c + 0.5) * scale - 0.5), int((2 * r + 1) * scale)
+
+    end = at(int(np.clip(ac, col, col + len(q.text) - 1)), row)
+    cv2.line(rgb, at(ac, ar), end, tuple(int(v * 0.7) for v in q.colour), 1, cv2.LINE_8)
 
 
 def _t(rgb) -> tuple[int, int, int]:
@@ -393,6 +537,7 @@ class FrameView(Widget):
         self._drag_from: tuple[int, int] | None = None
         self._dragged = False
         self.last_compose_ms = 0.0
+        self.graphics = None  # a tiles.GraphicsView when the terminal shows real pixels (kitty, sixel)
 
     # -- data in -----------------------------------------------------------------------------
     def set_pixels(self, pixels: np.ndarray, key, tf: ViewTransform) -> None:
@@ -411,6 +556,17 @@ class FrameView(Widget):
         import time
 
         t0 = time.perf_counter()
+        if self.graphics is not None and self.pixels is not None and self.tf is not None:
+            region = self.content_region
+            if (self.tf.cols, self.tf.rows) == (region.width, region.height):  # else a frame for the new size is due
+                self.graphics.draw(self.pixels, self.tf, self.overlays, self.message_text, (region.x, region.y))
+            self.last_compose_ms = (time.perf_counter() - t0) * 1000
+            if self._strips:  # text shown before (a message): blank those cells
+                self._strips = []
+                self.refresh()
+            return
+        if self.graphics is not None:
+            self.graphics.clear()
         rows = self.content_size.height
         cols = self.content_size.width
         regions = None

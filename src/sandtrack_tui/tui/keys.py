@@ -20,7 +20,9 @@ KEYS = [
     ("n", "problem(1)", "next problem (lost, occluded, gap)", "Navigate", True),
     ("N", "problem(-1)", "previous problem", "Navigate", False),
     ("1,2,3,4,5,6,7,8", "", "select marker 1-8 (a new number starts a new marker)", "Markers", False),
-    ("tab", "switch_view", "switch active view (side / front)", "Markers", False),
+    ("tab", "switch_view", "switch the active view (next camera)", "Markers", False),
+    ("m", "marker_list", "marker list: nearest the cursor first; select, rename (r), merge (M)", "Markers", False),
+    ("M", "merge", "merge the selected marker into another (two ids on one bead)", "Markers", False),
     ("h,j,k,l", "", "move the cursor (H J K L: 8x)", "Seed", False),
     ("enter", "seed_cursor", "place the selected marker at the cursor", "Seed", True),
     ("A", "auto_seed", "auto-seed all markers (confirm list)", "Seed", False),
@@ -30,6 +32,7 @@ KEYS = [
     ("R", "track(-1,1)", "track all markers backward", "Track", False),
     ("escape", "cancel", "cancel the running task", "Track", False),
     ("w,a,s,d", "", "nudge the selected point 1 px (W A S D: 5 px)", "Correct", False),
+    ("c", "scale", "one camera: px -> mm scale, press at both ends of a known length", "Correct", False),
     ("o", "occlude", "mark occluded (range if set, else this frame)", "Correct", False),
     ("left_square_bracket", "mark_in", "range start [", "Correct", False),
     ("right_square_bracket", "mark_out", "range end ]", "Correct", False),
@@ -49,6 +52,7 @@ KEYS = [
     ("f4", "screen('training')", "train the regression model", "Screens", False),
     ("e,f5", "screen('export')", "export trajectories", "Screens", True),
     ("f6", "screen('compare')", "DEM comparison", "Screens", False),
+    ("f7", "screen('repose')", "angle of repose and DEM parameter sweep", "Screens", False),
     ("question_mark", "help", "help", "Screens", True),
     ("q", "quit", "quit", "Screens", True),
 ]
@@ -58,7 +62,8 @@ KEY_DISPLAY = {"left_square_bracket": "[", "right_square_bracket": "]", "questio
 
 
 FOOTER = {"step(1)": "next", "play": "play", "problem(1)": "problem", "seed_cursor": "place", "track(1,0)": "track",
-          "undo": "undo", "zoom_marker": "zoom", "screen('export')": "export", "help": "help", "quit": "quit"}
+          "marker_list": "markers", "undo": "undo", "zoom_marker": "zoom", "screen('export')": "export",
+          "help": "help", "quit": "quit"}
 
 
 def bindings() -> list[Binding]:

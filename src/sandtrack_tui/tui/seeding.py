@@ -9,8 +9,10 @@ import numpy as np
 
 from .. import corrections
 from ..errors import NotAvailableYet, SandtrackError
+from ..video import synced_camera
 from .core import available, core
 from .frame_view import FrameView
+from .screens.prompts import SyncFirst
 from .tasks import guarded
 
 # Workers decode on their own (sequentially); a small cache keeps the app's memory in check.
@@ -105,14 +107,14 @@ class SeedingMixin:
         from .screens.autoseed import AutoSeedScreen
 
         try:
-            first, last = self.pair.side_range()
+            first, last = self.common_range()
         except SandtrackError as exc:
             self.notify(str(exc), severity="error")
             return
         if not first <= self.frame <= last:
             self.go_to(first if self.frame < first else last)
-            self.notify(f"the front camera has no frame there: auto-seeding at frame {self.frame}, the "
-                        f"{'first' if self.frame == first else 'last'} frame both cameras recorded")
+            self.notify(f"a camera has no frame there: auto-seeding at frame {self.frame}, the "
+                        f"{'first' if self.frame == first else 'last'} frame every camera recorded")
         frame = self.frame
 
         def job(progress, should_stop):
@@ -126,7 +128,7 @@ class SeedingMixin:
                 proj.close()
 
         self.run_task("auto-seed", job,
-                      on_result=lambda seeds: self.push_screen(AutoSeedScreen(seeds), self._accept_seeds))
+                      on_result=lambda seeds: self.push_screen(AutoSeedScreen(seeds, self.cameras), self._accept_seeds))
 
     def _accept_seeds(self, seeds) -> None:
         if seeds is None or len(seeds) == 0:
@@ -141,6 +143,8 @@ class SeedingMixin:
             self.selected = self.marker_list[0][0]
 
     def action_track(self, direction: int, all_markers: int) -> None:
+        if self._ask_sync_first(lambda: self.action_track(direction, all_markers)):
+            return
         if all_markers:
             markers = None
             what = "all markers"
@@ -171,6 +175,42 @@ class SeedingMixin:
                 proj.close()
 
         self.run_task(f"tracking {what} {d}", job, on_result=self._tracking_done)
+
+    def _ask_sync_first(self, then) -> bool:
+        """Cameras never synced: ask (sync now / track anyway / cancel) and run `then` after; True if asked."""
+        camera = synced_camera(self.cameras)
+        if camera is None or self.unsynced_ok or self.project.sync_confirmed():
+            return False
+
+        def chosen(choice) -> None:
+            if choice == "anyway":
+                self.unsynced_ok = True
+                then()
+            elif choice == "sync":
+                self._sync_then(camera, then)
+
+        self.push_screen(SyncFirst(f"{self.ref} and {camera}"), chosen)
+        return True
+
+    def _sync_then(self, camera: str, then) -> None:
+        """The audio sync (as F2 runs it), applied as one undoable edit, then `then`."""
+        try:
+            sync = core("sync", "estimate_offset")
+        except NotAvailableYet as exc:
+            self.notify(str(exc), severity="warning")
+            return
+        videos = self.project.videos()
+        a, b = videos[self.ref].path, videos[camera].path
+
+        def job(progress, should_stop):
+            return sync.estimate_offset(a, b, method="auto")
+
+        def done(res) -> None:
+            self.apply_sync_offset(res.offset_s)
+            self.notify(f"synced: {res.summary()} (u undoes)", timeout=8)
+            then()
+
+        self.run_task("sync", job, on_result=done, refresh_points=False)
 
     def _tracking_done(self, result) -> None:
         if not isinstance(result, dict):

@@ -1,17 +1,17 @@
-"""Live per-marker table for the current frame."""
+"""Live per-marker table for the current frame: status and pixels in every camera, then XYZ by
+triangulation and by the network (a side and a front camera), XYZ by triangulation (other rigs
+of two or more cameras), or x, y in mm through the scale (one camera)."""
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from rich.text import Text
 from textual.widgets import DataTable
 
 from .frame_view import STATUS_RGB
 
-COLUMNS = (("id", 3), ("st s/f", 7), ("score", 5), ("side px", 13), ("front px", 13), ("XYZ triang. mm", 20),
-           ("XYZ network mm", 20), ("Δ mm", 5), ("res px", 6))
 SHORT = {"tracked": "trk", "manual": "man", "interpolated": "int", "occluded": "occ", "lost": "LOST",
          "imported": "imp"}
 
@@ -20,14 +20,13 @@ SHORT = {"tracked": "trk", "manual": "man", "interpolated": "int", "occluded": "
 class MarkerRow:
     marker: int
     label: str
-    status_side: str | None = None
-    status_front: str | None = None
+    status: dict[str, str] = field(default_factory=dict)  # per camera
+    px: dict[str, tuple[float, float] | None] = field(default_factory=dict)
     score: float | None = None
-    side_px: tuple[float, float] | None = None
-    front_px: tuple[float, float] | None = None
     xyz_tri: tuple[float, float, float] | None = None
     xyz_net: tuple[float, float, float] | None = None
     residual_px: float | None = None
+    xy_mm: tuple[float, float] | None = None  # one camera: image position in mm
 
     @property
     def difference_mm(self) -> float | None:
@@ -35,6 +34,19 @@ class MarkerRow:
             return None
         d = math.dist(self.xyz_tri, self.xyz_net)
         return d if math.isfinite(d) else None
+
+
+def columns(cameras: list[str]) -> list[tuple[str, int]]:
+    """(title, width) of the table's columns for a project's cameras."""
+    status_w = max(4 * len(cameras) - 1, 3)
+    cols = [("id", 3), ("st " + "/".join(c[0] for c in cameras), status_w), ("score", 5)]
+    cols += [(f"{c[:8]} px", 13) for c in cameras]
+    if len(cameras) == 1:
+        return [*cols, ("x, y mm", 15)]
+    cols.append(("XYZ triang. mm", 20))
+    if cameras == ["side", "front"]:
+        cols += [("XYZ network mm", 20), ("Δ mm", 5)]
+    return [*cols, ("res px", 6)]
 
 
 def _finite(v) -> bool:
@@ -48,27 +60,30 @@ def _status(s: str | None) -> Text:
     return Text(SHORT.get(s, s[:4]), style=f"rgb({r},{g},{b})")
 
 
-def format_row(row: MarkerRow) -> list:
+def format_row(row: MarkerRow, cameras: list[str]) -> list:
     def px(v):
         return f"{v[0]:6.1f},{v[1]:6.1f}" if _finite(v) else "—"
 
     def xyz(v):
         return f"{v[0]:6.1f},{v[1]:6.1f},{v[2]:6.1f}" if _finite(v) else "—"
 
-    status = Text.assemble(_status(row.status_side), "/", _status(row.status_front))
-    diff = row.difference_mm
-    return [
-        Text(row.label, style="bold"),
-        status,
-        f"{row.score:.2f}" if _finite(row.score) else "—",
-        px(row.side_px),
-        px(row.front_px),
-        xyz(row.xyz_tri),
-        xyz(row.xyz_net),
-        f"{diff:.1f}" if diff is not None else "—",
-        Text(f"{row.residual_px:.2f}", style="red" if row.residual_px > 2.0 else "")
-        if _finite(row.residual_px) else "—",
-    ]
+    parts = []
+    for k, cam in enumerate(cameras):
+        if k:
+            parts.append("/")
+        parts.append(_status(row.status.get(cam)))
+    cells = [Text(row.label, style="bold"), Text.assemble(*parts),
+             f"{row.score:.2f}" if _finite(row.score) else "—"]
+    cells += [px(row.px.get(cam)) for cam in cameras]
+    if len(cameras) == 1:
+        return [*cells, f"{row.xy_mm[0]:6.1f},{row.xy_mm[1]:6.1f}" if _finite(row.xy_mm) else "—"]
+    cells.append(xyz(row.xyz_tri))
+    if cameras == ["side", "front"]:
+        diff = row.difference_mm
+        cells += [xyz(row.xyz_net), f"{diff:.1f}" if diff is not None else "—"]
+    cells.append(Text(f"{row.residual_px:.2f}", style="red" if row.residual_px > 2.0 else "")
+                 if _finite(row.residual_px) else "—")
+    return cells
 
 
 class MarkerTable(DataTable):
@@ -78,18 +93,19 @@ class MarkerTable(DataTable):
 
     can_focus = False  # display only: keys belong to the frame views
 
-    def __init__(self, id: str | None = None) -> None:
+    def __init__(self, cameras: list[str], id: str | None = None) -> None:
         super().__init__(id=id, cursor_type="row", zebra_stripes=True, show_cursor=True)
+        self.cameras = list(cameras)
         self._shape: tuple = ()
         self._shown: dict[int, list] = {}
 
     def on_mount(self) -> None:
-        for label, width in COLUMNS:
+        for label, width in columns(self.cameras):
             self.add_column(label, width=width, key=label)
 
     def set_rows(self, rows: list[MarkerRow], selected: int | None) -> None:
         keys = tuple(r.marker for r in rows)
-        formatted = {r.marker: format_row(r) for r in rows}
+        formatted = {r.marker: format_row(r, self.cameras) for r in rows}
         if keys != self._shape:
             self.clear()
             for r in rows:

@@ -1,5 +1,6 @@
-"""Timeline strip: every marker's status over the whole video, side camera in the upper half of a
-cell ("▀" foreground) and front camera in the lower half (background), so problems show at a glance."""
+"""Timeline strip: every marker's status over the whole video, the first camera in the upper half of
+a cell ("▀" foreground) and the second in the lower half (background), so problems show at a glance.
+With one camera both halves show it; with three or more the lower half shows the worst of the others."""
 
 from __future__ import annotations
 
@@ -151,7 +152,7 @@ class Timeline(Widget):
         segs = [Segment(f"{label[:LABEL_WIDTH - 1]:>{LABEL_WIDTH - 1}} ",
                         Style(reverse=sel, bold=sel))]
         per_cam = []
-        for cam in self.cameras[:2]:
+        for cam in self.cameras:
             c = self.codes.get((mid, cam))
             if c is None or not len(c):
                 per_cam.append(np.zeros(cols, np.int8))
@@ -163,7 +164,7 @@ class Timeline(Widget):
             vals = np.maximum.reduceat(c, starts) if n >= cols else c[starts]
             per_cam.append(vals)
         top = per_cam[0]
-        bot = per_cam[1] if len(per_cam) > 1 else per_cam[0]
+        bot = np.maximum.reduce(per_cam[1:]) if len(per_cam) > 1 else per_cam[0]
         keys = top.astype(np.int16) * 16 + bot
         cuts = np.flatnonzero(keys[1:] != keys[:-1]) + 1
         for a, b in zip([0, *cuts.tolist()], [*cuts.tolist(), cols], strict=True):

@@ -219,8 +219,12 @@ def _environment(**values: str):
 
 def render_sample(out_dir: str | Path, seed: int = 0, preset: str = "small", workers: int = 2,
                   log=lambda msg: None) -> dict:
+    if preset == "repose":
+        from .repose_sample import render_repose
+
+        return render_repose(out_dir, seed, log)
     if preset not in PRESETS:
-        raise SandtrackError(f"unknown preset {preset!r} (small or full)")
+        raise SandtrackError(f"unknown preset {preset!r} (small, full or repose)")
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise SandtrackError(f"{out} exists and is not a folder")

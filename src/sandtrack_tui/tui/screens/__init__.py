@@ -10,6 +10,7 @@ SCREENS = {
     "training": ("training", "TrainingScreen"),
     "export": ("export", "ExportScreen"),
     "compare": ("compare", "CompareScreen"),
+    "repose": ("repose", "ReposeScreen"),
 }
 
 

@@ -21,35 +21,46 @@ class AutoSeedScreen(ModalScreen[pd.DataFrame | None]):
     BINDINGS = [Binding("space", "toggle", "use / skip"), Binding("enter", "accept", "accept"),
                 Binding("escape", "cancel", "cancel")]
 
-    def __init__(self, seeds: pd.DataFrame):
+    def __init__(self, seeds: pd.DataFrame, cameras: tuple[str, ...] = ("side", "front")):
         super().__init__()
         self.seeds = seeds if seeds is not None else pd.DataFrame()
+        self.cameras = list(cameras)
         self.markers = sorted(self.seeds["marker"].unique().tolist()) if len(self.seeds) else []
         self.use = {m: True for m in self.markers}
 
     def compose(self) -> ComposeResult:
         with Vertical():
-            yield Label(f"[b]Auto-seed[/]: {len(self.markers)} markers found. space: use / skip, "
-                        "enter: accept the used ones, escape: cancel")
+            new = sum(not bool(self.seeds[self.seeds["marker"] == m]["existing"].iloc[0])
+                      if "existing" in self.seeds else True for m in self.markers)
+            yield Label(f"[b]Auto-seed[/]: {len(self.markers)} markers ({len(self.markers) - new} known: same id, "
+                        f"{new} new). space: use / skip, enter: accept, escape: cancel")
             yield DataTable(id="seeds", cursor_type="row")
 
     def on_mount(self) -> None:
         t = self.query_one(DataTable)
         t.add_column("use", key="use", width=4)
         t.add_column("marker", key="marker", width=6)
-        t.add_column("side px", key="side", width=16)
-        t.add_column("front px", key="front", width=16)
+        t.add_column("known", key="known", width=10)
+        for cam in self.cameras:
+            t.add_column(f"{cam[:8]} px", key=cam, width=16)
         t.add_column("epipolar px", key="epi", width=11)
         for m in self.markers:
             rows = self.seeds[self.seeds["marker"] == m]
-            cells = {}
-            for cam in ("side", "front"):
+            cells = []
+            for cam in self.cameras:
                 r = rows[rows["camera"] == cam]
-                cells[cam] = f"{r['x_px'].iloc[0]:7.1f},{r['y_px'].iloc[0]:7.1f}" if len(r) else "—"
+                cells.append(f"{r['x_px'].iloc[0]:7.1f},{r['y_px'].iloc[0]:7.1f}" if len(r) else "—")
             epi = rows["epipolar_px"].max() if "epipolar_px" in rows else float("nan")
             epi_txt = Text(f"{epi:.2f}" if epi == epi else "—", style="red" if epi == epi and epi > 2 else "")
-            t.add_row(self._mark(m), str(m), cells["side"], cells["front"], epi_txt, key=str(m))
+            t.add_row(self._mark(m), str(m), self._known(rows), *cells, epi_txt, key=str(m))
         t.focus()
+
+    @staticmethod
+    def _known(rows: pd.DataFrame) -> Text:
+        """Whether the proposal is a marker the project has (and how far from where it was), or new."""
+        if "existing" not in rows or not bool(rows["existing"].iloc[0]):
+            return Text("new", style="green")
+        return Text(f"yes {rows['match_px'].iloc[0]:.1f} px", style="dim")
 
     def _mark(self, m) -> Text:
         return Text("[x]", style="green") if self.use[m] else Text("[ ]", style="dim")

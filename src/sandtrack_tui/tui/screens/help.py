@@ -16,6 +16,20 @@ TIPS = """
 - **right-click**: select the marker under the pointer
 - **wheel**: zoom about the pointer; **drag**: pan a zoomed view; **click the timeline**: go to that frame
 
+### Markers in a crowd
+- An id sits beside its marker, never over another id or marker; where there is no room it moves
+  further out with a thin line to its marker.
+- **m** lists the markers nearest the cursor first: enter selects, **r** renames, **M** merges two
+  ids that are one bead, **/** filters by id or name.
+- **A** again keeps the ids of markers the project already has (where they are now, or were last
+  seen) and only numbers the new ones.
+
+### Cameras
+- One camera: 2D, x and y in mm through a scale: **c** at both ends of a known length (or from a
+  calibration of that camera). Three or more: a grid of views; each view shows the selected
+  marker's epipolar curves from every other view, in the colour of that view's title.
+- Tracking cameras never synced asks first: sync them now (F2's audio sync), track anyway, or cancel.
+
 ### Over SSH / tmux
 - sshd does not forward `COLORTERM`: start with `COLORTERM=truecolor sandtrack` (otherwise 256 colours).
 - tmux: `set -as terminal-features ',*:RGB'` in `~/.tmux.conf` (tmux 3.2+; older: `set -ga

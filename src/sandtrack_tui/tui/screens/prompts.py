@@ -1,4 +1,4 @@
-"""Small modal prompts: a number, a yes/no question."""
+"""Small modal prompts: a line of text, a number, a yes/no question, what to do about unsynced cameras."""
 
 from __future__ import annotations
 
@@ -9,39 +9,57 @@ from textual.screen import ModalScreen
 from textual.widgets import Input, Label
 
 
-class AskNumber(ModalScreen[int | None]):
-    """Ask for an integer; dismisses with it, or None on Escape."""
+class AskText(ModalScreen):
+    """Ask for a line of text; dismisses with `parse(text)`'s value, or None on Escape. `check(text)`
+    returns a problem to show (the answer is then asked again), or None to accept it."""
 
     DEFAULT_CSS = """
-    AskNumber { align: center middle; }
-    AskNumber > Vertical { width: 50; height: auto; border: round $accent; padding: 0 1; background: $surface; }
-    AskNumber Label { width: 100%; }
+    AskText { align: center middle; }
+    AskText > Vertical { width: 60; height: auto; border: round $accent; padding: 0 1; background: $surface; }
+    AskText Label { width: 100%; }
     """
     BINDINGS = [Binding("escape", "cancel", "cancel")]
 
-    def __init__(self, question: str, default: int | None = None, lo: int | None = None, hi: int | None = None):
+    def __init__(self, question: str, default: str = "", check=None, input_type: str = "text"):
         super().__init__()
-        self.question, self.default, self.lo, self.hi = question, default, lo, hi
+        self.question, self.default, self.check, self.input_type = question, default, check, input_type
 
     def compose(self) -> ComposeResult:
         with Vertical():
             yield Label(self.question)
-            yield Input(value="" if self.default is None else str(self.default), type="integer", id="number")
+            yield Input(value=self.default, type=self.input_type, id="answer")
             yield Label("", id="problem")
 
+    def parse(self, text: str):
+        """(value, problem): the answer to dismiss with, or what is wrong with it."""
+        return text, self.check(text) if self.check is not None else None
+
     def on_input_submitted(self, event: Input.Submitted) -> None:
-        try:
-            value = int(event.value)
-        except ValueError:
-            self.query_one("#problem", Label).update("[red]type a whole number[/]")
-            return
-        if (self.lo is not None and value < self.lo) or (self.hi is not None and value > self.hi):
-            self.query_one("#problem", Label).update(f"[red]between {self.lo} and {self.hi}[/]")
+        value, problem = self.parse(event.value.strip())
+        if problem:
+            self.query_one("#problem", Label).update(f"[red]{problem}[/]")
             return
         self.dismiss(value)
 
     def action_cancel(self) -> None:
         self.dismiss(None)
+
+
+class AskNumber(AskText):
+    """Ask for an integer (within lo..hi when given); dismisses with it, or None on Escape."""
+
+    def __init__(self, question: str, default: int | None = None, lo: int | None = None, hi: int | None = None):
+        super().__init__(question, "" if default is None else str(default), input_type="integer")
+        self.lo, self.hi = lo, hi
+
+    def parse(self, text: str):
+        try:
+            value = int(text)
+        except ValueError:
+            return None, "type a whole number"
+        if (self.lo is not None and value < self.lo) or (self.hi is not None and value > self.hi):
+            return None, f"between {self.lo} and {self.hi}"
+        return value, None
 
 
 class Confirm(ModalScreen[bool]):
@@ -65,3 +83,29 @@ class Confirm(ModalScreen[bool]):
 
     def action_no(self) -> None:
         self.dismiss(False)
+
+
+class SyncFirst(ModalScreen[str | None]):
+    """Tracking asked for while the cameras were never synced: sync now, track anyway, or cancel."""
+
+    DEFAULT_CSS = """
+    SyncFirst { align: center middle; }
+    SyncFirst > Vertical { width: 76; height: auto; border: round $warning; padding: 0 1; background: $surface; }
+    """
+    BINDINGS = [Binding("s,enter", "choose('sync')", "sync now"), Binding("t", "choose('anyway')", "track anyway"),
+                Binding("escape,c", "choose('')", "cancel")]
+
+    def __init__(self, cameras: str):
+        super().__init__()
+        self.cameras = cameras
+
+    def compose(self) -> ComposeResult:
+        with Vertical():
+            yield Label(f"[b]The cameras are not synced yet[/] ({self.cameras}). Tracking with an offset of 0 "
+                        "pairs frames taken at different times: once the markers move, the stereo check throws "
+                        "good views away and markers are lost.")
+            yield Label("[b]s[/] / enter: run the audio sync now, then track    [b]t[/]: track anyway (cameras "
+                        "that start together)    [b]escape[/]: cancel")
+
+    def action_choose(self, choice: str) -> None:
+        self.dismiss(choice or None)

@@ -6,6 +6,7 @@ from textual.app import ComposeResult
 from textual.containers import Horizontal, VerticalScroll
 from textual.widgets import Button, Footer, Input, Label, Select, Static
 
+from ...video import synced_camera
 from ..core import core
 from .base import TaskScreen
 
@@ -49,12 +50,19 @@ class SyncScreen(TaskScreen):
 
     def run_sync(self) -> None:
         sync = core("sync", "estimate_offset")
+        camera = synced_camera(self.main.cameras)
+        if camera is None:
+            self.notify("nothing to sync: " + ("one camera" if len(self.main.cameras) == 1 else
+                                               "these cameras are taken as started together (no front camera)"),
+                        severity="warning")
+            return
         videos = self.main.project.videos()
+        a, b = videos[self.main.ref].path, videos[camera].path
         method = self.query_one("#method", Select).value
         self.query_one("#result", Static).update("[yellow]running…[/] (the progress bar below the main view)")
 
         def job(progress, should_stop):
-            return sync.estimate_offset(videos["side"].path, videos["front"].path, method=method)
+            return sync.estimate_offset(a, b, method=method)
 
         self.main.run_task("sync", job, on_result=self.show_result, refresh_points=False)
 
