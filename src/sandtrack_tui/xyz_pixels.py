@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 
 from .errors import SandtrackError
-from .xyz import METHOD_CHOICES, METHODS, OUTSIDE_POLICIES
+from .xyz import METHOD_CHOICES, METHODS, OUTSIDE_POLICIES, network_rows
 
 RESULT_COLUMNS = ["X_mm", "Y_mm", "Z_mm", "method", "residual_px"]
 _ALIASES = {"side": ("xs", "ys"), "front": ("xf", "yf")}
@@ -83,7 +83,7 @@ def xyz_from_pixels(df: pd.DataFrame, cams: dict[str, tuple[str, str]], calibrat
             if n:
                 xyz, res = triangulate(calibration, used, refine=refine, world=True)
         else:
-            _network(m, model, calibration, pix, outside, xyz, res, label)
+            network_rows(m, model, calibration, np.hstack([pix["side"], pix["front"]]), outside, xyz, res, label)
         out = base.copy()
         out["X_mm"], out["Y_mm"], out["Z_mm"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
         out["method"] = label
@@ -131,27 +131,6 @@ def _methods(method: str, calibration, model, cams) -> list[str]:
     if not out:
         raise SandtrackError("nothing to compute XYZ with: give --calibration CAL.toml and/or --model MODEL.pt")
     return out
-
-
-def _network(m: str, model, calibration, pix: dict[str, np.ndarray], outside: str, xyz, res, label) -> None:
-    from .regression import outside_training, predict
-    from .triangulation import reprojection_residual
-
-    x = np.hstack([pix["side"], pix["front"]])
-    ok = np.isfinite(x).all(axis=1)
-    if not ok.any():
-        return
-    xyz[ok] = predict(model, x[ok], method=m)
-    cal = calibration if calibration is not None else model.calibration
-    if cal is not None and {"side", "front"} <= set(cal.cameras):
-        res[ok] = reprojection_residual(cal, {"side": x[ok, :2], "front": x[ok, 2:]}, cal.to_rig(xyz[ok]))
-    if m == "mlp" and outside != "keep":
-        out = np.zeros(len(x), bool)
-        out[ok] = outside_training(model, x[ok], xyz[ok])
-        if outside == "flag":
-            label[out] = "mlp_outside"
-        else:
-            xyz[out] = np.nan
 
 
 def write_table(table: pd.DataFrame, path: str | Path | None) -> None:
