@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 
 from sandtrack_tui.errors import SandtrackError
-from sandtrack_tui.tracking import colour, synthetic
+from sandtrack_tui.tracking import appearance, synthetic
 from sandtrack_tui.tracking.engine import Engine, _touching_pairs
 from sandtrack_tui.tracking.kalman import ConstantVelocityKF
 from sandtrack_tui.tracking.seeding import detect_markers, snap_to_marker
@@ -91,7 +91,7 @@ def test_colour_model_dusty_passes_sand_does_not():
     disc = (xx - 40) ** 2 + (yy - 40) ** 2 <= 25
     img[disc] = synthetic.MARKER_BGR
     img = np.clip(img, 0, 255).astype(np.uint8)
-    model = colour.learn(img, 40, 40, 14, 14)
+    model = appearance.learn(img, 40, 40, 14, 14)
     sand = model.score(img)[~disc & ((xx - 40) ** 2 + (yy - 40) ** 2 > 64)]
     assert np.mean(sand >= model.threshold) < 0.001
     dusty = (0.55 * synthetic.MARKER_BGR + 0.45 * synthetic.SAND_BGR).astype(np.uint8)
@@ -110,7 +110,7 @@ def _disc_on_sand(cx: float, cy: float, r: float, seed: int = 0, size: int = 80)
 
 def test_colour_model_marker_size_does_not_grow_with_the_seed_box():
     img = _disc_on_sand(40.3, 39.6, 4.5)
-    radii = [colour.learn(img, 40, 40, w, w).radius for w in (10, 14, 18, 22)]
+    radii = [appearance.learn(img, 40, 40, w, w).radius for w in (10, 14, 18, 22)]
     assert max(radii) - min(radii) < 0.03  # (before: 0.056, the sand's clipped noise counted as marker)
     assert abs(np.mean(radii) - 4.5) < 0.25
 
@@ -137,11 +137,11 @@ def test_rest_shift_measures_a_subpixel_creep_and_refuses_other_changes():
 def test_bad_seed_boxes_raise_clear_errors():
     img = np.clip(synthetic.sand_texture(60, 60, np.random.default_rng(1)), 0, 255).astype(np.uint8)
     with pytest.raises(SandtrackError, match="outside"):
-        colour.learn(img, 100, 10, 12, 12)
+        appearance.learn(img, 100, 10, 12, 12)
     with pytest.raises(SandtrackError, match="no marker"):
-        colour.learn(img, 30, 30, 12, 12)
+        appearance.learn(img, 30, 30, 12, 12)
     with pytest.raises(SandtrackError, match="too small"):
-        colour.learn(img, 30, 30, 0, 0)
+        appearance.learn(img, 30, 30, 0, 0)
     with pytest.raises(SandtrackError, match="outside"):
         MarkerTrack(1, "cam", img, 0, -5, 10)
 

@@ -26,9 +26,9 @@ def test_colour_score_and_mask_equal_the_formula():
     w, b = np.float32([0.9, -0.4, -0.6]), np.float32(0.2)
     f = win.astype(np.float32)
     want = (f @ w) / (f.sum(axis=-1) + np.float32(EPS)) + b
-    got = kernels.colour_score(win, w[0], w[1], w[2], b, np.float32(EPS))
+    got = kernels.colour_score(win, w[0], w[1], w[2], b, np.float32(EPS), np.float32(1))
     assert got.dtype == np.float32 and np.allclose(got, want, atol=1e-6)
-    got_f = kernels.colour_score(f, w[0], w[1], w[2], b, np.float32(EPS))  # float windows (chroma.py)
+    got_f = kernels.colour_score(f, w[0], w[1], w[2], b, np.float32(EPS), np.float32(1))  # float windows (chroma.py)
     assert np.allclose(got_f, want, atol=1e-6)
     mask, found, x0, y0, x1, y1 = kernels.colour_mask(win, w[0], w[1], w[2], np.float32(-10.0))
     want = (f @ w - 10.0 >= 0).astype(np.uint8)
@@ -65,9 +65,9 @@ def test_match_peak_psr_and_centroid_equal_the_direct_computation():
     score = np.zeros((31, 33), np.float32)
     yy, xx = np.mgrid[0:31, 0:33]
     score[(xx - 17.3) ** 2 + (yy - 15.2) ** 2 <= 4.5 ** 2] = 1.0
-    found, x, y, peak, psr, frac, used = kernels.match_peak(
+    found, x, y, peak, psr, frac, used, touching = kernels.match_peak(
         res, score, 0, 16, 0, 14, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0, 8, 6, 6.0, 0.15, float(score.sum()), 4.5)
-    assert found and peak == np.float32(0.95)
+    assert found and peak == np.float32(0.95) and not touching
     out = np.ones(res.shape, bool)
     out[1:14, 3:16] = False  # the peak's window, +-6
     side = res[out].astype(np.float64)
@@ -84,6 +84,31 @@ def test_match_peak_psr_and_centroid_equal_the_direct_computation():
     assert not found  # no cell inside the gate
 
 
+def test_a_touching_marker_is_left_out_of_the_centroid_and_the_sidelobes():
+    """Two identical discs touching (centres 2 r apart): each centre from its own share of the blob, and
+    the neighbour's NCC peak is not a sidelobe."""
+    r = 4.5
+    score = np.zeros((41, 51), np.float32)
+    yy, xx = np.mgrid[0:41, 0:51]
+    score[(xx - 20.3) ** 2 + (yy - 20.2) ** 2 <= r * r] = 1.0
+    score[(xx - 20.3 - 2 * r) ** 2 + (yy - 20.2) ** 2 <= r * r] = 1.0
+    half = 8
+    disc = np.zeros((2 * half + 1, 2 * half + 1), np.float32)
+    ty, tx = np.mgrid[0:2 * half + 1, 0:2 * half + 1]
+    disc[(tx - half) ** 2 + (ty - half) ** 2 <= r * r] = 1.0
+    res = cv2.matchTemplate(score, disc, cv2.TM_CCOEFF_NORMED)
+    area = float(disc.sum())
+    found, x, y, peak, psr, frac, used, touching = kernels.match_peak(  # the left disc's peak
+        res, score, 0, 15, 0, res.shape[0] - 1, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0, half, 6, r + 1.5, 0.15, area, r)
+    assert found and touching and used
+    own = score * ((xx - 20.3) ** 2 + (yy - 20.2) ** 2 <= r * r)
+    m = cv2.moments(own)
+    assert abs(x - m["m10"] / m["m00"]) < 0.05 and abs(y - m["m01"] / m["m00"]) < 0.05
+    plain = kernels.centroid(score, x, y, 2, r + 1.5, 0.15, area)
+    assert plain[0] - m["m10"] / m["m00"] > 0.1  # without the split, the neighbour pulls the centre
+    assert psr > 8
+
+
 def test_blob_moments_equal_the_dilated_component_moments():
     win = _disc(20.3, 19.6)
     labels = np.zeros(win.shape[:2], np.int32)
@@ -93,6 +118,7 @@ def test_blob_moments_equal_the_dilated_component_moments():
     f = win[15:25, 16:26].astype(np.float32)
     wts = np.clip(((f @ w) / (f.sum(axis=-1) + np.float32(EPS)) + b - lo) / (1 - lo), 0, 1) * comp
     m = cv2.moments(wts.astype(np.float32))
-    *got, pixels = kernels.blob_moments(win, labels, 3, 16, 15, 26, 25, w[0], w[1], w[2], b, np.float32(EPS), lo)
+    *got, pixels = kernels.blob_moments(win, labels, 3, 16, 15, 26, 25, w[0], w[1], w[2], b, np.float32(EPS),
+                                        np.float32(1), lo)
     assert np.allclose(got, (m["m00"], m["m10"], m["m01"]), rtol=1e-5)
     assert pixels == 64

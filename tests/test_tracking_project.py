@@ -179,3 +179,33 @@ def test_cli_auto_seed(stereo_data, tmp_path, capsys):
     out = json.loads(capsys.readouterr().out)
     assert rc == 0 and out["frames"] == 6 and len(out["per_marker"]) == 5
     assert all(v["side"]["tracked"] == 5 and v["front"]["tracked"] == 5 for v in out["per_marker"].values())
+
+
+def test_auto_seed_finds_markers_like_a_seeded_dark_one_and_track_reports_the_model(tmp_path, capsys):
+    """Black markers in a grey-level image folder: one clicked and seeded, auto-seed proposes every
+    other marker like it (not the seeded one again), `track --json` says which model each got."""
+    paths = synthetic.standard_paths(12, (240, 320), seed=8)[:4]
+    clip = synthetic.render(paths, 12, (240, 320), seed=8, marker_bgr=(20.0, 20.0, 22.0),
+                            sand_bgr=(130.0, 130.0, 130.0))
+    folder = tmp_path / "grey"
+    folder.mkdir()
+    for i, f in enumerate(clip.frames):
+        cv2.imwrite(str(folder / f"{i:03d}.png"), cv2.cvtColor(f, cv2.COLOR_BGR2GRAY))
+    with Project.create(tmp_path / "exp.sandtrack", {"side": folder}) as proj:
+        first = clip.truth.query("frame == 0 and marker == 1").iloc[0]
+        seed_marker(proj, 1, "side", 0, first.x_px, first.y_px, 14, 14)
+        seeds = auto_seed(proj, frame=0)
+        assert set(seeds["model"]) == {"dark"} and (seeds["contrast"] > 5).all()
+        assert seeds[seeds.existing].marker.tolist() == [1] and (~seeds.existing).sum() == 3  # the seeded one is known
+        t = clip.truth.query("frame == 0")
+        for r in seeds.itertuples():
+            assert np.hypot(t.x_px - r.x_px, t.y_px - r.y_px).min() < 0.3
+        accept_seeds(proj, seeds)
+    rc = main(["track", str(tmp_path / "exp.sandtrack"), "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert rc == 0 and len(out["per_marker"]) == 4
+    for v in out["per_marker"].values():
+        a = v["side"]["appearance"]
+        assert a["model"] == "dark" and a["contrast"] > 5 and a["marker_level"] < a["sand_level"]
+    rc = main(["track", str(tmp_path / "exp.sandtrack"), "--from", "0", "--to", "3"])
+    assert rc == 0 and "appearance: side dark (luma" in capsys.readouterr().out

@@ -12,6 +12,7 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pandas as pd
 
@@ -140,6 +141,50 @@ def score_tracking(points: pd.DataFrame, truth: SampleTruth, id_map: dict[int, i
         "reacquired_within_3_frames_pct": 100.0 * reacq_ok / reacq_total if reacq_total else float("nan"),
         "markers_matched": len(id_map),
     }
+
+
+def identity_switches(points: pd.DataFrame, truth: SampleTruth, id_map: dict[int, int],
+                      near_px: float = 3.0) -> dict:
+    """Tracked points that sit on another marker (within `near_px` of another marker's true centre):
+    an identity switch the tracker did not flag; and the share of visible frames reported tracked."""
+    switches = visible_n = visible_tracked = 0
+    for camera, t in truth.markers.items():
+        p = points[(points.camera == camera) & points.marker.isin(list(id_map)) & (points.status == "tracked")]
+        p = p.assign(true_marker=p.marker.map(id_map))
+        m = p.merge(t[["frame", "marker", "x_px", "y_px"]], on="frame", suffixes=("", "_t"))
+        near = np.hypot(m.x_px - m.x_px_t, m.y_px - m.y_px_t) <= near_px
+        switches += int((near & (m.marker_t != m.true_marker)).groupby([m.marker, m.frame]).any().sum())
+        first = {mk: int(f) for mk, f in points[points.camera == camera].groupby("marker").frame.min().items()}
+        for mk, tm in id_map.items():
+            if mk not in first:
+                continue
+            vis = t[(t.marker == tm) & t.visible.astype(bool) & (t.frame > first[mk])]
+            visible_n += len(vis)
+            visible_tracked += int(vis.frame.isin(p[p.marker == mk].frame).sum())
+    return {"identity_switches": switches,
+            "visible_tracked_pct": 100.0 * visible_tracked / visible_n if visible_n else float("nan")}
+
+
+def board_points_from_corners(corners: pd.DataFrame, camera, points_m: np.ndarray, min_corners: int = 6) -> dict:
+    """Pixels of points on a flat board (`points_m` (N, 2), board coordinates in metres) in each frame,
+    from that frame's detected board corners (`corners`: frame, obj_loc_x, obj_loc_y, img_loc_x,
+    img_loc_y, as Caliscope's xy.csv): a homography fitted to the undistorted corners, its points
+    distorted again with `camera`'s lens. Frames with fewer than `min_corners` corners are left out.
+    Returns {frame: (N, 2) pixels}."""
+    out = {}
+    K = camera.matrix
+    for frame, g in corners.groupby("frame"):
+        if len(g) < min_corners:
+            continue
+        img = camera.undistort(g[["img_loc_x", "img_loc_y"]].to_numpy(float))
+        H, _ = cv2.findHomography(g[["obj_loc_x", "obj_loc_y"]].to_numpy(float), img, 0)
+        if H is None:
+            continue
+        und = cv2.perspectiveTransform(np.asarray(points_m, float).reshape(-1, 1, 2), H).reshape(-1, 2)
+        rays = np.hstack([(und - K[:2, 2]) / np.diag(K)[:2], np.ones((len(und), 1))])
+        px, _ = cv2.projectPoints(rays.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, camera.distortion)
+        out[int(frame)] = px.reshape(-1, 2)
+    return out
 
 
 # -- 3D ------------------------------------------------------------------------------------------

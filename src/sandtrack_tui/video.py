@@ -8,7 +8,10 @@ continues the running decoder. Decoded frames sit in an LRU cache bounded in byt
 images is accepted too (sorted by name, times = index / fps).
 
 Frames are numpy arrays, H x W x 3, uint8, BGR (as OpenCV). Times are seconds of the file's
-presentation timeline. `lazy_frame` gives the same frame without converting it whole: the decoded
+presentation timeline. Image folders may hold grey or colour images of 8 or 16 bits (PNG, TIFF, ...):
+they are read as BGR too, grey replicated into three channels, 16-bit scaled to 8 bits by one factor
+for the whole folder (255 / the top of the bit depth the images use, e.g. 4095 for 12-bit data), so
+brightness means the same in every frame. `lazy_frame` gives the same frame without converting it whole: the decoded
 4:2:0 planes, converted to BGR window by window when read (yuv.py), for the tracker, which reads
 only small windows.
 
@@ -33,6 +36,41 @@ from av.video.reformatter import VideoReformatter
 from .errors import SandtrackError
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
+
+
+def bit_depth_scale(images) -> float:
+    """Factor taking images of more than 8 bits to 0..255: 255 / (2^bits - 1) for the smallest bit
+    depth (at least 8) that holds their largest value; 1 for 8-bit images."""
+    top = 0.0
+    for img in images:
+        if img.dtype == np.uint8:
+            return 1.0
+        top = max(top, float(np.max(img)) if img.size else 0.0)
+    if not np.isfinite(top) or top <= 0:
+        return 1.0
+    if top <= 1.0:  # floating-point images in 0..1
+        return 255.0
+    bits = max(8, int(np.ceil(np.log2(top + 1))))
+    return 255.0 / (2.0**bits - 1)
+
+
+def to_bgr8(img: np.ndarray, scale: float | None = None) -> np.ndarray:
+    """An image as H x W x 3 uint8 BGR: grey (H x W, or one channel) replicated into three channels,
+    an alpha channel dropped, more than 8 bits scaled by `scale` (default: from its own bit depth,
+    see bit_depth_scale). An 8-bit BGR image is returned as is."""
+    img = np.asarray(img) if not hasattr(img, "shape") else img
+    if img.ndim == 3 and img.shape[2] == 3 and img.dtype == np.uint8:
+        return img
+    if img.dtype != np.uint8:
+        img = cv2.convertScaleAbs(np.asarray(img, dtype=np.float32) if img.dtype.kind == "f" else img,
+                                  alpha=bit_depth_scale([img]) if scale is None else scale)
+    if img.ndim == 2:
+        return cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+    if img.shape[2] == 1:
+        return cv2.cvtColor(img[..., 0], cv2.COLOR_GRAY2BGR)
+    if img.shape[2] == 4:
+        return np.ascontiguousarray(img[..., :3])
+    return img
 
 
 def fingerprint(path: str | Path, chunk: int = 1 << 20) -> str:
@@ -104,10 +142,14 @@ class FrameSource:
         self._files = sorted(f for f in self.path.iterdir() if f.suffix.lower() in IMAGE_SUFFIXES)
         if not self._files:
             raise SandtrackError(f"{self.path}: folder holds no images ({', '.join(sorted(IMAGE_SUFFIXES))})")
-        first = cv2.imread(str(self._files[0]), cv2.IMREAD_COLOR)
+        first = cv2.imread(str(self._files[0]), cv2.IMREAD_UNCHANGED)
         if first is None:
             raise SandtrackError(f"{self._files[0]}: not a readable image")
         self.height, self.width = first.shape[:2]
+        # One 16-bit -> 8-bit factor for the whole folder, from the first, middle and last images.
+        probe = [first] + [cv2.imread(str(self._files[k]), cv2.IMREAD_UNCHANGED)
+                           for k in sorted({len(self._files) // 2, len(self._files) - 1} - {0})]
+        self._scale = bit_depth_scale([p for p in probe if p is not None])
         self.fps = float(fps)
         self.times_s = np.arange(len(self._files)) / self.fps
         self._pts = None
@@ -235,12 +277,12 @@ class FrameSource:
             yield i, self.frame(i)
 
     def _read_image(self, i: int) -> np.ndarray:
-        img = cv2.imread(str(self._files[i]), cv2.IMREAD_COLOR)
+        img = cv2.imread(str(self._files[i]), cv2.IMREAD_UNCHANGED)
         if img is None:
             raise SandtrackError(f"{self._files[i]}: not a readable image")
         if img.shape[:2] != (self.height, self.width):
             raise SandtrackError(f"{self._files[i]}: size differs from the first image")
-        return img
+        return to_bgr8(img, self._scale)
 
     def _ensure_container(self):
         if self._container is None:

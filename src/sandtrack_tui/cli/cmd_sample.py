@@ -1,7 +1,8 @@
-"""`sandtrack sample OUT_DIR [--seed N] [--preset small|full]`: render the rig's digital twin.
+"""`sandtrack sample OUT_DIR [--seed N] [--preset small|full] [--variant NAME]`: render the rig's digital twin.
 
 Writes calibration and experiment videos of both cameras (H.264 + AAC) and exact ground truth
 (cameras, sync offset, marker XYZ/pixels/visibility, tool, board corners, DEM-style trajectories).
+`--variant` renders one of the twin's harder tracking cases instead (twin/variants.py).
 """
 
 from __future__ import annotations
@@ -9,6 +10,10 @@ from __future__ import annotations
 import argparse
 
 from .common import add_json_flag, emit, log
+
+# (twin/variants.py VARIANTS, named here so the parser does not load the renderer)
+VARIANT_NAMES = ("blue", "red", "white", "black", "glass", "light-sand", "dark-sand", "wet-sand", "dense", "fast",
+                 "large", "shake")
 
 
 def register(sub) -> None:
@@ -25,6 +30,10 @@ def register(sub) -> None:
                         "full: same experiment + 42 s calibration (>= 44,130 two-view corner observations); "
                         "tiny: a few frames, for tests; "
                         "repose: heaps of known angle of repose, photos and DEM dumps, under OUT/repose/")
+    p.add_argument("--variant", metavar="NAME",
+                   help="render a tracking case instead of a preset: " + ", ".join(VARIANT_NAMES) +
+                        " (marker styles, sand tones, dense identical beads, fast and blurred, large, shaken; "
+                        "experiment videos or image folders and exact truth only)")
     p.add_argument("--workers", type=int, default=2, help="worker processes (default 2)")
     add_json_flag(p)
     p.set_defaults(func=run)
@@ -36,6 +45,15 @@ def run(args: argparse.Namespace) -> int:
 
     if args.workers < 1:
         raise SandtrackError("--workers must be at least 1")
+    if args.variant is not None:
+        from ..twin.variants import render_variant
+
+        result = render_variant(args.variant, args.out_dir, seed=args.seed, log=log)
+        text = (f"rendered twin variant {args.variant} (seed {args.seed}) into {args.out_dir} in {result['render_s']} "
+                f"s: {result['frames']} frames per camera ({', '.join(result['cameras'])}): "
+                f"{result['note'] or result['style'] + ' markers on ' + result['sand'] + ' sand'}")
+        emit(result, args.json, text)
+        return 0
     result = render_sample(args.out_dir, seed=args.seed, preset=args.preset, workers=args.workers, log=log)
     if args.preset == "repose":
         text = (f"rendered the repose preset (seed {args.seed}) into {result['out_dir']}/repose in "

@@ -2,8 +2,9 @@
 
 Headless tracking. Seeds come from the project (its manual points), from a CSV
 (`frame, camera, marker, x, y, w, h`: x, y = marker centre in pixels, w, h = box around it;
-w, h may be empty) or from auto-seeding (every blue marker of frame --from, paired across cameras).
-Results are written to the project as they are made, as one undoable edit.
+w, h may be empty) or from auto-seeding (every marker of frame --from that looks like the first seeded
+one, or every blue marker; paired across cameras). Results are written to the project as they are
+made, as one undoable edit.
 """
 
 from __future__ import annotations
@@ -27,8 +28,12 @@ def register(sub) -> None:
     p.add_argument("--seeds", metavar="CSV",
                    help="seed file: frame, camera, marker, x, y, w, h (pixels; x, y = marker centre)")
     p.add_argument("--auto-seed", action="store_true",
-                   help="seed every blue marker found in frame --from (default: the first frame both cameras "
-                        "recorded), paired across cameras by epipolar distance")
+                   help="seed every marker found in frame --from (default: the first frame both cameras "
+                        "recorded) that looks like the project's first seeded marker (with none seeded: every "
+                        "blue marker), paired across cameras by epipolar distance")
+    p.add_argument("--like", type=int, metavar="MARKER",
+                   help="with --auto-seed: find markers that look like this seeded marker (default: the first "
+                        "seeded marker)")
     p.add_argument("--from", dest="start", type=int, metavar="N",
                    help="start frame (first camera's index); default: each marker's seed")
     p.add_argument("--to", dest="stop", type=int, metavar="M", help="last frame (inclusive); default: the end")
@@ -75,6 +80,13 @@ def read_seeds_csv(path: str | Path) -> pd.DataFrame:
     return out
 
 
+def _first_seeded(project) -> int | None:
+    """The lowest marker id with a manual point (auto-seed's model), or None."""
+    pts = project.points()
+    man = pts[(pts.status == "manual") & pts.x_px.notna()]
+    return int(man.marker.min()) if len(man) else None
+
+
 def _check_seeds(project, seeds: pd.DataFrame) -> None:
     vids = project.videos()
     for r in seeds.itertuples():
@@ -109,6 +121,8 @@ def run(args) -> int:
             markers = [int(m) for m in args.markers.split(",") if m.strip()]
         except ValueError:
             raise SandtrackError(f"--markers: give ids separated by commas, not {args.markers!r}") from None
+    if args.like is not None and not args.auto_seed:
+        raise SandtrackError("--like goes with --auto-seed")
     with Project.open(args.project) as proj:
         _check_sync(proj, args)
         seeded = 0
@@ -118,13 +132,17 @@ def run(args) -> int:
             seeded = accept_seeds(proj, seeds, f"seeds from {Path(args.seeds).name}")
             log(f"track: {seeded} seed points from {args.seeds}")
         if args.auto_seed:
-            proposal = auto_seed(proj, frame=args.start)
+            like = args.like if args.like is not None else _first_seeded(proj)
+            proposal = auto_seed(proj, frame=args.start, like=like)
             if proposal.empty:
                 where = f"frame {args.start}" if args.start is not None else "the first frame both cameras recorded"
-                raise SandtrackError(f"auto-seed: no blue marker found in {where}")
+                what = "blue marker" if like is None else f"new marker like marker {like}"
+                raise SandtrackError(f"auto-seed: no {what} found in {where}")
             seeded += accept_seeds(proj, proposal, "auto-seed")
             n_pairs = int(proposal.epipolar_px.notna().sum() // 2)
-            log(f"track: auto-seed found {proposal.marker.nunique()} markers ({n_pairs} paired across cameras)")
+            kinds = ", ".join(f"{n} {k}" for k, n in proposal["model"].value_counts().items())
+            log(f"track: auto-seed found {proposal.marker.nunique()} markers ({n_pairs} paired across cameras; "
+                f"appearance models: {kinds})")
         if proj.points().query("status == 'manual'").empty and args.start is None:
             raise SandtrackError("no seeds: give --seeds CSV, --auto-seed, or seed markers in the TUI")
         bar = Progress(1, "track")
@@ -145,12 +163,17 @@ def run(args) -> int:
 
 
 def _text(s: dict) -> str:
+    from ..tracking.appearance import describe_text
+
     lines = [f"tracked {s.get('frames', 0)} frames {s['direction']} "
              f"({s.get('first_frame', '-')}..{s.get('last_frame', '-')}), "
              f"stereo check {'on' if s.get('stereo') else 'off'}, {s.get('rows_written', 0)} points written"]
     for m, cams in s.get("per_marker", {}).items():
         parts = [f"{c}: {v['tracked']} tracked, {v['occluded']} occluded, {v['lost']} lost" for c, v in cams.items()]
         lines.append(f"  marker {m}: " + "; ".join(parts))
+        looks = [f"{c} {describe_text(v['appearance'])}" for c, v in cams.items() if v.get("appearance")]
+        if looks:
+            lines.append("    appearance: " + "; ".join(looks))
     if s.get("stereo_flags"):
         lines.append(f"  {len(s['stereo_flags'])} stereo inconsistencies flagged (view dropped, searched again)")
     if s.get("ambiguous"):

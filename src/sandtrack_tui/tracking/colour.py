@@ -1,4 +1,4 @@
-"""Colour model of one marker, learned from its seed box: marker disc against the sand around it.
+"""Colour model of one marker (appearance.py), learned from its seed box: marker disc against the sand around it.
 
 A Fisher discriminant on chromaticity (B, G, R divided by their sum) separates the disc's pixels
 from the sand ring's and is scaled so sand scores 0 and the disc 1. Chromaticity ignores
@@ -12,83 +12,17 @@ Also here: a generic "blueness" measure for finding markers with no model yet (s
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from functools import cached_property
-
 import numpy as np
 
-from ..errors import SandtrackError
-from . import kernels
+from .appearance import COLOUR, MIN_SEPARATION, AppearanceModel
 
 EPS = 3.0  # added to B + G + R: keeps the chromaticity of near-black pixels finite
+MIN_LUMA_FRACTION = 0.25  # a marker darker than this share of the sand's brightness is left to brightness
 
 
 def chromaticity(bgr: np.ndarray) -> np.ndarray:
     f = np.asarray(bgr, dtype=np.float64)
     return f / (f.sum(axis=-1, keepdims=True) + EPS)
-
-
-@dataclass
-class ColourModel:
-    w: np.ndarray  # (3,) weights on BGR chromaticity
-    b: float  # offset: score = (bgr @ w) / (sum(bgr) + EPS) + b
-    threshold: float  # score at or above which a pixel counts as marker
-    disc_area: float  # marker pixels in the seed (px²)
-    radius: float  # equivalent disc radius (px)
-    sand_spread: float  # std of sand scores around the seed
-
-    def score(self, bgr: np.ndarray) -> np.ndarray:
-        """Per-pixel score, float32: ~0 on sand, ~1 on the marker."""
-        if not bgr.size:
-            return np.zeros(bgr.shape[:2], dtype=np.float32)
-        return kernels.colour_score(bgr, *self._score_coeffs)
-
-    def score_window(self, frame, x0: int, y0: int, x1: int, y1: int) -> np.ndarray:
-        """score() of the window [y0:y1, x0:x1] of a frame (inside it), also of a frame still in its
-        4:2:0 planes (yuv.py), without converting the window separately."""
-        yuv = getattr(frame, "yuv", None)
-        if yuv is not None and x1 > x0 and y1 > y0:
-            return kernels.colour_score_yuv(*yuv, x0, y0, x1, y1, *self._score_coeffs)
-        return self.score(frame[y0:y1, x0:x1])
-
-    @cached_property
-    def _score_coeffs(self) -> tuple:
-        """(w0, w1, w2, b, EPS) as float32, as the kernels take them."""
-        return (*np.float32(self.w), np.float32(self.b), np.float32(EPS))
-
-    @property
-    def weight_floor(self) -> float:
-        """Score from which a pixel counts towards a centroid or a blob's area: its weight is
-        (score - floor) / (1 - floor), clipped to 0..1 (≈ its coverage by the marker)."""
-        return min(0.5 * self.threshold, 0.15)
-
-    def mask_box(self, frame, x0: int, y0: int, x1: int, y1: int) -> tuple:
-        """(mask, found, bx0, by0, bx1, by1): uint8 0/1 per pixel of the window [y0:y1, x0:x1] of a
-        frame, score >= threshold, and the box of its ones in window coordinates. For 8-bit pixels
-        (B + G + R + EPS > 0) the test is linear, (w + b - t) . bgr + (b - t) EPS >= 0; a frame still
-        in its 4:2:0 planes (yuv.py) computes it without converting the window."""
-        linear_mask = getattr(frame, "linear_mask", None)
-        if linear_mask is not None:
-            return linear_mask(self._mask_coeffs, x0, y0, x1, y1)
-        bgr = frame[y0:y1, x0:x1]
-        if bgr.dtype == np.uint8 and bgr.size:
-            return kernels.colour_mask(bgr, *self._mask_coeffs)
-        mask = (self.score(bgr) >= self.threshold).astype(np.uint8)
-        rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
-        if not len(rows):
-            return mask, False, 0, 0, 0, 0
-        return mask, True, int(cols[0]), int(rows[0]), int(cols[-1]) + 1, int(rows[-1]) + 1
-
-    @cached_property
-    def _mask_coeffs(self) -> tuple:
-        c = self.b - self.threshold
-        return (*np.float32(self.w + c), np.float32(c * EPS))
-
-    def blob_moments(self, bgr: np.ndarray, labels: np.ndarray, k: int, xa: int, ya: int, xb: int, yb: int):
-        """(area, m10, m01, pixels): pixel weights (see weight_floor) summed over component k of
-        `labels` grown by one pixel, its first moments from (xa, ya), within rows ya..yb-1 and columns
-        xa..xb-1 of `bgr`, and the component's pixel count there."""
-        return kernels.blob_moments(bgr, labels, k, xa, ya, xb, yb, *self._score_coeffs, self.weight_floor)
 
 
 def blueness(bgr: np.ndarray) -> np.ndarray:
@@ -103,39 +37,42 @@ def chroma_blueness(bgr: np.ndarray) -> np.ndarray:
     return (f[..., 0] - 0.5 * (f[..., 1] + f[..., 2])) / (f.sum(axis=-1) + EPS)
 
 
-def learn(frame_bgr: np.ndarray, cx: float, cy: float, w: float, h: float) -> ColourModel:
-    """Learn a ColourModel from a seed box centred at (cx, cy) of size w x h (px)."""
-    H, W = frame_bgr.shape[:2]
-    if not (np.isfinite(cx) and np.isfinite(cy)) or not (0 <= cx < W and 0 <= cy < H):
-        raise SandtrackError(f"seed point ({cx:.1f}, {cy:.1f}) lies outside the {W}x{H} image")
-    if not (w >= 3 and h >= 3):
-        raise SandtrackError(f"seed box {w}x{h} px is too small (at least 3x3)")
-    half_in = 0.5 * max(w, h)
-    margin = max(4.0, 0.5 * half_in)
-    R = int(np.ceil(half_in + margin))
-    x0, x1 = int(round(cx)) - R, int(round(cx)) + R + 1
-    y0, y1 = int(round(cy)) - R, int(round(cy)) + R + 1
-    patch = frame_bgr[max(y0, 0):min(y1, H), max(x0, 0):min(x1, W)].reshape(-1, 3).astype(np.float64)
-    yy, xx = np.mgrid[max(y0, 0):min(y1, H), max(x0, 0):min(x1, W)]
-    dx, dy = np.abs(xx.ravel() - cx), np.abs(yy.ravel() - cy)
-    inner = (dx <= 0.5 * w) & (dy <= 0.5 * h)
-    ring = (np.maximum(dx, dy) >= half_in + 1.5)
-    if inner.sum() < 4 or ring.sum() < 12:
-        raise SandtrackError("seed box lies too close to the image border to learn the marker's colour")
-    patch = chromaticity(patch)
+GREY_CHROMA = 0.04  # a marker whose mean chromaticity is this close to grey (1/3 each) has no colour of its own
+
+
+def achromatic(seed, model) -> bool:
+    """The marker a model learned from `seed` scores (its pixels at or above the threshold in the box)
+    is grey: white, grey or black, with no colour of its own."""
+    inner = seed.bgr[seed.inner]
+    scores = model.score(np.clip(inner, 0, 255).astype(np.uint8)[None])[0]
+    disc = inner[scores >= model.threshold]
+    if len(disc) < 3:
+        return False
+    return bool(np.abs(chromaticity(disc.mean(axis=0)) - 1 / 3).max() < GREY_CHROMA)
+
+
+def learn_colour(seed) -> tuple[AppearanceModel | None, float]:
+    """The colour model of a seed (appearance.SeedPatch), or None when the marker's chromaticity
+    does not stand out from the sand's; and the separation measured (marker median score minus
+    the sand's 99.5th percentile; NaN when there was nothing to separate)."""
+    patch = chromaticity(seed.bgr)
+    inner, ring = seed.inner, seed.ring
     sand = patch[ring]
-    # Neighbouring markers may reach into the ring: drop its clearly blue pixels.
-    bl = sand @ np.array([1.0, -0.5, -0.5])
+    # Neighbouring markers may reach into the ring: drop its pixels clearly of the marker's colour
+    # (blue markers: clearly blue pixels).
+    blue_dir = np.array([1.0, -0.5, -0.5])
+    prelim = patch[inner].mean(axis=0) - np.median(sand, axis=0)
+    clean_dir = blue_dir if prelim @ blue_dir > 0 or np.linalg.norm(prelim) < 1e-9 else prelim
+    bl = sand @ clean_dir
     med = np.median(bl)
-    mad = 1.4826 * np.median(np.abs(bl - med)) + 0.005
+    mad = 1.4826 * np.median(np.abs(bl - med)) + 0.005 * np.linalg.norm(clean_dir) / np.linalg.norm(blue_dir)
     sand = sand[bl <= med + 4 * mad]
-    # First direction: inner pixels furthest from sand in the blue-vs-sand sense; split the box's
+    # First direction: inner pixels furthest from sand in the marker-vs-sand sense; split the box's
     # pixels into marker and sand by 2-means along it.
     mu_s = np.median(sand, axis=0)
     d0 = patch[inner].mean(axis=0) - mu_s
-    blue_dir = np.array([1.0, -0.5, -0.5])
-    if np.linalg.norm(d0) < 1e-6 or d0 @ blue_dir <= 0:
-        d0 = blue_dir
+    if np.linalg.norm(d0) < 1e-6 or d0 @ clean_dir <= 0:
+        d0 = clean_dir
     p_in = (patch[inner] - mu_s) @ d0
     t = 0.5 * (np.percentile(p_in, 95) + np.median((sand - mu_s) @ d0))
     for _ in range(10):
@@ -146,30 +83,44 @@ def learn(frame_bgr: np.ndarray, cx: float, cy: float, w: float, h: float) -> Co
         if abs(t_new - t) < 1e-6:
             break
         t = t_new
-    disc = patch[inner][p_in >= t]
+    chosen, others = seed.centre_component(p_in >= t)
+    disc = patch[inner][chosen]
     if len(disc) < 3:
-        raise SandtrackError("no marker found in the seed box (empty box?)")
+        return None, float("nan")
+    if np.median(seed.luma[inner][chosen]) < MIN_LUMA_FRACTION * np.median(seed.luma[ring]):
+        return None, float("nan")  # a black marker has no colour: its chromaticity is noise
     # Fisher discriminant between disc and sand.
     mu_d, mu_sand = disc.mean(axis=0), sand.mean(axis=0)
     Sw = np.cov(sand.T) + (np.cov(disc.T) if len(disc) > 3 else 0) + np.eye(3) * 1e-4
     wv = np.linalg.solve(Sw, mu_d - mu_sand)
     scale = float(wv @ (mu_d - mu_sand))
     if scale <= 1e-9:
-        raise SandtrackError("the seed box's marker does not differ in colour from the sand around it")
+        return None, float("nan")
     wv = wv / scale
     b = -float(wv @ mu_sand)
     s_sand = sand @ wv + b
     s_disc = disc @ wv + b
     sand_hi = float(np.percentile(s_sand, 99.5))
     separation = float(np.median(s_disc)) - sand_hi
-    if separation < 0.2:
-        raise SandtrackError("no marker found in the seed box: its colour is not distinct from the sand")
+    if separation < MIN_SEPARATION:
+        return None, separation
     threshold = float(np.clip(max(0.45, sand_hi + 0.1), 0.3, 0.7))
     # Soft marker area: the box's clipped scores, less what the sand among them scores on its own
     # (its noise clipped at 0 is positive on average), so the area does not grow with the box.
-    rest = patch[inner][p_in < t] @ wv + b
+    rest = patch[inner][~chosen & ~others] @ wv + b
     area = float(np.clip(s_disc, 0, 1).sum() + np.clip(rest, 0, 1).sum()
                  - len(rest) * np.clip(s_sand, 0, 1).mean())
     area = max(area, 3.0)
-    return ColourModel(w=wv, b=b, threshold=threshold, disc_area=area, radius=float(np.sqrt(area / np.pi)),
-                       sand_spread=float(np.std(s_sand)))
+    radius = float(np.sqrt(area / np.pi))
+    spread = float(np.std(s_sand))
+    floor = None
+    if 3 * spread > 0.15:
+        # A marker of weak colour (white on beige sand): weights start above the sand's own noise (3
+        # spreads), or noisy sand pixels weigh in every centroid; the marker area is then counted with
+        # the same weights, as the tracker counts it.
+        floor = min(3 * spread, 0.5)
+        weight = lambda v: np.clip((v - floor) / (1 - floor), 0, 1)  # noqa: E731
+        area = max(float(weight(s_disc).sum() + weight(rest).sum() - len(rest) * weight(s_sand).mean()), 3.0)
+    return AppearanceModel(w=wv, b=b, threshold=threshold, disc_area=area, radius=radius,
+                           sand_spread=spread, kind=COLOUR, den=1.0, eps=EPS, floor=floor,
+                           contrast=float(np.median(s_disc) - np.median(s_sand)) / max(spread, 1e-6)), separation

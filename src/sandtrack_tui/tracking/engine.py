@@ -4,26 +4,33 @@ Per step: every track predicts and proposes its best gated match; two tracks of 
 claiming the same marker keep only the better; with a calibration, the proposals of a marker in
 the two cameras are checked against each other's epipolar lines (the suspect view is dropped and
 flagged); coasting tracks look for unexplained blobs (along the epipolar band when the other view
-is tracked); then every track commits its status for the frame.
+is tracked); then every track commits its status for the frame. When most tracks of a camera
+leave their gates at once and the whole view moved (globalmotion.py), every track of that camera
+is moved with the view and searched again.
 """
 
 from __future__ import annotations
 
 import math
+import statistics
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from .globalmotion import image_shift
 from .matcher import Match
 from .reacquire import find_blobs, unexplained
 from .stereo import StereoCheck
 from .tracker import MarkerTrack, Observation
+
+JUMP_FRAMES = 2  # frames after a miss during which a track is searched a largest move per frame unseen
 
 
 @dataclass
 class _Proposal:
     match: Match
     reattach: bool = False
+    jump: bool = False  # re-attached beyond the gate: the marker's velocity starts from that move
 
 
 @dataclass
@@ -39,6 +46,9 @@ class Engine:
     crowd_factor: float = 1.4  # tracks closer than this x (r1 + r2) are "touching"
     crowded_min_score: float = 0.8
     crowded_max_colour: float = 1.4
+    follow_view: bool = True  # estimate the view's motion when most tracks of a camera lose their gates
+    view_shifts: list = field(default_factory=list)  # (camera, frame, dx, dy) applied
+    _prev: dict = field(default_factory=dict)  # camera -> its frame of the previous step
     _open_ambiguity: dict = field(default_factory=dict)
     _both_cache: tuple | None = None
     _by_camera: dict | None = None  # camera -> [(key, track, start frame)], in the order of `tracks`
@@ -88,6 +98,8 @@ class Engine:
                     m = None
                 if m is not None:
                     props[(t.marker, cam)] = _Proposal(m)
+            if self.follow_view:
+                self._follow_view(cam, j, img, live[cam], props)
             self._resolve_conflicts(live[cam], props, forced)
         if self.stereo is not None:
             self._stereo_check(frames, props, forced, only_reattached=False)
@@ -101,13 +113,47 @@ class Engine:
         for cam, (j, img, _rem) in frames.items():
             for t in live[cam]:
                 p = props.get((t.marker, cam))
-                obs.append(t.apply(j, img, p.match if p else None, reattach=bool(p and p.reattach)))
+                obs.append(t.apply(j, img, p.match if p else None, reattach=bool(p and p.reattach),
+                                   jump=bool(p and p.jump)))
         for key, (x, y) in forced.items():
             t = self.tracks[key]
             obs.append(t.set_manual(frames[t.camera][0], None, x, y))
         return obs
 
     # -- steps ---------------------------------------------------------------------------------
+    def _follow_view(self, cam, j, img, tracks, props) -> None:
+        """The tracks of this camera seen last frame mostly missed their gates, or found their markers
+        all displaced alike: if the whole view moved since the previous frame (globalmotion.py),
+        move every track with it and search the seen ones again."""
+        prev, self._prev[cam] = self._prev.get(cam), img
+        seen = [t for t in tracks if not t.coasting]
+        if prev is None or not seen:
+            return
+        missed, moves = [], []
+        for t in seen:
+            p = props.get((t.marker, cam))
+            if p is None:
+                missed.append(t)
+            elif not p.match.rest:  # (a marker at rest did not move)
+                x, y = t.kf.xy
+                moves.append((p.match.x - x, p.match.y - y))
+        if len(missed) < 0.5 * len(seen) and not _alike(moves):
+            return
+        shift = image_shift(prev, img)
+        if shift is None:
+            return
+        for t in tracks:
+            t.kf.translate(*shift)
+        crowd = self._neighbours(tracks)
+        for t in seen:
+            props.pop((t.marker, cam), None)
+            m = t.propose(img, j)
+            if m is not None and not self._crowded_reject(t, m, crowd.get(id(t), ())):
+                props[(t.marker, cam)] = _Proposal(m)
+        if len(self.view_shifts) < self.max_events:
+            self.view_shifts.append({"camera": cam, "frame": int(j), "dx": round(shift[0], 2),
+                                     "dy": round(shift[1], 2)})
+
     def _neighbours(self, tracks) -> dict:
         """For each track, the other tracks whose predictions touch it: id(track) -> [(track, xy)]."""
         if len(tracks) < 2:
@@ -122,7 +168,9 @@ class Engine:
     def _crowded_reject(self, t: MarkerTrack, m: Match, neighbours) -> bool:
         """Markers touching each other: their discs merge, the centroid and the NCC peak both lie.
         Keep a match only if it is clearly this marker's: nearer to this track's prediction than to
-        the neighbour's, a high score, not a merged blob. Otherwise the track coasts (honestly)."""
+        the neighbour's, and either centred on its own share of the blob (the matcher split it from
+        the touching markers) or of a high score and not a merged blob. Otherwise the track coasts
+        (honestly)."""
         if not neighbours:
             return False
         px, py = t.kf.xy
@@ -130,6 +178,8 @@ class Engine:
         for _o, q in neighbours:
             if math.hypot(m.x - q[0], m.y - q[1]) < own:
                 return True
+        if m.touching and m.used_centroid:
+            return m.colour_frac > self.crowded_max_colour
         return m.score < self.crowded_min_score or m.colour_frac > self.crowded_max_colour
 
     def _resolve_conflicts(self, tracks, props, forced) -> None:
@@ -211,6 +261,8 @@ class Engine:
         explained = [(p.match.x, p.match.y) for k, p in props.items() if k[1] == cam]
         explained += [xy for k, xy in forced.items() if k[1] == cam]
         cands: dict[tuple, list] = {}  # track key -> [(d2, blob id, blob)]
+        jumpers: set = set()  # tracks searched beyond their gate (any rival is then ambiguous)
+        windows: dict = {}  # track key -> (x, y, hx, hy) searched
         seen: list = []  # one blob seen through several tracks' windows is one blob
         for t in tracks:
             key = (t.marker, cam)
@@ -223,11 +275,25 @@ class Engine:
                 other = (t.marker, self.stereo.other(cam))
                 if other[1] in frames:
                     band_from = self._point_at(other, frames, props, forced)
+            # How far the marker may have gone since it was last seen: a frame's largest move per frame.
+            # Beyond its gate (pushed hard, carried away while hidden, or the view jumped) a blob takes
+            # the track only when no other candidate is in sight (any rival is ambiguous).
+            p = t.params
+            # (the first frames of a miss only: later the gate, widened while hidden, takes over)
+            reach = p.max_jump_px * (t.misses + 1) if t.misses <= JUMP_FRAMES else 0.0
             if band_from is not None:
                 # The other view pins the marker to a line: search a wider window, along the band only.
                 wide = max(hx, hy, 4 * t.model.radius + 10)
-                hx = hy = min(wide, t.params.max_search_px)
-            blobs = find_blobs(img, t.model, px, py, hx, hy)
+                hx = hy = min(wide, p.max_search_px)
+                if reach > hx:
+                    hx = hy = min(reach, p.max_band_search_px)
+            elif reach > max(hx, hy):
+                hx = hy = min(reach, p.max_search_px)
+            jump = max(hx, hy) > max(t.search_halfsize()) and t.model.has_blob
+            # Beyond the gate the marker may be a streak: its pixels count from half the threshold.
+            windows[key] = (px, py, hx, hy)
+            blobs = find_blobs(img, t.model, px, py, hx, hy,
+                               threshold=0.5 * t.model.threshold if jump else None)
             blobs = unexplained(blobs, np.array(explained).reshape(-1, 2), 1.5 * t.model.radius + 1)
             if not blobs:
                 continue
@@ -235,15 +301,19 @@ class Engine:
             d2 = t.kf.mahalanobis2(xy)
             if band_from is not None:
                 keep = self.stereo.distance(self.stereo.other(cam), band_from, cam, xy) <= self.stereo.band_px
+            elif jump:
+                keep = np.ones(len(blobs), bool)
             else:
                 keep = d2 <= t.params.gate_d2
+            if jump:
+                jumpers.add(key)
             cands[key] = [(float(d), self._blob_id(seen, b, t.model.radius), b)
                           for d, b, k in zip(d2, blobs, keep, strict=True) if k]
         n = 0
-        for key, blob in self._assign(cam, int(frames[cam][0]), cands).items():
-            m = self.tracks[key].verify_at(img, blob.x, blob.y)
+        for key, blob in self._assign(cam, int(frames[cam][0]), cands, jumpers, windows).items():
+            m = self.tracks[key].verify_at(img, blob.x, blob.y, int(frames[cam][0]) if key in jumpers else None)
             if m is not None:
-                props[key] = _Proposal(m, reattach=True)
+                props[key] = _Proposal(m, reattach=True, jump=key in jumpers)
                 n += 1
         return n
 
@@ -255,9 +325,12 @@ class Engine:
         seen.append((b.x, b.y))
         return len(seen) - 1
 
-    def _assign(self, cam, frame, cands: dict) -> dict:
+    def _assign(self, cam, frame, cands: dict, jumpers=frozenset(), windows=None) -> dict:
         """Tracks to blobs, most likely pair first; a pair is taken only if neither the track nor the
-        blob has a rival nearly as likely (likelihood ratio > e^3 ≈ 20): ambiguity is left alone."""
+        blob has a rival nearly as likely (likelihood ratio > e^3 ≈ 20): ambiguity is left alone. A
+        track searched beyond its gate (`jumpers`) takes a blob outside its gate only when neither the
+        track nor the blob has any rival, and the blob lies in no other searching track's window
+        (`windows`: that track may be the blob's marker even if it did not see the blob there)."""
         out = {}
         cands = {k: sorted(v, key=lambda c: c[0]) for k, v in cands.items() if v}
         blocked_tracks, blocked_blobs = set(), set()
@@ -278,7 +351,11 @@ class Engine:
             rival_blob = [c[0] for c in cands[key] if c[1] != bid and c[1] not in blocked_blobs]
             rival_track = [c[0] for k, lst in cands.items() if k != key and k not in blocked_tracks
                            for c in lst if c[1] == bid]
-            near = [r for r in rival_blob + rival_track if r - d2 < self.ambiguity_d2]
+            far = key in jumpers and d2 > self.tracks[key].params.gate_d2
+            near = [r for r in rival_blob + rival_track if r - d2 < self.ambiguity_d2 or far]
+            if far and windows:
+                near += [d2 for k, (wx, wy, hx, hy) in windows.items()
+                         if k != key and abs(blob.x - wx) <= hx and abs(blob.y - wy) <= hy]
             blocked_tracks.add(key)
             blocked_blobs.add(bid)
             if near:
@@ -301,6 +378,17 @@ class Engine:
                "why": "blob wanted by two tracks" if shared else "several candidate blobs in the gate"}
         self.ambiguous.append(rec)
         self._open_ambiguity[key] = rec
+
+
+def _alike(moves: list, min_px: float = 2.0, spread_px: float = 1.5) -> bool:
+    """At least two markers' moves from their predictions, of at least `min_px`, all within
+    `spread_px` of their median: the view moved, or everything was carried alike."""
+    if len(moves) < 2:
+        return False
+    mx, my = statistics.median(m[0] for m in moves), statistics.median(m[1] for m in moves)
+    if math.hypot(mx, my) < min_px:
+        return False
+    return all(math.hypot(m[0] - mx, m[1] - my) <= spread_px for m in moves)
 
 
 def _touching_pairs(pts, limit) -> list[tuple[int, int]]:

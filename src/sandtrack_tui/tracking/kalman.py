@@ -153,6 +153,11 @@ class ConstantVelocityKF:
         self._coasting = False
         self.coast_frames = 0
 
+    def translate(self, dx: float, dy: float) -> None:
+        """Move the position by (dx, dy): the whole view moved (camera pan or shake), not the marker."""
+        self._x[0] += float(dx)
+        self._x[1] += float(dy)
+
     def coast(self) -> None:
         """Record that this frame had no measurement (the next predict damps velocity)."""
         self._coasting = True

@@ -31,16 +31,17 @@ def _luma(win, i, j):
 
 
 @_jit
-def _score(win, i, j, w0, w1, w2, b, eps):
-    """Colour score of pixel (i, j) of a BGR window, float32: (w . bgr) / (B + G + R + eps) + b."""
+def _score(win, i, j, w0, w1, w2, b, eps, den):
+    """Marker score of pixel (i, j) of a BGR window, float32: (w . bgr) / (den (B + G + R) + eps) + b
+    (den 1: a colour model on chromaticity; den 0, eps 1: a brightness model, linear in B, G, R)."""
     B, G, R = np.float32(win[i, j, 0]), np.float32(win[i, j, 1]), np.float32(win[i, j, 2])
-    return (w0 * B + w1 * G + w2 * R) / (B + G + R + eps) + b
+    return (w0 * B + w1 * G + w2 * R) / (den * (B + G + R) + eps) + b
 
 
 @_jit
 def _coverage(score, lo, gain):
     """A pixel's weight in centroids and blob areas, ≈ its coverage by the marker:
-    (score - lo) / (1 - lo) clipped to 0..1, with gain = 1 / (1 - lo) (ColourModel.weight_floor)."""
+    (score - lo) / (1 - lo) clipped to 0..1, with gain = 1 / (1 - lo) (AppearanceModel.weight_floor)."""
     return min(max((score - lo) * gain, 0.0), 1.0)
 
 
@@ -234,13 +235,13 @@ def edge_centre(win, cx, cy, radius, steps, cos, sin, min_rise, step_px, iterati
 
 
 @_jit
-def colour_score(win, w0, w1, w2, b, eps):
-    """Marker score of a BGR window, float32: (w . bgr) / (B + G + R + eps) + b (colour.py)."""
+def colour_score(win, w0, w1, w2, b, eps, den):
+    """Marker score of a BGR window, float32: (w . bgr) / (den (B + G + R) + eps) + b (colour.py)."""
     h, w = win.shape[0], win.shape[1]
     out = np.empty((h, w), np.float32)
     for i in range(h):
         for j in range(w):
-            out[i, j] = _score(win, i, j, w0, w1, w2, b, eps)
+            out[i, j] = _score(win, i, j, w0, w1, w2, b, eps, den)
     return out
 
 
@@ -275,6 +276,46 @@ def centroid(score, x, y, iterations, rad, lo, disc_area):
 
 
 @_jit
+def centroid_split(score, x, y, iterations, rad, lo, disc_area, nbx, nby):
+    """As `centroid`, for a marker touching others: a pixel counts only when it lies nearer to the
+    current estimate than to every neighbour centre (nbx[k], nby[k]; score coordinates), so the
+    discs of touching markers are split at their contact instead of pulling each other's centres."""
+    R = int(np.ceil(rad))
+    h, w = score.shape
+    gain = 1.0 / (1.0 - lo)
+    frac = 0.0
+    nn = nbx.shape[0]
+    for _ in range(iterations):
+        ix, iy = int(np.rint(x)), int(np.rint(y))
+        m00 = m10 = m01 = 0.0
+        for yy in range(max(iy - R, 0), min(iy + R + 1, h)):
+            for xx in range(max(ix - R, 0), min(ix + R + 1, w)):
+                d0 = (xx - x) * (xx - x) + (yy - y) * (yy - y)
+                if (xx - ix) * (xx - ix) + (yy - iy) * (yy - iy) > rad * rad:
+                    continue
+                mine = True
+                for k in range(nn):
+                    if (xx - nbx[k]) * (xx - nbx[k]) + (yy - nby[k]) * (yy - nby[k]) < d0:
+                        mine = False
+                        break
+                if not mine:
+                    continue
+                v = _coverage(score[yy, xx], lo, gain)
+                m00 += v
+                m10 += v * xx
+                m01 += v * yy
+        frac = m00 / disc_area
+        if m00 < 1e-6:
+            return x, y, 0.0
+        nx, ny = m10 / m00, m01 / m00
+        moved = abs(nx - x) + abs(ny - y)
+        x, y = nx, ny
+        if moved < 1e-3:
+            break
+    return x, y, frac
+
+
+@_jit
 def _parabola(a, b, c):
     den = a - 2 * b + c
     if den >= 0:
@@ -283,13 +324,41 @@ def _parabola(a, b, c):
 
 
 @_jit
+def _touching_peaks(res, br, bc, peak, radius):
+    """Other markers touching the matched one: local maxima of the NCC surface `res` (3 x 3) at
+    1.6-2.7 marker radii from the peak (row br, column bc), of at least max(0.5, 0.6 x peak); their
+    (columns, rows) in `res` coordinates. (Touching markers' centres are ~2 radii apart.)"""
+    nr, nc = res.shape
+    reach = int(np.ceil(2.7 * radius))
+    lo2, hi2 = (1.6 * radius) ** 2, (2.7 * radius) ** 2
+    level = max(0.5, 0.6 * peak)
+    xs = np.empty(16)
+    ys = np.empty(16)
+    n = 0
+    for r in range(max(br - reach, 1), min(br + reach + 1, nr - 1)):
+        for c in range(max(bc - reach, 1), min(bc + reach + 1, nc - 1)):
+            d2 = (r - br) * (r - br) + (c - bc) * (c - bc)
+            v = res[r, c]
+            if d2 < lo2 or d2 > hi2 or v < level:
+                continue
+            if (v < res[r - 1, c - 1] or v < res[r - 1, c] or v < res[r - 1, c + 1] or v < res[r, c - 1]
+                    or v < res[r, c + 1] or v < res[r + 1, c - 1] or v < res[r + 1, c] or v < res[r + 1, c + 1]):
+                continue
+            if n < 16:
+                xs[n] = c
+                ys[n] = r
+                n += 1
+    return xs[:n], ys[:n]
+
+
+@_jit
 def match_peak(res, score, c_lo, c_hi, r_lo, r_hi, ox, oy, s00, s01, s11, gate, half, excl,
                rad, lo, disc_area, radius):
     """Best NCC peak of `res` in the box rows r_lo..r_hi, columns c_lo..c_hi (and, when gate > 0,
     inside the gate ellipse d2 <= gate of the offsets (c + ox, r + oy) with the inverse innovation
     covariance s), refined to sub-pixel by parabolas, its peak-to-sidelobe ratio, then the colour
-    centroid of `score` around it. Returns (found, x, y, peak, psr, coverage, used_centroid) with x, y in
-    `score` coordinates."""
+    centroid of `score` around it (split from touching markers' shares). Returns (found, x, y, peak, psr,
+    coverage, used_centroid, touching) with x, y in `score` coordinates."""
     best, br, bc = -np.inf, -1, -1
     for r in range(r_lo, r_hi + 1):
         for c in range(c_lo, c_hi + 1):
@@ -306,17 +375,27 @@ def match_peak(res, score, c_lo, c_hi, r_lo, r_hi, ox, oy, s00, s01, s11, gate, 
                     if s00 * dx * dx + 2 * s01 * dx * dy + s11 * dy * dy <= gate and res[r, c] > best:
                         best, br, bc = res[r, c], r, c
             if br < 0:
-                return False, 0.0, 0.0, 0.0, 0.0, 0.0, False
+                return False, 0.0, 0.0, 0.0, 0.0, 0.0, False, False
     nr, nc = res.shape
     peak = float(res[br, bc])
     sx = _parabola(float(res[br, bc - 1]), peak, float(res[br, bc + 1])) if 0 < bc < nc - 1 else 0.0
     sy = _parabola(float(res[br - 1, bc]), peak, float(res[br + 1, bc])) if 0 < br < nr - 1 else 0.0
-    # Peak-to-sidelobe ratio: (peak - mean) / std of the correlation outside a window around the peak.
+    nbx, nby = _touching_peaks(res, br, bc, peak, radius)
+    # Peak-to-sidelobe ratio: (peak - mean) / std of the correlation outside a window around the peak
+    # (and around the peaks of touching markers: a neighbour is another marker, not a sidelobe).
     n_in = s1 = s2 = 0.0
     for r in range(nr):
         inside_r = br - excl <= r <= br + excl
         for c in range(nc):
             if inside_r and bc - excl <= c <= bc + excl:
+                n_in += 1
+                continue
+            skip = False
+            for k in range(nbx.shape[0]):
+                if abs(r - nby[k]) <= excl and abs(c - nbx[k]) <= excl:
+                    skip = True
+                    break
+            if skip:
                 n_in += 1
                 continue
             v = float(res[r, c])
@@ -330,11 +409,15 @@ def match_peak(res, score, c_lo, c_hi, r_lo, r_hi, ox, oy, s00, s01, s11, gate, 
         sd = max(s2 / n - mean * mean, 0.0) ** 0.5
         psr = (peak - mean) / max(sd, 1e-3)
     ncc_x, ncc_y = bc + half + sx, br + half + sy
-    cx, cy, frac = centroid(score, ncc_x, ncc_y, 2, rad, lo, disc_area)
+    split = nbx.shape[0] > 0
+    if split:
+        cx, cy, frac = centroid_split(score, ncc_x, ncc_y, 3, rad, lo, disc_area, nbx + half, nby + half)
+    else:
+        cx, cy, frac = centroid(score, ncc_x, ncc_y, 2, rad, lo, disc_area)
     used = frac >= 0.75 and np.hypot(cx - ncc_x, cy - ncc_y) <= 0.5 * radius
     if used:
-        return True, cx, cy, peak, psr, frac, True
-    return True, ncc_x, ncc_y, peak, psr, frac, False
+        return True, cx, cy, peak, psr, frac, True, split
+    return True, ncc_x, ncc_y, peak, psr, frac, False, split
 
 
 @_jit
@@ -357,7 +440,7 @@ def colour_mask(win, m0, m1, m2, m3):
 
 
 @_jit
-def blob_moments(win, labels, k, xa, ya, xb, yb, w0, w1, w2, b, eps, lo):
+def blob_moments(win, labels, k, xa, ya, xb, yb, w0, w1, w2, b, eps, den, lo):
     """Soft moments (m00, m10, m01; x, y from (xa, ya)) of component `k` of `labels` grown by one
     pixel (3 x 3), within rows ya..yb-1 and columns xa..xb-1, weighted by the colour coverage; and
     the component's pixel count there."""
@@ -375,7 +458,7 @@ def blob_moments(win, labels, k, xa, ya, xb, yb, w0, w1, w2, b, eps, lo):
                         hit = True
             if not hit:
                 continue
-            v = _coverage(_score(win, i, j, w0, w1, w2, b, eps), lo, gain)
+            v = _coverage(_score(win, i, j, w0, w1, w2, b, eps, den), lo, gain)
             m00 += v
             m10 += v * (j - xa)
             m01 += v * (i - ya)
@@ -449,8 +532,8 @@ def edge_centre_yuv(yp, up, vp, t, x0, y0, n, cx, cy, radius, steps, cos, sin, m
 
 
 @_jit
-def colour_score_yuv(yp, up, vp, t, x0, y0, x1, y1, w0, w1, w2, b, eps):
-    return colour_score(_bgr(yp, up, vp, t, x0, y0, x1, y1), w0, w1, w2, b, eps)
+def colour_score_yuv(yp, up, vp, t, x0, y0, x1, y1, w0, w1, w2, b, eps, den):
+    return colour_score(_bgr(yp, up, vp, t, x0, y0, x1, y1), w0, w1, w2, b, eps, den)
 
 
 def warm_up() -> None:

@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from . import kernels
-from .colour import ColourModel
+from .appearance import AppearanceModel
 
 
 @dataclass(slots=True)
@@ -32,12 +32,17 @@ class Match:
     used_centroid: bool = True
     luma: tuple | None = None  # centre of the marker's brightness edge (luma.py), when measured
     rest: bool = False  # the last full measurement moved by the brightness shift since (rest.py)
+    touching: bool = False  # other markers touch this one: its centre is from its own share of the blob
+
+
+STREAK_MIN_SPEED = 4.0  # px per frame from which a marker may be smeared into a streak
+STREAK_EXPOSURES = (0.5, 1.0)  # exposures tried, in frames
 
 
 class TemplateMatcher:
     skip_updated_above = 0.92  # NCC of the seed template above which the updated one is not needed
 
-    def __init__(self, model: ColourModel, frame_bgr: np.ndarray, cx: float, cy: float, half: int | None = None):
+    def __init__(self, model: AppearanceModel, frame_bgr: np.ndarray, cx: float, cy: float, half: int | None = None):
         self.model = model
         self.half = int(half if half is not None else np.ceil(model.radius + 3))
         self.seed_template = self._cut(frame_bgr, cx, cy)
@@ -51,7 +56,7 @@ class TemplateMatcher:
         r = self.half + 2
         x0, y0 = int(np.floor(cx)) - r, int(np.floor(cy)) - r
         roi = _crop(frame_bgr, x0, y0, 2 * r + 2, 2 * r + 2)
-        score = self.model.score(roi)
+        score = self.model.prepared(self.model.score(roi))
         return cv2.getRectSubPix(score, (self.size, self.size), (cx - x0, cy - y0))
 
     def update_template(self, frame_bgr: np.ndarray, cx: float, cy: float, alpha: float = 0.1) -> None:
@@ -68,10 +73,11 @@ class TemplateMatcher:
         self.template = ((1 - alpha) * self.template + alpha * patch).astype(np.float32)
 
     def match(self, frame_bgr: np.ndarray, px: float, py: float, hx: float, hy: float,
-              s_inv: tuple | None = None, gate_d2: float = 9.21) -> Match | None:
+              s_inv: tuple | None = None, gate_d2: float = 9.21, velocity: tuple | None = None) -> Match | None:
         """Best match whose centre lies within (hx, hy) of the prediction (px, py) and, given the
         inverse innovation covariance s_inv = (i00, i01, i11), inside the gate ellipse. None if
-        nothing to match."""
+        nothing to match. `velocity` (px per frame): a fast marker is also matched as the streak the
+        exposure smears it into (see _streaks)."""
         H, W = frame_bgr.shape[:2]
         if not (math.isfinite(px) and math.isfinite(py)):
             return None
@@ -82,7 +88,7 @@ class TemplateMatcher:
         x1, y1 = min(cx0 + ex + self.half + 1, W), min(cy0 + ey + self.half + 1, H)
         if x1 - x0 < self.size + 2 or y1 - y0 < self.size + 2:
             return None
-        score = self.model.score_window(frame_bgr, x0, y0, x1, y1)
+        score = self.model.prepared(self.model.score_window(frame_bgr, x0, y0, x1, y1))
         res = cv2.matchTemplate(score, self.seed_template, cv2.TM_CCOEFF_NORMED)
         cv2.patchNaNs(res, -1.0)
         if float(res.max()) < self.skip_updated_above:
@@ -90,6 +96,9 @@ class TemplateMatcher:
             res2 = cv2.matchTemplate(score, self.template, cv2.TM_CCOEFF_NORMED)
             cv2.patchNaNs(res2, -1.0)
             res = np.maximum(res, res2)
+        streak = 0.0
+        if velocity is not None and float(res.max()) < self.skip_updated_above:
+            res, streak = self._streaks(score, res, velocity)
         # The search box (hx, hy around the prediction) in result-grid indices.
         ox, oy = x0 + self.half - px, y0 + self.half - py  # grid index 0 -> offset from prediction
         c_lo, c_hi = max(math.ceil(-hx - 0.5 - ox), 0), min(math.floor(hx + 0.5 - ox), res.shape[1] - 1)
@@ -98,14 +107,58 @@ class TemplateMatcher:
             return None
         # The peak inside the gate ellipse (+1: the grid is integer, the refined centre is not).
         s = (0.0, 0.0, 0.0, -1.0) if s_inv is None else (*s_inv, gate_d2 + 1.0)
-        found, mx, my, peak, psr, frac, used = kernels.match_peak(
+        found, mx, my, peak, psr, frac, used, touching = kernels.match_peak(
             res, score, c_lo, c_hi, r_lo, r_hi, float(ox), float(oy), *map(float, s), self.half,
-            math.ceil(self.model.radius) + 1, self.model.radius + 1.5, self.model.weight_floor,
-            self.model.disc_area, self.model.radius)
+            math.ceil(self.model.radius + 0.5 * streak) + 1, self.model.radius + 1.5 + 0.5 * streak,
+            self.model.weight_floor * self._dilution(streak), self.model.disc_area, self.model.radius + 0.5 * streak)
         if not found:
             return None
         self._last = (score, x0, y0)
-        return Match(x=mx + x0, y=my + y0, score=peak, psr=psr, colour_frac=frac, used_centroid=used)
+        return Match(x=mx + x0, y=my + y0, score=peak, psr=psr, colour_frac=frac, used_centroid=used,
+                     touching=touching)
+
+    def _streaks(self, score: np.ndarray, res: np.ndarray, velocity: tuple) -> tuple[np.ndarray, float]:
+        """A marker moving v px per frame is smeared over e |v| px by an exposure of e frames. For a
+        fast marker (|v| >= STREAK_MIN_SPEED) the seed template smeared along v over half and a whole
+        frame's move competes too; returns the best NCC surface and the winning smear length (px; 0:
+        the round marker won). The centroid then covers the streak: its coverage centre is the
+        marker at mid-exposure."""
+        vx, vy = velocity
+        speed = math.hypot(vx, vy)
+        if speed < STREAK_MIN_SPEED:
+            return res, 0.0
+        best, best_len = res, 0.0
+        for e in STREAK_EXPOSURES:
+            length = e * speed
+            res_e = cv2.matchTemplate(score, self._smeared(vx / speed, vy / speed, length), cv2.TM_CCOEFF_NORMED)
+            cv2.patchNaNs(res_e, -1.0)
+            if float(res_e.max()) > float(best.max()):
+                best, best_len = res_e, length
+        return best, best_len
+
+    def _dilution(self, streak: float) -> float:
+        """A streak spreads a marker's coverage over (d + L) / d of its length: its pixels score that
+        much less, and the weight floor is lowered as much (or the streak's coverage would be lost)."""
+        d = 2 * self.model.radius
+        return d / (d + streak)
+
+    def _smeared(self, ux: float, uy: float, length: float) -> np.ndarray:
+        key = (round(math.degrees(math.atan2(uy, ux)) / 10) % 36, round(length))
+        cache = self.__dict__.setdefault("_smear_cache", {})
+        t = cache.get(key)
+        if t is None:
+            ang, n = math.radians(key[0] * 10), max(int(key[1]), 1)
+            size = 2 * (n // 2) + 3
+            kern = np.zeros((size, size), np.float32)
+            c = size // 2
+            for i in range(4 * n + 1):  # a line of n px through the centre, finely sampled
+                d = (i / (4 * n) - 0.5) * n
+                cv2.circle(kern, (int(round(c + d * math.cos(ang))), int(round(c + d * math.sin(ang)))), 0, 1.0, -1)
+            t = cv2.filter2D(self.seed_template, -1, kern / kern.sum(), borderType=cv2.BORDER_CONSTANT)
+            if len(cache) > 64:
+                cache.clear()
+            cache[key] = t
+        return t
 
     def centroid(self, score: np.ndarray, x: float, y: float, iterations: int = 2) -> tuple[float, float, float]:
         """Colour-weighted centroid near (x, y) in `score`'s coordinates; returns (x, y, coverage).
@@ -120,7 +173,7 @@ class TemplateMatcher:
         R = int(np.ceil(self.model.radius + 4))
         x0, y0 = int(round(x)) - R, int(round(y)) - R
         roi = _crop(frame_bgr, x0, y0, 2 * R + 1, 2 * R + 1)
-        cx, cy, frac = self.centroid(self.model.score(roi), x - x0, y - y0, iterations=3)
+        cx, cy, frac = self.centroid(self.model.prepared(self.model.score(roi)), x - x0, y - y0, iterations=3)
         return cx + x0, cy + y0, frac
 
 

@@ -1,7 +1,8 @@
 """Re-acquisition: a marker-coloured blob that no track explains re-attaches a coasting track.
 
 A coasting (occluded or lost) track looks for blobs of its marker's colour and size inside its
-widened gate. A blob already explained by another track of the same camera is not a candidate.
+widened gate; a blob of several touching markers counts as one blob per marker (detection.py).
+A blob already explained by another track of the same camera is not a candidate.
 Exactly one candidate re-attaches the track (after a template check); two or more, or one blob
 wanted by two tracks, is ambiguous and left to the operator: the track keeps coasting.
 """
@@ -14,7 +15,11 @@ import cv2
 import numpy as np
 from scipy.ndimage import find_objects
 
-from .colour import ColourModel
+from .appearance import BRIGHT, DARK, AppearanceModel
+from .detection import split_blob
+
+SPLIT_FROM = 1.6  # a blob of this many markers' area or more is split into touching markers
+MAX_SPLIT = 12
 
 
 @dataclass
@@ -24,16 +29,20 @@ class Blob:
     area: float  # soft marker area, px²
 
 
-def find_blobs(frame_bgr: np.ndarray, model: ColourModel, cx: float, cy: float, hx: float, hy: float,
-               min_frac: float = 0.4, max_frac: float = 2.5) -> list[Blob]:
-    """Blobs of the model's colour and roughly its size whose centre lies within (hx, hy) of (cx, cy)."""
+def find_blobs(frame_bgr: np.ndarray, model: AppearanceModel, cx: float, cy: float, hx: float, hy: float,
+               min_frac: float = 0.4, max_frac: float = 2.5, threshold: float | None = None) -> list[Blob]:
+    """Blobs of the model's colour and roughly its size whose centre lies within (hx, hy) of (cx, cy);
+    pixels count from `threshold` (default: the model's; lower for a streak, whose coverage is spread)."""
     H, W = frame_bgr.shape[:2]
     pad = int(np.ceil(model.radius)) + 2
     x0, x1 = max(int(np.floor(cx - hx)) - pad, 0), min(int(np.ceil(cx + hx)) + pad + 1, W)
     y0, y1 = max(int(np.floor(cy - hy)) - pad, 0), min(int(np.ceil(cy + hy)) + pad + 1, H)
     if x1 - x0 < 3 or y1 - y0 < 3:
         return []
-    mask, found, bx0, by0, bx1, by1 = model.mask_box(frame_bgr, x0, y0, x1, y1)
+    if model.kind in (DARK, BRIGHT):
+        return _blobs_in_score(model, model.prepared(model.score_window(frame_bgr, x0, y0, x1, y1)), x0, y0,
+                               cx, cy, hx, hy, min_frac, max_frac, threshold)
+    mask, found, bx0, by0, bx1, by1 = model.mask_box(frame_bgr, x0, y0, x1, y1, threshold)
     if not found:  # most searches of a hidden marker: nothing of its colour in sight
         return []
     # Only the part of the window holding marker colour is labelled (plus 2 px: the moments look one
@@ -55,11 +64,57 @@ def find_blobs(frame_bgr: np.ndarray, model: ColourModel, cx: float, cy: float, 
         xa, ya = max(sl[1].start - 1, 0), max(sl[0].start - 1, 0)
         xb, yb = min(sl[1].stop + 1, mask.shape[1]), min(sl[0].stop + 1, mask.shape[0])
         area, m10, m01, pixels = model.blob_moments(win, labels, k, xa, ya, xb, yb)
-        if pixels < 2 or not (min_frac * model.disc_area <= area <= max_frac * model.disc_area):
+        if pixels < 2 or area < min_frac * model.disc_area:
             continue
-        bx_c, by_c = m10 / area + xa + x0, m01 / area + ya + y0
-        if abs(bx_c - cx) <= hx and abs(by_c - cy) <= hy:
-            out.append(Blob(bx_c, by_c, area))
+        if area >= SPLIT_FROM * model.disc_area:  # touching markers: one blob each
+            score = model.score(np.ascontiguousarray(win[ya:yb, xa:xb]))
+            parts = _split(model, score, labels[ya:yb, xa:xb] == k, area, xa + x0, ya + y0)
+        elif area <= max_frac * model.disc_area:
+            parts = [Blob(m10 / area + xa + x0, m01 / area + ya + y0, area)]
+        else:
+            continue
+        out += [b for b in parts if abs(b.x - cx) <= hx and abs(b.y - cy) <= hy]
+    return out
+
+
+def _split(model: AppearanceModel, score: np.ndarray, on: np.ndarray, area: float, x0: int, y0: int) -> list[Blob]:
+    """A blob of several touching markers as one Blob per marker (detection.split_blob)."""
+    count = int(round(area / model.disc_area))
+    if count > MAX_SPLIT:
+        return []
+    return [Blob(x + x0, y + y0, frac * model.disc_area)
+            for x, y, frac in split_blob(score, on, model, count) if frac >= 0.5]
+
+
+def _blobs_in_score(model: AppearanceModel, score: np.ndarray, x0: int, y0: int, cx: float, cy: float,
+                    hx: float, hy: float, min_frac: float, max_frac: float, threshold: float | None) -> list[Blob]:
+    """find_blobs on a prepared score window (brightness models: the sand level is the window's)."""
+    mask = (score >= (model.threshold if threshold is None else threshold)).astype(np.uint8)
+    n, labels = cv2.connectedComponents(mask, connectivity=8)
+    if n <= 1:
+        return []
+    floor = model.weight_floor
+    weights = np.clip((score - floor) / (1.0 - floor), 0.0, 1.0)
+    out = []
+    for k, sl in enumerate(find_objects(labels), start=1):
+        if sl is None:
+            continue
+        ya, yb = max(sl[0].start - 1, 0), min(sl[0].stop + 1, mask.shape[0])
+        xa, xb = max(sl[1].start - 1, 0), min(sl[1].stop + 1, mask.shape[1])
+        grown = cv2.dilate((labels[ya:yb, xa:xb] == k).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+        w = weights[ya:yb, xa:xb] * grown
+        area = float(w.sum())
+        if np.count_nonzero(labels[ya:yb, xa:xb] == k) < 2 or area < min_frac * model.disc_area:
+            continue
+        if area >= SPLIT_FROM * model.disc_area:  # touching markers: one blob each
+            parts = _split(model, np.ascontiguousarray(score[ya:yb, xa:xb]), labels[ya:yb, xa:xb] == k, area,
+                           xa + x0, ya + y0)
+        elif area <= max_frac * model.disc_area:
+            yy, xx = np.mgrid[ya:yb, xa:xb]
+            parts = [Blob(float((w * xx).sum()) / area + x0, float((w * yy).sum()) / area + y0, area)]
+        else:
+            continue
+        out += [b for b in parts if abs(b.x - cx) <= hx and abs(b.y - cy) <= hy]
     return out
 
 

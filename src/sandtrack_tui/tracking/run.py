@@ -1,6 +1,7 @@
 """Project-level tracking API used by the CLI, the TUI and the demo.
 
-- `auto_seed(project, frame)`: propose every blue marker of a frame, paired across cameras.
+- `auto_seed(project, frame)`: propose every marker of a frame that looks like the seeded one (or
+  every blue marker), paired across cameras.
 - `accept_seeds(project, seeds)`: write the accepted proposal as markers and "manual" points.
 - `seed_marker(project, marker, camera, frame, x, y, w, h)`: one operator seed (a click).
 - `track_project(project, ...)`: track forward or backward from the seeds (or from any frame:
@@ -24,6 +25,7 @@ import pandas as pd
 from ..errors import SandtrackError
 from ..video import camera_offsets as video_offsets
 from . import identity
+from .appearance import learn
 from .chroma import Chroma420Frame, block_replicated
 from .decoding import prefetch
 from .engine import Engine
@@ -88,13 +90,16 @@ def first_common_frame(sources: dict, offsets: dict, ref: str) -> int:
 
 
 def auto_seed(project, frame: int | None = 0, sources: dict | None = None,
-              max_epipolar_px: float = 5.0) -> pd.DataFrame:
-    """Every blue marker in `frame` (first camera's index; the others at the paired frame; None =
-    the first frame all cameras recorded), paired across cameras by epipolar distance when the
-    project holds a calibration. A proposal only: nothing is written. Unpaired detections get
-    their own proposal (epipolar_px NaN). A proposal that is a marker the project already has
-    (identity.py: where the marker is in this frame, or was last seen) takes its id (`existing`
-    True, `match_px` the distance); the rest are numbered after the highest id in use."""
+              max_epipolar_px: float = 5.0, like: int | None = None) -> pd.DataFrame:
+    """Every marker in `frame` (first camera's index; the others at the paired frame; None = the
+    first frame all cameras recorded) that looks like marker `like` (default: the project's first
+    marker with a manual point; with none, every blue marker), paired across cameras by epipolar
+    distance when the project holds a calibration. A proposal only: nothing is written. Unpaired
+    detections get their own proposal (epipolar_px NaN). A proposal that is a marker the project
+    already has (identity.py: where the marker is in this frame, or was last seen) takes its id
+    (`existing` True, `match_px` the distance); the rest are numbered after the highest id in use.
+    Also `model`, `contrast`: the appearance model each proposed seed gets (appearance.py) and the
+    contrast it measured."""
     own = sources is None
     sources = sources or project.open_sources()
     try:
@@ -105,13 +110,15 @@ def auto_seed(project, frame: int | None = 0, sources: dict | None = None,
             frame = first_common_frame(sources, offsets, ref)
         if not 0 <= frame < len(sources[ref]):
             raise SandtrackError(f"frame {frame} outside 0..{len(sources[ref]) - 1}")
-        dets, frames = {}, {}
+        dets, frames, images = {}, {}, {}
+        models = reference_models(project, sources, cams, like)
         for c in cams:
             pf = (frame, 0.0) if c == ref else paired_frame(sources, offsets, ref, frame, c)
             if pf is None:
                 continue
             frames[c] = pf[0]
-            dets[c] = detect_markers(sources[c].frame(pf[0]))
+            images[c] = sources[c].frame(pf[0])
+            dets[c] = detect_markers(images[c], model=models.get(c))
         rows = []
         proposal = 1
         stereo = _stereo_for(project, cams)
@@ -135,6 +142,11 @@ def auto_seed(project, frame: int | None = 0, sources: dict | None = None,
                 rows.append((proposal, c, frames[c], r.x_px, r.y_px, r.w, r.h, np.nan))
                 proposal += 1
         proposals = pd.DataFrame(rows, columns=SEED_COLUMNS)
+        looks = [_appearance_at(images[r.camera], r.x_px, r.y_px, r.w, r.h) for r in proposals.itertuples()]
+        proposals["model"] = [a[0] for a in looks]
+        proposals["contrast"] = [a[1] for a in looks]
+        if models:  # like a seeded marker: a detection whose own box shows no marker is not one
+            proposals = proposals[proposals["model"] != "none"].reset_index(drop=True)
         existing = project.markers()
         next_id = int(existing["id"].max()) + 1 if len(existing) else 1
         points = pd.concat([project.points(camera=c, frames=(f - MATCH_WINDOW_FRAMES, f + MATCH_WINDOW_FRAMES))
@@ -146,6 +158,52 @@ def auto_seed(project, frame: int | None = 0, sources: dict | None = None,
     finally:
         if own:
             _close(sources)
+
+
+def _appearance_at(img, x: float, y: float, w: float, h: float) -> tuple[str, float]:
+    """(model kind, contrast) the tracker learns from this seed box; ("none", NaN) if it learns none."""
+    try:
+        d = learn(img, x, y, w, h).describe()
+    except SandtrackError:
+        return "none", float("nan")
+    return d["model"], d["contrast"]
+
+
+def reference_models(project, sources: dict, cams: list[str], like: int | None = None) -> dict:
+    """Camera -> the appearance model of marker `like` (default: the lowest marker id with a manual
+    point), learned at its first manual point in that camera, or in another camera when that one has
+    none or its seed shows no marker; {} when there is no such marker (SandtrackError when `like` has
+    no manual point, or none of its seeds shows a marker)."""
+    pts = project.points()
+    man = pts[(pts.status == MANUAL) & pts.x_px.notna()].sort_values(["marker", "frame"])
+    if like is not None:
+        man = man[man.marker == int(like)]
+        if man.empty:
+            raise SandtrackError(f"marker {like} has no manual point to learn its appearance from")
+    if man.empty:
+        return {}
+    marker = int(man.marker.iloc[0])
+    man = man[man.marker == marker]
+    boxes = project.get(BOXES_KEY, {}) or {}
+    models, failed = {}, ""
+    for c in cams:
+        rows = man[man.camera == c]
+        if rows.empty or c not in sources:
+            continue
+        r = rows.iloc[0]
+        img = sources[c].frame(int(r.frame))
+        box = boxes.get(f"{marker}/{c}") or marker_box(img, r.x_px, r.y_px) or (DEFAULT_BOX_PX, DEFAULT_BOX_PX)
+        try:
+            models[c] = learn(img, float(r.x_px), float(r.y_px), box[0], box[1])
+        except SandtrackError as exc:
+            failed = f"marker {marker} ({c}, frame {int(r.frame)}): {exc}"
+    if not models:
+        if failed:
+            raise SandtrackError(failed)
+        return {}
+    for c in cams:
+        models.setdefault(c, next(iter(models.values())))
+    return models
 
 
 def accept_seeds(project, seeds: pd.DataFrame, description: str = "accept seeds") -> int:
@@ -373,13 +431,14 @@ def track_project(project, markers=None, start: int | None = None, stop: int | N
         for (m, c), t in engine.tracks.items():
             per.setdefault(str(m), {})[c] = {
                 "tracked": t.counts[TRACKED], "occluded": t.counts[OCCLUDED], "lost": t.counts[LOST],
-                "reacquired": t.reacquisitions, "at_rest": t.rest_frames, "last_status": t.status}
+                "reacquired": t.reacquisitions, "at_rest": t.rest_frames, "last_status": t.status,
+                "appearance": t.model.describe()}
         never = [f"marker {m} {c}" for (m, c), t in engine.tracks.items()
                  if t.counts[TRACKED] == 0 and (t.counts[OCCLUDED] + t.counts[LOST]) > 0]
         summary.update(
             frames=len(steps), first_frame=a, last_frame=b,
             frames_by_camera={c: sum(c in st for st in steps) for c in cams},
-            per_marker=per, stereo_flags=engine.stereo_flags,
+            per_marker=per, stereo_flags=engine.stereo_flags, view_shifts=engine.view_shifts,
             ambiguous=engine.ambiguous, never_found=never, elapsed_s=round(elapsed, 3), track_s=round(t_track, 4),
             track_ms_per_marker_frame=round(1000 * t_track / max(n_obs, 1), 4),
             track_cpu_ms_per_marker_frame=round(1000 * cpu_track / max(n_obs, 1), 4),

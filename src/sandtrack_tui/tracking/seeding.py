@@ -1,9 +1,16 @@
-"""Finding markers with no model yet: auto-seeding a frame and snapping a click to a marker.
+"""Finding markers: auto-seeding a frame, snapping a click to a marker, a marker's box.
 
-Blue markers on sand are found by a generic blueness measure, B - (G + R) / 2, thresholded
-relative to the frame's own sand (median + several robust deviations), then kept if their blobs
-have a marker's size and roundness. Across two cameras, detections are paired by epipolar
-distance with the Hungarian method (naive pairing by position swapped markers).
+With an appearance model (appearance.py; learned from a seeded marker, or from the box around a
+click), "markers" are every blob that looks like that marker: pixels scoring at or above its
+threshold, grouped into blobs, kept when their marker area (soft, as the tracker counts it) is
+that of the model; a blob of several touching markers is split at the peaks of the marker-sized
+disc filter, and each centre is the coverage centroid of its own share of the blob (detection.py).
+
+With no model, blue markers on sand are found by a generic blueness measure, B - (G + R) / 2,
+thresholded relative to the frame's own sand (median + several robust deviations), kept if their
+blobs have a marker's size and roundness and are blue; a click on anything else learns a model
+from the box around the click. Across two cameras, detections are paired by epipolar distance
+with the Hungarian method (naive pairing by position swapped markers).
 """
 
 from __future__ import annotations
@@ -13,14 +20,23 @@ import numpy as np
 import pandas as pd
 from scipy.optimize import linear_sum_assignment
 
+from ..errors import SandtrackError
+from ..video import to_bgr8
+from .appearance import AppearanceModel, learn
 from .colour import blueness, chroma_blueness
+from .detection import detect_like
 
 DETECT_COLUMNS = ["x_px", "y_px", "w", "h", "area", "contrast"]
 
 
 def detect_markers(frame_bgr: np.ndarray, min_diameter_px: float = 4.0, max_diameter_px: float = 40.0,
-                   k_sigma: float = 6.0) -> pd.DataFrame:
-    """All blue blobs of a marker's size in a frame: DataFrame[x_px, y_px, w, h, area, contrast]."""
+                   k_sigma: float = 6.0, model: AppearanceModel | None = None) -> pd.DataFrame:
+    """All markers in a frame: DataFrame[x_px, y_px, w, h, area, contrast]. With `model`, every blob
+    that looks like the marker it was learned from (touching markers split); without, blue blobs of
+    a marker's size."""
+    frame_bgr = to_bgr8(frame_bgr)
+    if model is not None:
+        return detect_like(frame_bgr, model)
     f = blueness(frame_bgr)
     small = f[::4, ::4]
     med = float(np.median(small))
@@ -38,6 +54,8 @@ def detect_markers(frame_bgr: np.ndarray, min_diameter_px: float = 4.0, max_diam
         if max(w, h) > 2.2 * min(w, h) + 1 or area < 0.45 * w * h:
             continue  # not round: streaks, edges of larger blue things
         xa, ya, xb, yb = max(x - 2, 0), max(y - 2, 0), min(x + w + 2, W), min(y + h + 2, H)
+        if not _is_blue(frame_bgr[y:y + h, x:x + w][labels[y:y + h, x:x + w] == k]):
+            continue  # bluer than the sand, but not blue: a white or grey object
         peak = float(f[labels == k].max())
         wts = _chroma_weights(frame_bgr[ya:yb, xa:xb], (labels[ya:yb, xa:xb] == k))
         tot = float(wts.sum())
@@ -46,11 +64,70 @@ def detect_markers(frame_bgr: np.ndarray, min_diameter_px: float = 4.0, max_diam
     return pd.DataFrame(rows, columns=DETECT_COLUMNS)
 
 
-def snap_to_marker(frame_bgr: np.ndarray, x: float, y: float, radius: float = 12) -> tuple[float, float] | None:
-    """Centroid of the blue marker nearest to (x, y) within `radius` px, or None if there is none."""
+def _is_blue(pixels: np.ndarray) -> bool:
+    """The mean colour of a blob's pixels is blue: blue above both green and red."""
+    if not len(pixels):
+        return False
+    b, g, r = pixels.reshape(-1, 3).astype(np.float64).mean(axis=0)
+    return bool(b > g and b > r)
+
+
+def snap_to_marker(frame_bgr: np.ndarray, x: float, y: float, radius: float = 12,
+                   model: AppearanceModel | None = None) -> tuple[float, float] | None:
+    """Centre of the marker nearest to (x, y) within `radius` px, or None if there is none. With
+    `model`: a blob that looks like its marker; without: a blue marker, or else whatever stands
+    out from the sand around the click (a model learned from the box around it; a texture is not
+    snapped: the click is its place)."""
+    frame_bgr = _window_source(frame_bgr)
     H, W = frame_bgr.shape[:2]
     if not (np.isfinite(x) and np.isfinite(y)) or not (0 <= x < W and 0 <= y < H):
         return None
+    if model is not None:
+        return _nearest_like(frame_bgr, model, x, y, radius)
+    blue = _snap_blue(frame_bgr, x, y, radius)
+    if blue is not None:
+        return blue
+    model = _learn_near(frame_bgr, x, y, radius)
+    if model is None:
+        return None
+    if not model.has_blob:
+        return float(x), float(y)
+    return _nearest_like(frame_bgr, model, x, y, radius)
+
+
+def _window_source(frame):
+    """A frame as the seeding functions read it: 8-bit BGR (grey and 16-bit images converted)."""
+    if isinstance(frame, np.ndarray) and (frame.ndim != 3 or frame.dtype != np.uint8 or frame.shape[2] != 3):
+        return to_bgr8(frame)
+    return frame
+
+
+def _learn_near(frame_bgr, x: float, y: float, radius: float) -> AppearanceModel | None:
+    """A model learned from a box of the click's uncertainty (plus room for the marker) around it."""
+    box = 2 * float(radius) + 8
+    try:
+        return learn(frame_bgr, x, y, box, box, centred=False)
+    except SandtrackError:
+        return None
+
+
+def _nearest_like(frame_bgr, model: AppearanceModel, x: float, y: float, radius: float):
+    H, W = frame_bgr.shape[:2]
+    R = int(np.ceil(radius + 3 * model.radius + 4))
+    x0, y0 = max(int(round(x)) - R, 0), max(int(round(y)) - R, 0)
+    x1, y1 = min(int(round(x)) + R + 1, W), min(int(round(y)) + R + 1, H)
+    det = detect_like(np.ascontiguousarray(frame_bgr[y0:y1, x0:x1]), model)
+    if det.empty:
+        return None
+    d = np.hypot(det.x_px + x0 - x, det.y_px + y0 - y).to_numpy()
+    k = int(np.argmin(d))
+    if d[k] > radius:
+        return None
+    return float(det.x_px.iloc[k] + x0), float(det.y_px.iloc[k] + y0)
+
+
+def _snap_blue(frame_bgr, x: float, y: float, radius: float) -> tuple[float, float] | None:
+    H, W = frame_bgr.shape[:2]
     R = int(np.ceil(radius)) + 12
     x0, y0 = max(int(round(x)) - R, 0), max(int(round(y)) - R, 0)
     x1, y1 = min(int(round(x)) + R + 1, W), min(int(round(y)) + R + 1, H)
@@ -71,6 +148,8 @@ def snap_to_marker(frame_bgr: np.ndarray, x: float, y: float, radius: float = 12
         if d < best_d:
             best, best_d = k, d
     if best is None or best_d > radius:
+        return None
+    if not _is_blue(frame_bgr[y0:y1, x0:x1][labels == best]):
         return None
     wts = _chroma_weights(frame_bgr[y0:y1, x0:x1], labels == best)
     tot = float(wts.sum())
@@ -93,17 +172,21 @@ def _chroma_weights(bgr: np.ndarray, comp: np.ndarray) -> np.ndarray:
 
 def marker_box(frame_bgr: np.ndarray, x: float, y: float, radius: float = 12) -> tuple[float, float] | None:
     """Size (w, h) of a box around the marker at (x, y) with a little sand around it, or None."""
+    frame_bgr = _window_source(frame_bgr)
     H, W = frame_bgr.shape[:2]
     R = int(np.ceil(radius)) + 12
     x0, y0 = max(int(round(x)) - R, 0), max(int(round(y)) - R, 0)
     det = detect_markers(frame_bgr[y0:min(int(round(y)) + R + 1, H), x0:min(int(round(x)) + R + 1, W)])
-    if det.empty:
+    if not det.empty:
+        d = np.hypot(det.x_px + x0 - x, det.y_px + y0 - y)
+        k = int(np.argmin(d.to_numpy()))
+        if d.iloc[k] <= radius:
+            return float(det.w.iloc[k]), float(det.h.iloc[k])
+    model = _learn_near(frame_bgr, x, y, radius)
+    if model is None or not model.has_blob:
         return None
-    d = np.hypot(det.x_px + x0 - x, det.y_px + y0 - y)
-    k = int(np.argmin(d.to_numpy()))
-    if d.iloc[k] > radius:
-        return None
-    return float(det.w.iloc[k]), float(det.h.iloc[k])
+    side = 2 * np.ceil(model.radius) + 5  # the marker and ~2 px of sand each side, as for blue markers
+    return float(side), float(side)
 
 
 def pair_by_epipolar(stereo, det_a: pd.DataFrame, det_b: pd.DataFrame, max_px: float = 5.0):

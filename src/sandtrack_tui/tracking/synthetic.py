@@ -51,11 +51,11 @@ class Clip:
         return int(np.clip(round(t * self.fps), 0, len(self.frames) - 1))
 
 
-def sand_texture(h: int, w: int, rng: np.random.Generator) -> np.ndarray:
+def sand_texture(h: int, w: int, rng: np.random.Generator, sand_bgr: np.ndarray = SAND_BGR) -> np.ndarray:
     lum = cv2.GaussianBlur(rng.normal(0, 1, (h, w)).astype(np.float32), (0, 0), 0.8) * 30
     lum += cv2.GaussianBlur(rng.normal(0, 1, (h, w)).astype(np.float32), (0, 0), 5) * 60
     chroma = cv2.GaussianBlur(rng.normal(0, 1, (h, w, 3)).astype(np.float32), (0, 0), 1.0) * 6
-    img = SAND_BGR[None, None, :] * (1 + lum[..., None] / 255.0) + chroma
+    img = np.asarray(sand_bgr, np.float64)[None, None, :] * (1 + lum[..., None] / 255.0) + chroma
     return img.astype(np.float32)
 
 
@@ -76,13 +76,45 @@ def _disc_alpha(h: int, w: int, cx: float, cy: float, r: float, ss: int = 4):
     return (y0, y1, x0, x1), alpha, shade
 
 
+def _smeared_alpha(h: int, w: int, p: MarkerPath, f: int, exposure: float, steps: int = 9):
+    """_disc_alpha averaged over positions within the exposure around frame f (linear between frames)."""
+    n = len(p.xy)
+    acc = None
+    for k in range(steps):
+        t = f + exposure * (k / (steps - 1) - 0.5)
+        i = int(np.clip(np.floor(t), 0, n - 2))
+        a = t - i
+        cx, cy = (1 - a) * p.xy[i] + a * p.xy[i + 1]
+        out = _disc_alpha(h, w, cx, cy, p.radius)
+        if out is None:
+            continue
+        box, alpha, shade = out
+        if acc is None:
+            acc = []
+        acc.append((box, alpha, shade))
+    if not acc:
+        return None
+    y0, x0 = min(b[0][0] for b in acc), min(b[0][2] for b in acc)
+    y1, x1 = max(b[0][1] for b in acc), max(b[0][3] for b in acc)
+    alpha = np.zeros((y1 - y0, x1 - x0), np.float64)
+    shade = np.zeros_like(alpha)
+    for (by0, by1, bx0, bx1), a, s in acc:
+        alpha[by0 - y0:by1 - y0, bx0 - x0:bx1 - x0] += a / steps
+        shade[by0 - y0:by1 - y0, bx0 - x0:bx1 - x0] += a * s / steps
+    return (y0, y1, x0, x1), alpha, np.where(alpha > 0, shade / np.maximum(alpha, 1e-9), 1.0)
+
+
 def render(paths: list[MarkerPath], n_frames: int, size=(360, 480), seed: int = 0, noise: float = 3.0,
-           dusty: float = 0.0, tool: tuple | None = None, fps: float = 50.0) -> Clip:
-    """Render a clip. tool = (y0, y1, width, x_start, speed_px_per_frame) of a grey bar moving right."""
+           dusty: float = 0.0, tool: tuple | None = None, fps: float = 50.0, marker_bgr=MARKER_BGR,
+           sand_bgr=SAND_BGR, exposure: float = 0.0, view_shift: np.ndarray | None = None) -> Clip:
+    """Render a clip. tool = (y0, y1, width, x_start, speed_px_per_frame) of a grey bar moving right.
+    marker_bgr, sand_bgr: colours; exposure: motion blur, the share of a frame's move each marker is
+    smeared over; view_shift (n_frames, 2): the whole image moved by (dx, dy) px (truth moved too)."""
     rng = np.random.default_rng(seed)
     h, w = size
-    bg = sand_texture(h, w, rng)
-    colour = (1 - dusty) * MARKER_BGR + dusty * SAND_BGR
+    bg = sand_texture(h, w, rng, sand_bgr)
+    marker_bgr, sand_bgr = np.asarray(marker_bgr, np.float64), np.asarray(sand_bgr, np.float64)
+    colour = (1 - dusty) * marker_bgr + dusty * sand_bgr
     speckle = {p.marker: rng.random((64, 64)) < 0.5 * dusty for p in paths}
     frames, rows, tool_boxes = [], [], []
     for f in range(n_frames):
@@ -95,7 +127,7 @@ def render(paths: list[MarkerPath], n_frames: int, size=(360, 480), seed: int = 
         tool_boxes.append(tool_box)
         for p in paths:
             cx, cy = p.xy[f]
-            out = _disc_alpha(h, w, cx, cy, p.radius)
+            out = _smeared_alpha(h, w, p, f, exposure) if exposure > 0 else _disc_alpha(h, w, cx, cy, p.radius)
             fade = 1.0 if p.fade is None else float(p.fade[f])
             vis_frac = 0.0
             if out is not None:
@@ -104,7 +136,7 @@ def render(paths: list[MarkerPath], n_frames: int, size=(360, 480), seed: int = 
                 col = colour[None, None, :] * shade[..., None]
                 if dusty > 0:
                     sp = speckle[p.marker][(np.arange(y0, y1) - int(cy)) % 64][:, (np.arange(x0, x1) - int(cx)) % 64]
-                    col = np.where(sp[..., None], SAND_BGR * 0.95, col)
+                    col = np.where(sp[..., None], sand_bgr * 0.95, col)
                 img[y0:y1, x0:x1] = a[..., None] * col + (1 - a[..., None]) * img[y0:y1, x0:x1]
                 covered = np.zeros_like(alpha)
                 if tool_box is not None:
@@ -118,6 +150,11 @@ def render(paths: list[MarkerPath], n_frames: int, size=(360, 480), seed: int = 
             xa, xb = max(xa, 0), min(xb, w)
             if xb > xa:
                 img[ya:yb, xa:xb] = TOOL_BGR * (1 + 0.05 * rng.normal(0, 1, (yb - ya, xb - xa, 1)))
+        if view_shift is not None:
+            M = np.float32([[1, 0, view_shift[f][0]], [0, 1, view_shift[f][1]]])
+            img = cv2.warpAffine(img, M, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+            rows[-len(paths):] = [(r[0], r[1], r[2] + view_shift[f][0], r[3] + view_shift[f][1], r[4])
+                                  for r in rows[-len(paths):]]
         img += rng.normal(0, noise, img.shape).astype(np.float32)
         frames.append(np.clip(img, 0, 255).astype(np.uint8))
     truth = pd.DataFrame(rows, columns=["frame", "marker", "x_px", "y_px", "visible_frac"])

@@ -17,7 +17,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..errors import SandtrackError
-from .colour import ColourModel, learn
+from .appearance import COLOUR, AppearanceModel, learn
 from .kalman import GATE_D2, ConstantVelocityKF
 from .luma import edge_centre
 from .matcher import Match, TemplateMatcher
@@ -25,6 +25,11 @@ from .rest import RestReference
 
 TRACKED, OCCLUDED, LOST, MANUAL, INTERPOLATED = "tracked", "occluded", "lost", "manual", "interpolated"
 DEFAULT_BOX_PX = 16
+# A marker touching others matches its seed template (the marker in a ring of sand) less well, and
+# its neighbours' peaks crowd the NCC surface: its score and PSR limits are relaxed this much. (Who is
+# who is the crowd rules' business: engine.py.)
+TOUCHING_RELAX = 0.85
+MERGED_COVERAGE = 1.4  # marker coverage (in seed discs) above which a blob is two markers merged
 
 
 @dataclass
@@ -40,6 +45,8 @@ class TrackParams:
     accel_px: float = 2.0  # Kalman process noise: white acceleration, px/frame²
     meas_px: float = 0.3  # measurement noise, px
     max_search_px: float = 80.0  # cap of the half search window while hidden
+    max_jump_px: float = 30.0  # a marker's largest move per frame: searched this far (per frame unseen)
+    max_band_search_px: float = 240.0  # ... and at most this far along the other view's epipolar band
     # Between intra-coded frames, report the luma edge centre + the colour-minus-luma offset of the
     # last intra frame (luma.py), while the marker stays within this distance of where it was then.
     luma_carry: bool = True
@@ -87,7 +94,7 @@ class MarkerTrack:
         w = float(w) if w is not None and np.isfinite(w) and w > 0 else DEFAULT_BOX_PX
         h = float(h) if h is not None and np.isfinite(h) and h > 0 else DEFAULT_BOX_PX
         try:
-            self.model: ColourModel = learn(frame_bgr, x, y, w, h)
+            self.model: AppearanceModel = learn(frame_bgr, x, y, w, h)
         except SandtrackError as exc:
             raise SandtrackError(f"marker {marker} ({camera}, frame {frame_index}): {exc}") from None
         self.matcher = TemplateMatcher(self.model, frame_bgr, x, y)
@@ -110,6 +117,7 @@ class MarkerTrack:
         self._anchor_luma: tuple | None = None
         self._rest: RestReference | None = None
         self.rest_frames = 0
+        self._last_measured: tuple | None = (frame_index, x, y)  # (frame, x, y) of the last match or point
 
     # -- per frame -----------------------------------------------------------------------------
     @property
@@ -137,11 +145,12 @@ class MarkerTrack:
                              rest=True)
         px, py = self.kf.xy
         hx, hy = self.search_halfsize()
-        m = self.matcher.match(frame_bgr, px, py, hx, hy, self.kf.innovation_inv(), self.params.gate_d2)
+        m = self.matcher.match(frame_bgr, px, py, hx, hy, self.kf.innovation_inv(), self.params.gate_d2,
+                               self.kf.vxy)
         if m is None:
             return None
         m.d2 = self.kf.d2(m.x, m.y)
-        if not self.acceptable(m):
+        if not self.acceptable(m, TOUCHING_RELAX if m.touching else 1.0):
             return None
         self._carry(frame_bgr, m, frame_index)
         return m
@@ -162,8 +171,8 @@ class MarkerTrack:
     def _carry(self, frame_bgr, m: Match, frame_index: int | None) -> None:
         """Measure the luma centre of a whole, clearly seen marker; between intra frames, move the
         match to luma centre + the last intra frame's offset (see luma.py)."""
-        if self.intra is None or not self.params.luma_carry or not m.used_centroid:
-            return
+        if self.intra is None or not self.params.luma_carry or not m.used_centroid or self.model.kind != COLOUR:
+            return  # (a brightness model measures the full-resolution luma itself: nothing trails)
         intra = self._is_intra(frame_index)
         if not intra and self._offset is None:
             return  # nothing to carry until the next intra frame
@@ -197,24 +206,39 @@ class MarkerTrack:
     def acceptable(self, m: Match, relax: float = 1.0) -> bool:
         p = self.params
         psr_ok = not math.isfinite(m.psr) or m.psr >= p.min_psr * relax
-        return m.score >= p.min_score * relax and m.colour_frac >= p.min_colour and psr_ok
+        colour_ok = not self.model.has_blob or m.colour_frac >= p.min_colour
+        return m.score >= p.min_score * relax and colour_ok and psr_ok
 
-    def verify_at(self, frame_bgr: np.ndarray, x: float, y: float) -> Match | None:
-        """Match in a small window around a candidate point (re-acquisition); None if it fails."""
-        m = self.matcher.match(frame_bgr, x, y, 2.0, 2.0)
+    def verify_at(self, frame_bgr: np.ndarray, x: float, y: float, frame_index: int | None = None) -> Match | None:
+        """Match in a small window around a candidate point (re-acquisition); None if it fails. With
+        the candidate's `frame_index`, a move since the last measurement may have smeared it (a streak)."""
+        velocity = None
+        last = self._last_measured
+        if frame_index is not None and last is not None and frame_index != last[0]:
+            steps = abs(frame_index - last[0])
+            velocity = ((x - last[1]) / steps, (y - last[2]) / steps)
+        m = self.matcher.match(frame_bgr, x, y, 2.0, 2.0, velocity=velocity)
         if m is None or not self.acceptable(m, relax=0.9):
             return None
+        if self.model.has_blob and m.colour_frac > MERGED_COVERAGE:
+            return None  # the candidate is this marker merged with another: who is who is not clear
         m.d2 = self.kf.d2(m.x, m.y)
         return m
 
     def apply(self, frame_index: int, frame_bgr: np.ndarray | None, m: Match | None,
-              reattach: bool = False) -> Observation:
-        """Commit this frame's outcome and return its observation."""
+              reattach: bool = False, jump: bool = False) -> Observation:
+        """Commit this frame's outcome and return its observation. `jump`: re-attached beyond the
+        gate; the velocity restarts from the move since the last measurement."""
         self.frame_index = frame_index
         p = self.params
         self._update_offset(frame_index, m, reattach)
         if m is not None:
-            if reattach and self.misses > 2:
+            last = self._last_measured
+            steps = abs(frame_index - last[0]) if last is not None else 0
+            if jump and 0 < steps <= 3:
+                self.kf.reset(m.x, m.y, velocity=((m.x - last[1]) / steps, (m.y - last[2]) / steps))
+                self.reacquisitions += 1
+            elif reattach and self.misses > 2:
                 self.kf.reset(m.x, m.y)
                 self.reacquisitions += 1
             else:
@@ -223,14 +247,16 @@ class MarkerTrack:
                 self.rest_frames += 1
             else:
                 self._since_update += 1
-                clean = m.score >= p.confident_score and m.colour_frac >= p.confident_colour and m.used_centroid
+                clean = m.score >= p.confident_score and (
+                    not self.model.has_blob or (m.colour_frac >= p.confident_colour and m.used_centroid))
                 if frame_bgr is not None and self._since_update >= p.template_every and clean:
                     self.matcher.update_template(frame_bgr, m.x, m.y, p.template_alpha)
                     self._since_update = 0
                 self._rest = RestReference(frame_bgr, m.x, m.y, self.model.radius, m, p.rest_residual,
                                            p.rest_residual_frac) \
-                    if (p.rest_check and frame_bgr is not None and not reattach) else None
+                    if (p.rest_check and self.model.luma_follows and frame_bgr is not None and not reattach) else None
             self.status, self.misses = TRACKED, 0
+            self._last_measured = (frame_index, m.x, m.y)
             obs = Observation(frame_index, self.camera, self.marker, m.x, m.y, TRACKED, m.score, m.psr, m.colour_frac)
         else:
             self._rest = None
@@ -255,6 +281,7 @@ class MarkerTrack:
         else:
             self.kf.update((x, y), 0.2)
         self.status, self.misses, self.frame_index = TRACKED, 0, frame_index
+        self._last_measured = (frame_index, x, y)
         self.counts[MANUAL] += 1
         return Observation(frame_index, self.camera, self.marker, x, y, MANUAL)
 

@@ -8,6 +8,8 @@ are drawn on a copy of that canvas each frame, then sensor noise is added.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
 
@@ -21,6 +23,20 @@ DIFFUSE = 0.72
 Y_MARCH_TOP = SAND_Y + 21.0
 Y_MARCH_BOT = SAND_Y - 25.0
 MARKER_BGR = np.array([0.70, 0.33, 0.09], np.float32)  # blue paint on wood
+
+
+@dataclass(frozen=True)
+class MarkerStyle:
+    """How a marker sphere looks: albedo (BGR), a specular highlight (strength, shininess) and the
+    share of the scene behind it that shows through (glass)."""
+
+    albedo: tuple = tuple(float(v) for v in MARKER_BGR)
+    spec: float = 0.10
+    shininess: int = 30
+    transmit: float = 0.0
+
+
+BLUE_PAINT = MarkerStyle()  # matte paint, diffuse lab light
 STEEL_BGR = np.array([0.42, 0.43, 0.44], np.float32)
 SHADOW_TOP_Y = 800.0  # the lamp's light reaches the sand past the shank's parts below this height
 
@@ -304,8 +320,10 @@ class CameraView:
         out[inside] = tmap[px_y[inside] - y0, px_x[inside] - x0]
         return out
 
-    def draw_markers(self, img: np.ndarray, markers: dict[int, np.ndarray], surf: SurfaceGrid, zt: float, ss: int = 4):
+    def draw_markers(self, img: np.ndarray, markers: dict[int, np.ndarray], surf: SurfaceGrid, zt: float, ss: int = 4,
+                     radius: float = MARKER_RADIUS, style: MarkerStyle = BLUE_PAINT):
         C = self.C
+        albedo = MARKER_BGR if style == BLUE_PAINT else np.array(style.albedo, np.float32)
         L = LIGHT_DIR
         far_first = sorted(markers.values(), key=lambda p: -float(np.linalg.norm(p - C)))
         for P in far_first:
@@ -313,7 +331,7 @@ class CameraView:
             if (P - C) @ self.cam.R[2] < 20:
                 continue
             c = self.cam.project(P[None])[0]
-            rpx = self.cam.matrix[0, 0] * MARKER_RADIUS / dist
+            rpx = self.cam.matrix[0, 0] * radius / dist
             half = int(np.ceil(rpx * 1.8 + 2))
             x0, y0 = int(np.floor(c[0])) - half, int(np.floor(c[1])) - half
             x1, y1 = x0 + 2 * half + 1, y0 + 2 * half + 1
@@ -327,7 +345,7 @@ class CameraView:
             # contact shadow on the sand around the marker (not on the shank in front of it)
             Ps = self.P[ys, xs].astype(np.float64)
             h_here = float(surf.height(P[0], P[2]))
-            if P[1] - h_here > -MARKER_RADIUS:
+            if P[1] - h_here > -radius:
                 S = P - L * ((P[1] - h_here) / L[1])
                 ds = np.hypot(Ps[..., 0] - S[0], Ps[..., 2] - S[2])
                 dc = np.hypot(Ps[..., 0] - P[0], Ps[..., 2] - P[2])
@@ -343,7 +361,7 @@ class CameraView:
             dd /= np.linalg.norm(dd, axis=1, keepdims=True)
             oc = C - P
             b = dd @ oc
-            cc = oc @ oc - MARKER_RADIUS**2
+            cc = oc @ oc - radius**2
             disc = b * b - cc
             t = np.where(disc > 0, -b - np.sqrt(np.maximum(disc, 0)), np.inf)
             pix_depth = np.repeat(self.depth[ys, xs].ravel(), ss * ss).astype(np.float64)
@@ -353,16 +371,18 @@ class CameraView:
                 img[ys, xs] = np.clip(region, 0, 255).astype(np.uint8)
                 continue
             Q = C + np.where(hit, t, 0)[:, None] * dd
-            nrm = (Q - P) / MARKER_RADIUS
+            nrm = (Q - P) / radius
             lamb = np.clip(nrm @ L, 0, 1)
             hvec = _norm(L - dd)
-            spec = np.clip(np.sum(nrm * hvec, axis=1), 0, 1) ** 30 * 0.10
-            col = MARKER_BGR * (0.55 + 0.5 * lamb)[:, None] + spec[:, None]  # matte paint, diffuse lab light
+            spec = np.clip(np.sum(nrm * hvec, axis=1), 0, 1) ** style.shininess * style.spec
+            col = albedo * (0.55 + 0.5 * lamb)[:, None] + spec[:, None]
             col = col * 255.0
             frac = hit.reshape(y1c - y0c, x1c - x0c, ss * ss)
             colr = (col * hit[:, None]).reshape(y1c - y0c, x1c - x0c, ss * ss, 3).sum(2)
             cover = frac.mean(-1)
             colr = colr / np.maximum(frac.sum(-1), 1)[..., None] * self.vignette[ys, xs, None]
+            if style.transmit:  # glass: the (darkened) scene behind the bead shows through it
+                colr = colr + style.transmit * region
             region = region * (1 - cover[..., None]) + colr * cover[..., None]
             img[ys, xs] = np.clip(region, 0, 255).astype(np.uint8)
         return img

@@ -44,14 +44,15 @@ X_HALF = 118.0  # deformation is zero beyond |X - TOOL_X| > X_HALF
 class Timeline:
     tool_start_s: float = 1.2
     clap_s: float = 0.7
+    speed_mm_s: float = TOOL_SPEED
 
     def tool_z(self, t: np.ndarray | float) -> np.ndarray | float:
         """Shank front Z (mm) at scene time t."""
-        return TOOL_Z0 + np.clip((np.asarray(t) - self.tool_start_s) * TOOL_SPEED, 0.0, TOOL_TRAVEL)
+        return TOOL_Z0 + np.clip((np.asarray(t) - self.tool_start_s) * self.speed_mm_s, 0.0, TOOL_TRAVEL)
 
     @property
     def tool_end_s(self) -> float:
-        return self.tool_start_s + TOOL_TRAVEL / TOOL_SPEED
+        return self.tool_start_s + TOOL_TRAVEL / self.speed_mm_s
 
 
 def _smoothstep(a: float, b: float, x):
@@ -201,27 +202,30 @@ _SCRIPTS = {
 PUSH_GAP = MARKER_RADIUS + 2.0  # marker centre ahead of the shank front while pushed
 
 
-def initial_positions() -> dict[int, np.ndarray]:
+def initial_positions(radius: float = MARKER_RADIUS) -> dict[int, np.ndarray]:
     out = {}
     for k, mid in enumerate(MARKER_IDS):
-        out[mid] = np.array([ROW_X[k // 4], SAND_Y + MARKER_RADIUS, ROW_Z[k % 4]])
+        out[mid] = np.array([ROW_X[k // 4], SAND_Y + radius, ROW_Z[k % 4]])
     return out
 
 
 class MarkerScript:
     """Smooth scripted marker motion (jittered by the seed), X/Z in mm, dy relative to the surface."""
 
-    def __init__(self, seed: int, timeline: Timeline):
+    def __init__(self, seed: int, timeline: Timeline, radius: float = MARKER_RADIUS):
         rng = np.random.default_rng(seed + 7)
         self.timeline = timeline
-        self.p0 = initial_positions()
+        self.radius = radius
+        push_gap = PUSH_GAP if radius == MARKER_RADIUS else radius + 2.0
+        self.push_gap = push_gap
+        self.p0 = initial_positions(radius)
         self.funcs = {}
         for mid, keys in _SCRIPTS.items():
             s = np.array([k[0] for k in keys], float)
             jit = 1.0 + 0.08 * rng.standard_normal()
             dx = np.array([k[1] for k in keys], float) * jit
             dx[np.abs(dx) > 0] += rng.normal(0, 1.0, np.count_nonzero(np.abs(dx) > 0))
-            dz = np.array([s[i] + PUSH_GAP if k[2] == "push" else k[2] for i, k in enumerate(keys)], float)
+            dz = np.array([s[i] + push_gap if k[2] == "push" else k[2] for i, k in enumerate(keys)], float)
             dy = np.array([k[3] for k in keys], float)
             self.funcs[mid] = (PchipInterpolator(s, dx, extrapolate=False), PchipInterpolator(s, dz, extrapolate=False),
                                PchipInterpolator(s, dy, extrapolate=False), s[0], s[-1])
@@ -243,8 +247,8 @@ class MarkerScript:
             # in the shank's lane the shank front pushes the marker: keep it ahead (smoothly)
             w = float(_smoothstep(SHANK_HALF_X + 5.0, SHANK_HALF_X + 3.0, abs(x - TOOL_X)))
             if w > 0 and z > zt - SHANK_CHORD:
-                z += w * 0.7 * float(np.logaddexp(0.0, (zt + PUSH_GAP - z) / 0.7))
-            y = surface.height_at(x, z, zt) + MARKER_RADIUS + dy
+                z += w * 0.7 * float(np.logaddexp(0.0, (zt + self.push_gap - z) / 0.7))
+            y = surface.height_at(x, z, zt) + self.radius + dy
             out[mid] = np.array([x, y, z])
         return out
 
@@ -262,10 +266,11 @@ def _disc_samples(n: int = 64) -> np.ndarray:
 _DISC = _disc_samples()
 
 
-def visible_fraction(cam, P: np.ndarray, zt: float, surface: SurfaceGrid, others=()) -> float:
-    """Fraction of the marker sphere's silhouette (centre P, world) that the camera really sees:
-    inside the image, not behind the tool's shank, not under or behind sand, not behind another
-    marker (centres `others`)."""
+def visible_fraction(cam, P: np.ndarray, zt: float, surface: SurfaceGrid, others=(),
+                     radius: float = MARKER_RADIUS) -> float:
+    """Fraction of the marker sphere's silhouette (centre P, world, `radius` mm) that the camera really
+    sees: inside the image, not behind the tool's shank, not under or behind sand, not behind another
+    marker (centres `others`, same radius)."""
     C = cam.center_mm
     e3 = C - P
     dist = np.linalg.norm(e3)
@@ -274,7 +279,7 @@ def visible_fraction(cam, P: np.ndarray, zt: float, surface: SurfaceGrid, others
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(e3, e1)
     a, b = _DISC[:, 0:1], _DISC[:, 1:2]
-    Q = P + MARKER_RADIUS * (a * e1 + b * e2 + np.sqrt(1 - a * a - b * b) * e3)
+    Q = P + radius * (a * e1 + b * e2 + np.sqrt(1 - a * a - b * b) * e3)
     px = cam.project(Q)
     ok = (px[:, 0] >= 0) & (px[:, 0] <= cam.width - 1) & (px[:, 1] >= 0) & (px[:, 1] <= cam.height - 1)
     ok &= cam.R[2] @ (P - C) > 0
@@ -288,7 +293,7 @@ def visible_fraction(cam, P: np.ndarray, zt: float, surface: SurfaceGrid, others
             continue
         oc = Q - O
         b = np.sum(d * oc, axis=1)
-        disc = b * b - (np.sum(oc * oc, axis=1) - MARKER_RADIUS**2)
+        disc = b * b - (np.sum(oc * oc, axis=1) - radius**2)
         t_hit = -b - np.sqrt(np.maximum(disc, 0))
         ok &= ~((disc > 0) & (t_hit > 1e-6) & (t_hit < seg))
     # sand between the point and the camera: march from Q towards the camera while below the highest sand

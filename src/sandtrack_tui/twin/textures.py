@@ -23,7 +23,7 @@ def _noise(rng, shape, sigma):
 
 
 class Textures:
-    def __init__(self, seed: int):
+    def __init__(self, seed: int, sand_bgr: np.ndarray = SAND_BGR):
         rng = np.random.default_rng(seed + 11)
         n = SAND_TILE
         # grains of ~0.3-0.5 mm: per-texel values, slightly blurred, plus rare dark and bright grains
@@ -36,9 +36,9 @@ class Textures:
         lum = lum * (1 - 0.45 * np.clip(dark, 0, 1)) * (1 + 0.25 * np.clip(bright, 0, 1))
         hue = _noise(rng, (n, n), 1.0)
         tex = np.empty((n, n, 3), np.float32)
-        tex[..., 0] = SAND_BGR[0] * lum * (1 - 0.07 * hue)
-        tex[..., 1] = SAND_BGR[1] * lum * (1 - 0.02 * hue)
-        tex[..., 2] = SAND_BGR[2] * lum * (1 + 0.03 * hue)
+        tex[..., 0] = sand_bgr[0] * lum * (1 - 0.07 * hue)
+        tex[..., 1] = sand_bgr[1] * lum * (1 - 0.02 * hue)
+        tex[..., 2] = sand_bgr[2] * lum * (1 + 0.03 * hue)
         self.sand = tex
         # slow brightness/tint variations over the box (pouring, moisture)
         cz, cx = int(1500 / COARSE_TEXEL_MM) + 2, int(500 / COARSE_TEXEL_MM) + 2

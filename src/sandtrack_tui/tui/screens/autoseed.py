@@ -44,6 +44,7 @@ class AutoSeedScreen(ModalScreen[pd.DataFrame | None]):
         for cam in self.cameras:
             t.add_column(f"{cam[:8]} px", key=cam, width=16)
         t.add_column("epipolar px", key="epi", width=11)
+        t.add_column("model, contrast", key="model", width=16)
         for m in self.markers:
             rows = self.seeds[self.seeds["marker"] == m]
             cells = []
@@ -52,7 +53,7 @@ class AutoSeedScreen(ModalScreen[pd.DataFrame | None]):
                 cells.append(f"{r['x_px'].iloc[0]:7.1f},{r['y_px'].iloc[0]:7.1f}" if len(r) else "—")
             epi = rows["epipolar_px"].max() if "epipolar_px" in rows else float("nan")
             epi_txt = Text(f"{epi:.2f}" if epi == epi else "—", style="red" if epi == epi and epi > 2 else "")
-            t.add_row(self._mark(m), str(m), self._known(rows), *cells, epi_txt, key=str(m))
+            t.add_row(self._mark(m), str(m), self._known(rows), *cells, epi_txt, self._model(rows), key=str(m))
         t.focus()
 
     @staticmethod
@@ -61,6 +62,15 @@ class AutoSeedScreen(ModalScreen[pd.DataFrame | None]):
         if "existing" not in rows or not bool(rows["existing"].iloc[0]):
             return Text("new", style="green")
         return Text(f"yes {rows['match_px'].iloc[0]:.1f} px", style="dim")
+
+    @staticmethod
+    def _model(rows: pd.DataFrame) -> Text:
+        """The appearance model the seeds get and their lowest contrast, e.g. "dark 11.2"."""
+        if "model" not in rows or not len(rows):
+            return Text("—")
+        kinds = "/".join(sorted(set(rows["model"].astype(str))))
+        c = rows["contrast"].min() if "contrast" in rows else float("nan")
+        return Text(f"{kinds} {c:.1f}" if c == c else kinds, style="red" if kinds == "none" else "")
 
     def _mark(self, m) -> Text:
         return Text("[x]", style="green") if self.use[m] else Text("[ ]", style="dim")

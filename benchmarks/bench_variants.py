@@ -1,0 +1,161 @@
+"""The tracker on the twin's harder cases (twin/variants.py): one row per variant.
+
+Each variant (marker style, sand tone, dense identical beads, fast and blurred, large, shaken and
+panned camera) is rendered once into the cache (`sandtrack demo`'s cache folder, keyed on the
+renderer's source; not into git), then tracked as a user would: a project on its videos or image
+folders (with the true cameras when both views are still), seeded as a user would: the first
+marker clicked in each camera 1.8 px off its centre, snapped (`snap_to_marker`) with the box
+`marker_box` gives, then auto-seed finds every marker like it in that frame (`auto_seed`, paired
+across the cameras by epipolar distance), then `track_project` forward. Scored against the exact truth like the sample
+(groundtruth.score_tracking): mean / p95 error on visible tracked frames, false locks (> 3 px),
+hidden frames flagged, flagged frames truly hidden; plus the share of visible frames tracked,
+identity switches (a `tracked` point within 3 px of another marker's true centre) and the
+appearance models chosen, and the tracking step's CPU per marker and frame (decoding excluded).
+
+`python benchmarks/bench_variants.py [NAME ...]` runs some; figures print as a table.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pandas as pd
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "src"))
+
+from sandtrack_tui.camera import Calibration  # noqa: E402
+from sandtrack_tui.demo import cache_dir, renderer_version  # noqa: E402
+from sandtrack_tui.groundtruth import identity_switches, match_marker_ids, score_tracking  # noqa: E402
+from sandtrack_tui.store import Project  # noqa: E402
+from sandtrack_tui.tracking.run import accept_seeds, auto_seed, track_project  # noqa: E402
+from sandtrack_tui.tracking.seeding import marker_box, snap_to_marker  # noqa: E402
+from sandtrack_tui.twin.variants import VARIANTS, render_variant  # noqa: E402
+from sandtrack_tui.video import FrameSource  # noqa: E402
+
+CLICK_OFF = (1.5, -1.0)
+
+
+def ensure_variant(name: str, seed: int = 0) -> Path:
+    out = cache_dir() / f"variant-{name}-seed{seed}-{renderer_version()}"
+    if not (out / ".complete").is_file():
+        if out.exists():
+            shutil.rmtree(out)
+        out.mkdir(parents=True)
+        render_variant(name, out, seed=seed, log=lambda m: print(m, file=sys.stderr, flush=True))
+        (out / ".complete").write_text("ok\n")
+    return out
+
+
+def _truth(folder: Path, cams) -> dict:
+    out = {}
+    for c in cams:
+        t = pd.read_csv(folder / "ground_truth" / f"markers_{c}.csv")
+        t["visible"] = t["visible"].astype(bool)
+        out[c] = t
+    return out
+
+
+def _click(videos: dict, truth: dict, marker: int, frame: int = 0) -> pd.DataFrame:
+    """One marker seeded as an operator does it: a click CLICK_OFF px off its centre, snapped, with
+    the box marker_box gives."""
+    rows = []
+    for cam, t in truth.items():
+        r = t[(t.marker == marker) & (t.frame == frame)].iloc[0]
+        with FrameSource(videos[cam], cache_mb=64) as src:
+            img = src.frame(frame)
+        click = (r.x_px + CLICK_OFF[0], r.y_px + CLICK_OFF[1])
+        snapped = snap_to_marker(img, *click) or click
+        box = marker_box(img, *snapped) or (16.0, 16.0)
+        rows.append((1, cam, frame, snapped[0], snapped[1], box[0], box[1], np.nan))
+    return pd.DataFrame(rows, columns=["marker", "camera", "frame", "x_px", "y_px", "w", "h", "epipolar_px"])
+
+
+def _seed(proj, videos: dict, truth: dict) -> dict:
+    """The first marker clicked in each camera, then auto-seed: every marker like it in frame 0
+    (paired across the cameras by epipolar distance when calibrated). Returns how it went."""
+    first = int(min(t[(t.frame == 0) & t.visible].marker.min() for t in truth.values()))
+    accept_seeds(proj, _click(videos, truth, first))
+    proposal = auto_seed(proj, frame=0)
+    accept_seeds(proj, proposal)
+    n_true = int(sum(t[(t.frame == 0) & t.visible].marker.nunique() for t in truth.values()))
+    return {"seeded_points": int(len(proposal)) + len(truth), "markers_visible_at_seed": n_true,
+            "autoseed_models": ",".join(f"{k}:{n}" for k, n in proposal["model"].value_counts().items())}
+
+
+def run_variant(name: str, seed: int = 0, keep: dict | None = None) -> dict:
+    """Figures of one variant; `keep` (a dict) receives the points and the truth."""
+    folder = ensure_variant(name, seed)
+    info = json.loads((folder / "variant.json").read_text())
+    cams = list(info["cameras"])
+    videos = {c: folder / info["videos"][c] for c in cams}
+    truth = _truth(folder, cams)
+    with tempfile.TemporaryDirectory() as tmp:
+        proj = Project.create(Path(tmp) / "v.sandtrack", videos)
+        cal_file = folder / "ground_truth" / "cameras.toml"
+        if cal_file.is_file():
+            proj.set_calibration(Calibration.load(cal_file))
+        proj.set("sync_offset_s", 0.0)
+        seeding = _seed(proj, videos, truth)
+        c0 = time.process_time()
+        summary = track_project(proj)
+        cpu = time.process_time() - c0
+        points = proj.points()
+        proj.close()
+    t = SimpleNamespace(markers=truth)
+    ids = match_marker_ids(points, t)
+    if keep is not None:
+        keep.update(points=points, truth=truth, ids=ids, summary=summary)
+    out = {"variant": name, "cameras": len(cams), "markers": int(truth[cams[0]].marker.nunique()),
+           "frames": info["frames"], "stereo": summary["stereo"], **seeding}
+    out.update(score_tracking(points, t, ids))
+    out.update(identity_switches(points, t, ids))
+    kinds: dict = {}
+    for cams_of in summary["per_marker"].values():
+        for v in cams_of.values():
+            kinds[v["appearance"]["model"]] = kinds.get(v["appearance"]["model"], 0) + 1
+    out["models"] = ",".join(f"{k}:{n}" for k, n in sorted(kinds.items()))
+    out["seed_problems"] = len(summary["problems"])
+    out["track_cpu_ms_per_marker_frame"] = summary.get("track_cpu_ms_per_marker_frame")
+    out["track_ms_per_marker_frame"] = summary.get("track_ms_per_marker_frame")
+    out["run_cpu_s"] = round(cpu, 2)
+    out["ambiguous"] = len(summary.get("ambiguous", []))
+    out["stereo_flags"] = len(summary.get("stereo_flags", []))
+    return out
+
+
+def run(names: list[str] | None = None) -> dict:
+    rows = [run_variant(n) for n in (names or list(VARIANTS))]
+    out: dict = {}
+    for r in rows:
+        for k, v in r.items():
+            if k != "variant":
+                out[f"{r['variant']}.{k}"] = round(v, 4) if isinstance(v, float) else v
+    return out
+
+
+def _table(rows: list[dict]) -> str:
+    cols = [("variant", "{}"), ("models", "{}"), ("mean_error_px", "{:.3f}"), ("p95_error_px", "{:.3f}"),
+            ("false_locks", "{}"), ("hidden_flagged_pct", "{:.1f}"), ("flagged_truly_hidden_pct", "{:.1f}"),
+            ("visible_tracked_pct", "{:.1f}"), ("identity_switches", "{}"), ("track_cpu_ms_per_marker_frame",
+                                                                              "{:.3f}")]
+    lines = [" | ".join(c for c, _ in cols)]
+    for r in rows:
+        lines.append(" | ".join(f.format(r.get(c)) if r.get(c) is not None else "-" for c, f in cols))
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    names = sys.argv[1:] or list(VARIANTS)
+    rows = []
+    for n in names:
+        rows.append(run_variant(n))
+        print(json.dumps(rows[-1]), flush=True)
+    print(_table(rows))

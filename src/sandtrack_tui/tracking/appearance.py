@@ -1,0 +1,314 @@
+"""Appearance model of one marker, chosen from its seed box: what makes it stand out from its surround.
+
+A marker is a contrast point. The seed box (the marker with some sand around it) is compared with
+a ring of sand just outside the box, and the first of these that clearly separates the two is kept:
+
+- ``colour``: the marker has a colour of its own that differs from the sand's (blue, red,
+  fluorescent markers): a Fisher discriminant on chromaticity (colour.py). Brightness does not
+  enter, so the marker's shaded side and its contact shadow on the sand do not move its centre.
+- ``dark`` / ``bright``: the marker is darker or lighter than the sand (black, white, grey beads,
+  retro-reflective markers, any grey-level video): the brightness (BT.601 luma) scaled so the sand
+  scores 0 and the marker 1 (brightness.py). A grey marker (white, grey, black: no colour of its
+  own) gets this model whenever its brightness stands out, even on coloured sand; otherwise colour
+  comes first.
+- ``texture``: the box holds structure the ring does not (a pattern, a corner), but no uniform blob:
+  matched as a brightness template only; no centroid, no blob search.
+
+Every model scores pixels by one formula, score = (w . bgr) / (den (B + G + R) + eps) + b (den 1
+for chromaticity, 0 for brightness, so "score >= t" is a linear test on B, G, R in both), which is
+what the compiled kernels, the 4:2:0 window reader and the blob search use. For the models with a
+blob (colour, dark, bright) the clipped score of a pixel is its coverage by the marker, the weight
+of the centroid.
+
+A box with no contrast of any kind gives one line saying what was measured and what to do.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import cv2
+import numpy as np
+from scipy.ndimage import binary_fill_holes
+
+from ..errors import SandtrackError
+from . import kernels
+
+COLOUR, DARK, BRIGHT, TEXTURE = "colour", "dark", "bright", "texture"
+KINDS = (COLOUR, DARK, BRIGHT, TEXTURE)
+_CLOSE = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
+_SQUARE3 = np.ones((3, 3), np.uint8)
+MIN_SEPARATION = 0.2  # marker median score minus the sand's 99.5th percentile, in marker-contrast units
+MARKER_MEDIAN = 0.75  # a window whose median scores this much is mostly marker (a crowd): its sand level is unknown
+
+
+@dataclass
+class AppearanceModel:
+    w: np.ndarray  # (3,) weights on B, G, R (or on their chromaticity)
+    b: float  # offset: score = (w . bgr) / (den (B + G + R) + eps) + b
+    threshold: float  # score at or above which a pixel counts as marker
+    disc_area: float  # marker pixels in the seed (px², soft)
+    radius: float  # equivalent disc radius (px)
+    sand_spread: float  # std of sand scores around the seed
+    kind: str = COLOUR
+    den: float = 1.0
+    eps: float = 3.0
+    floor: float | None = None  # weight floor (see weight_floor); None: the colour model's rule
+    contrast: float = float("nan")  # marker minus sand, in units of the sand's own spread
+    levels: tuple = field(default_factory=tuple)  # (marker, sand) in the model's natural unit, for reports
+    # The marker stands out in brightness too (a brightness model would separate it): a shift of the
+    # brightness around it is its own motion (rest.py). Not so for a white marker on beige sand, whose
+    # shaded half is as bright as the sand: its window's brightness is the sand's texture, which stays.
+    luma_follows: bool = True
+
+    @property
+    def has_blob(self) -> bool:
+        """True when the marker is a blob whose clipped score is a coverage (colour, dark, bright)."""
+        return self.kind != TEXTURE
+
+    def score(self, bgr: np.ndarray) -> np.ndarray:
+        """Per-pixel score, float32: ~0 on sand, ~1 on the marker."""
+        if not bgr.size:
+            return np.zeros(bgr.shape[:2], dtype=np.float32)
+        return kernels.colour_score(bgr, *self._score_coeffs)
+
+    def prepared(self, score: np.ndarray) -> np.ndarray:
+        """A brightness model's score window as the matcher reads it. Brightness depends on the light:
+        in a shadow (the tool's, a furrow's) the sand and the marker are darker by the same factor k.
+        The window's median (its sand, unless markers fill most of it) gives k, and the score is that
+        of the window's brightness divided by k: shadows do not look like a dark
+        marker, and a marker in a shadow still scores 1. Then small gaps inside the marker are filled
+        (morphological closing): the specular highlight of a dark bead, the dark pole of a bright one
+        are marker too. Colour and texture scores are returned as they are."""
+        if self.kind not in (DARK, BRIGHT) or min(score.shape) < 3:
+            return score
+        b0 = float(np.median(score))
+        if abs(b0) > 0.05 and b0 < MARKER_MEDIAN:
+            level_d, level_s = self.levels
+            k = min(max(1.0 + b0 * (level_d - level_s) / level_s, 0.25), 2.0)
+            score = (score - np.float32(b0)) * np.float32(1.0 / k)
+        return np.maximum(score, cv2.morphologyEx(score, cv2.MORPH_CLOSE, _CLOSE))
+
+    def score_window(self, frame, x0: int, y0: int, x1: int, y1: int) -> np.ndarray:
+        """score() of the window [y0:y1, x0:x1] of a frame (inside it), also of a frame still in its
+        4:2:0 planes (yuv.py), without converting the window separately."""
+        yuv = getattr(frame, "yuv", None)
+        if yuv is not None and x1 > x0 and y1 > y0:
+            return kernels.colour_score_yuv(*yuv, x0, y0, x1, y1, *self._score_coeffs)
+        return self.score(frame[y0:y1, x0:x1])
+
+    @cached_property
+    def _score_coeffs(self) -> tuple:
+        """(w0, w1, w2, b, eps, den) as float32, as the kernels take them."""
+        return (*np.float32(self.w), np.float32(self.b), np.float32(self.eps), np.float32(self.den))
+
+    @property
+    def weight_floor(self) -> float:
+        """Score from which a pixel counts towards a centroid or a blob's area: its weight is
+        (score - floor) / (1 - floor), clipped to 0..1 (≈ its coverage by the marker)."""
+        return self.floor if self.floor is not None else min(0.5 * self.threshold, 0.15)
+
+    def mask_box(self, frame, x0: int, y0: int, x1: int, y1: int, threshold: float | None = None) -> tuple:
+        """(mask, found, bx0, by0, bx1, by1): uint8 0/1 per pixel of the window [y0:y1, x0:x1] of a
+        frame, score >= threshold (default: the model's), and the box of its ones in window
+        coordinates. For 8-bit pixels the test is linear, (w + c den) . bgr + c eps >= 0 with
+        c = b - threshold (the denominator is positive); a frame still in its 4:2:0 planes (yuv.py)
+        computes it without converting the window."""
+        t = self.threshold if threshold is None else threshold
+        coeffs = self._mask_coeffs if threshold is None else self._coeffs_for(t)
+        linear_mask = getattr(frame, "linear_mask", None)
+        if linear_mask is not None:
+            return linear_mask(coeffs, x0, y0, x1, y1)
+        bgr = frame[y0:y1, x0:x1]
+        if bgr.dtype == np.uint8 and bgr.size:
+            return kernels.colour_mask(bgr, *coeffs)
+        mask = (self.score(bgr) >= t).astype(np.uint8)
+        rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+        if not len(rows):
+            return mask, False, 0, 0, 0, 0
+        return mask, True, int(cols[0]), int(rows[0]), int(cols[-1]) + 1, int(rows[-1]) + 1
+
+    @cached_property
+    def _mask_coeffs(self) -> tuple:
+        return self._coeffs_for(self.threshold)
+
+    def _coeffs_for(self, threshold: float) -> tuple:
+        c = self.b - threshold
+        return (*np.float32(self.w + c * self.den), np.float32(c * self.eps))
+
+    def blob_moments(self, bgr: np.ndarray, labels: np.ndarray, k: int, xa: int, ya: int, xb: int, yb: int):
+        """(area, m10, m01, pixels): pixel weights (see weight_floor) summed over component k of
+        `labels` grown by one pixel, its first moments from (xa, ya), within rows ya..yb-1 and columns
+        xa..xb-1 of `bgr`, and the component's pixel count there."""
+        return kernels.blob_moments(bgr, labels, k, xa, ya, xb, yb, *self._score_coeffs, self.weight_floor)
+
+    def describe(self) -> dict:
+        """What the model is and what it measured, for reports (`track --json`, the seeding list)."""
+        out = {"model": self.kind, "contrast": round(float(self.contrast), 1), "radius_px": round(self.radius, 2)}
+        if self.levels:
+            out["marker_level"], out["sand_level"] = (round(float(v), 3) for v in self.levels)
+        return out
+
+
+def describe_text(desc: dict) -> str:
+    """One line from AppearanceModel.describe(), e.g. "dark (luma 38 on 151), contrast 11.2"."""
+    what = desc["model"]
+    if what in (DARK, BRIGHT) and "marker_level" in desc:
+        what += f" (luma {desc['marker_level']:.0f} on {desc['sand_level']:.0f})"
+    return f"{what}, contrast {desc['contrast']:.1f}"
+
+
+def learn(frame, cx: float, cy: float, w: float, h: float, centred: bool = True) -> AppearanceModel:
+    """Learn the appearance model of the marker in a seed box centred at (cx, cy), w x h px.
+    `frame`: BGR or grey, 8 or 16 bit. `centred`: the box is centred on the marker (a seed), so a
+    blob model must cover the box's centre (a box centred on a pattern, such as a corner between
+    dark and light squares, gets a texture model, not the model of a blob beside its centre); not
+    so for a box around a click that may be off the marker. Raises SandtrackError with what was
+    measured when the box holds nothing that stands out from the sand around it."""
+    from . import brightness, colour
+
+    seed = SeedPatch.cut(frame, cx, cy, w, h)
+    model, colour_sep = colour.learn_colour(seed)
+    bright, bright_sep = brightness.learn_brightness(seed)
+    if centred:
+        model = model if model is None or seed.centre_scores(model) else None
+        bright = bright if bright is None or seed.centre_scores(bright) else None
+    grey = model is not None and colour.achromatic(seed, model)
+    if bright is not None and (model is None or grey):
+        return bright  # a white, grey or black marker: its brightness is what it is
+    if model is not None and not grey:
+        model.luma_follows = bright is not None
+        return model
+    texture = brightness.learn_texture(seed)
+    if texture is not None and (model is None or brightness.two_tone(seed)):
+        return texture
+    if model is not None:  # a grey marker on coloured sand, its shaded side as bright as the sand
+        model.luma_follows = False
+        return model
+    lum_in, lum_ring = seed.luma[seed.inner], seed.luma[seed.ring]
+    seps = ", ".join(f"{what} separation {v:.2f}" for what, v in (("colour", colour_sep), ("brightness", bright_sep))
+                     if np.isfinite(v))
+    raise SandtrackError(
+        f"no marker found in the {w:.0f}x{h:.0f} px seed box: nothing in it stands out from the sand around it "
+        f"(luma {np.median(lum_in):.0f}±{_spread(lum_in):.0f} inside, {np.median(lum_ring):.0f}±"
+        f"{_spread(lum_ring):.0f} around{'; ' + seps if seps else ''}; {MIN_SEPARATION} needed); centre a larger "
+        f"box on the marker (about twice its size), or seed it in another frame where it stands out")
+
+
+def _first_gap(mask: np.ndarray, px: int, py: int, rays: int = 32) -> float | None:
+    """Median over rays from (px, py) of the distance at which `mask` first ends (rays that leave the
+    image without meeting a gap, through the contacts with touching markers, are left out); None
+    when too few rays meet one."""
+    h, w = mask.shape
+    hits = []
+    for a in np.linspace(0, 2 * np.pi, rays, endpoint=False):
+        ca, sa = np.cos(a), np.sin(a)
+        for d in np.arange(0.5, max(h, w), 0.25):
+            x, y = int(round(px + d * ca)), int(round(py + d * sa))
+            if not (0 <= x < w and 0 <= y < h):
+                break
+            if not mask[y, x]:
+                hits.append(d)
+                break
+    return float(np.median(hits)) if len(hits) >= rays // 4 else None
+
+
+def _spread(v: np.ndarray) -> float:
+    return float(1.4826 * np.median(np.abs(v - np.median(v)))) if len(v) else float("nan")
+
+
+@dataclass
+class SeedPatch:
+    """The pixels around a seed box: `bgr` (N, 3) float64, masks `inner` (the box) and `ring` (sand
+    just outside it), pixel coordinates `xx`, `yy`, the box centre and size."""
+
+    bgr: np.ndarray
+    inner: np.ndarray
+    ring: np.ndarray
+    xx: np.ndarray
+    yy: np.ndarray
+    cx: float
+    cy: float
+    w: float
+    h: float
+
+    @classmethod
+    def cut(cls, frame, cx: float, cy: float, w: float, h: float) -> SeedPatch:
+        from ..video import to_bgr8
+
+        H, W = frame.shape[:2]
+        if not (np.isfinite(cx) and np.isfinite(cy)) or not (0 <= cx < W and 0 <= cy < H):
+            raise SandtrackError(f"seed point ({cx:.1f}, {cy:.1f}) lies outside the {W}x{H} image")
+        if not (w >= 3 and h >= 3):
+            raise SandtrackError(f"seed box {w}x{h} px is too small (at least 3x3)")
+        half_in = 0.5 * max(w, h)
+        margin = max(4.0, 0.5 * half_in)
+        R = int(np.ceil(half_in + margin))
+        x0, x1 = int(round(cx)) - R, int(round(cx)) + R + 1
+        y0, y1 = int(round(cy)) - R, int(round(cy)) + R + 1
+        win = to_bgr8(frame[max(y0, 0):min(y1, H), max(x0, 0):min(x1, W)])
+        patch = win.reshape(-1, 3).astype(np.float64)
+        yy, xx = np.mgrid[max(y0, 0):min(y1, H), max(x0, 0):min(x1, W)]
+        dx, dy = np.abs(xx.ravel() - cx), np.abs(yy.ravel() - cy)
+        inner = (dx <= 0.5 * w) & (dy <= 0.5 * h)
+        ring = (np.maximum(dx, dy) >= half_in + 1.5)
+        if inner.sum() < 4 or ring.sum() < 12:
+            raise SandtrackError("seed box lies too close to the image border to learn the marker's appearance")
+        return cls(patch, inner, ring, xx.ravel(), yy.ravel(), float(cx), float(cy), float(w), float(h))
+
+    def centre_scores(self, model: AppearanceModel) -> bool:
+        """The model scores the box's centre (within 1.5 px) as marker."""
+        near = np.hypot(self.xx - self.cx, self.yy - self.cy) <= 1.5
+        if not near.any():
+            return True
+        px = np.clip(self.bgr[near], 0, 255).astype(np.uint8)[None]
+        return bool(np.median(model.score(px)[0]) >= model.threshold)
+
+    @cached_property
+    def luma(self) -> np.ndarray:
+        from .chroma import LUMA_BGR
+
+        return self.bgr @ LUMA_BGR.astype(np.float64)
+
+    def centre_component(self, selected: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(chosen, others): `selected` (a mask over the inner pixels) reduced to its connected part at
+        the box centre, when it splits into several parts of some size (a loose box holding more
+        than one marker; parts of 1-2 pixels, noise, are kept); and the other parts grown by a pixel
+        (other markers, left out of the marker's area)."""
+        xi, yi = self.xx[self.inner], self.yy[self.inner]
+        none = np.zeros_like(selected)
+        if not selected.any():
+            return selected, none
+        x0, y0 = xi.min(), yi.min()
+        img = np.zeros((yi.max() - y0 + 1, xi.max() - x0 + 1), np.uint8)
+        img[yi[selected] - y0, xi[selected] - x0] = 1
+        n, labels, stats, cents = cv2.connectedComponentsWithStats(img, connectivity=8)
+        big = [k for k in range(1, n) if stats[k, cv2.CC_STAT_AREA] >= 3]
+        if not big:
+            return selected, none
+        d = [np.hypot(cents[k, 0] + x0 - self.cx, cents[k, 1] + y0 - self.cy) for k in big]
+        keep = big[int(np.argmin(d))]
+        own = labels == keep
+        # Touching markers (a dense layer) are one connected part: the marker's own disc is the one
+        # around the distance-transform peak nearest the centre, of the radius at which rays from it
+        # first meet sand (the median: rays through the contacts with neighbours meet none in the box).
+        dt = cv2.distanceTransform(own.astype(np.uint8), cv2.DIST_L2, 5)
+        peaks = (dt >= cv2.dilate(dt, np.ones((3, 3), np.uint8))) & (dt >= 0.6 * dt.max()) & own
+        ys, xs = np.nonzero(peaks)
+        crowded = own[0].any() or own[-1].any() or own[:, 0].any() or own[:, -1].any()  # runs out of the box
+        if len(xs) and crowded:
+            k = int(np.argmin(np.hypot(xs + x0 - self.cx, ys + y0 - self.cy)))
+            px, py = int(xs[k]), int(ys[k])
+            # (a dusty marker's sand specks are not gaps: closed and filled first)
+            solid = binary_fill_holes(cv2.morphologyEx(own.astype(np.uint8), cv2.MORPH_CLOSE, _SQUARE3))
+            rd = _first_gap(solid, px, py)
+            if rd is not None and own.sum() > 1.3 * np.pi * rd**2:
+                gy, gx = np.mgrid[0:own.shape[0], 0:own.shape[1]]
+                own &= np.hypot(gx - px, gy - py) <= rd + 0.5
+        lab_own = own[yi - y0, xi - x0]
+        other = (img.astype(bool) & ~own).astype(np.uint8)
+        other[~np.isin(labels, big)] = 0  # noise pixels are kept with the marker
+        grown = cv2.dilate(other, np.ones((3, 3), np.uint8))[yi - y0, xi - x0] > 0
+        noise = ~np.isin(labels[yi - y0, xi - x0], big)
+        return selected & (lab_own | noise), grown & ~lab_own
