@@ -279,7 +279,7 @@ def _interpolate_front(obs: dict, front: pd.DataFrame, u: np.ndarray) -> None:
 
 
 def _solve(obs: dict, methods: list[str], model, calibration, outside: str, refine: bool) -> pd.DataFrame:
-    from .triangulation import reprojection_residual, triangulate
+    from .triangulation import triangulate
 
     pix = np.stack([obs[c] for c in ("xs", "ys", "xf", "yf")], axis=1) if len(obs["frame"]) else np.zeros((0, 4))
     ok = np.isfinite(pix).all(axis=1)
@@ -295,20 +295,7 @@ def _solve(obs: dict, methods: list[str], model, calibration, outside: str, refi
                                      world=True)
                 xyz[ok], res[ok] = pts, r
             else:
-                from .regression import outside_training, predict
-
-                xyz[ok] = predict(model, pix[ok], method=m)
-                cal = calibration if calibration is not None else model.calibration
-                if cal is not None:
-                    res[ok] = reprojection_residual(cal, {"side": pix[ok, :2], "front": pix[ok, 2:]},
-                                                    cal.to_rig(xyz[ok]))
-                if m == "mlp" and outside != "keep":
-                    out = np.zeros(n, bool)
-                    out[ok] = outside_training(model, pix[ok], xyz[ok])
-                    if outside == "flag":
-                        label[out] = "mlp_outside"
-                    else:
-                        xyz[out] = np.nan
+                network_rows(m, model, calibration, pix, outside, xyz, res, label)
         for c in ("frame", "time_s", "marker", "status_side", "status_front", "xs", "ys", "xf", "yf"):
             cols[c].append(obs[c])
         for k, c in enumerate(("X_mm", "Y_mm", "Z_mm")):
@@ -324,3 +311,28 @@ def _solve(obs: dict, methods: list[str], model, calibration, outside: str, refi
     for c in ("status_side", "status_front", "method"):
         table[c] = table[c].astype(object)
     return table
+
+
+def network_rows(m: str, model, calibration, x: np.ndarray, outside: str, xyz: np.ndarray, res: np.ndarray,
+                 label: np.ndarray) -> None:
+    """Fill xyz, res and label (in place) for the rows of x (N, 4: xs, ys, xf, yf) without a missing
+    pixel, by the network ("mlp") or its residual variant: the reprojection residual through the
+    calibration (else the model's own), MLP rows outside the training volume flagged "mlp_outside"
+    (outside="flag"), emptied ("nan") or left ("keep")."""
+    from .regression import outside_training, predict
+    from .triangulation import reprojection_residual
+
+    ok = np.isfinite(x).all(axis=1)
+    if not ok.any():
+        return
+    xyz[ok] = predict(model, x[ok], method=m)
+    cal = calibration if calibration is not None else model.calibration
+    if cal is not None and {"side", "front"} <= set(cal.cameras):
+        res[ok] = reprojection_residual(cal, {"side": x[ok, :2], "front": x[ok, 2:]}, cal.to_rig(xyz[ok]))
+    if m == "mlp" and outside != "keep":
+        out = np.zeros(len(x), bool)
+        out[ok] = outside_training(model, x[ok], xyz[ok])
+        if outside == "flag":
+            label[out] = "mlp_outside"
+        else:
+            xyz[out] = np.nan

@@ -123,7 +123,8 @@ def calibrate_videos(videos: dict[str, str | Path], board: BoardSpec, *, offsets
                 "file (columns, rows, dictionary, inverted) matches the printed board, and record it sharp, well lit "
                 "and filling a good part of the image")
     sizes = {n: (s.width, s.height) for n, s in sources.items()}
-    rig = calibrate_rig(views, board, sizes, models=models, max_frames=max_bundle_frames, progress=progress)
+    rig = calibrate_rig(views, board, sizes, models=models, max_frames=max_bundle_frames, progress=progress,
+                        workers=workers)
     t_calib = time.perf_counter() - t0 - t_detect
     if with_points:
         rest = sorted(set(range(n_ref)) - detected)

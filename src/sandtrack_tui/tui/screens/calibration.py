@@ -22,11 +22,11 @@ def summary_table(cal: Calibration | None):
     if cal is None:
         return "No calibration yet: calibrate from the board videos below, or load a calibration.toml."
     t = Table(box=box.SIMPLE_HEAD, title="Cameras (rig frame = first camera, mm)", title_justify="left")
-    for c in ("camera", "model", "size", "fx", "fy", "cx", "cy", "centre mm", "angles °", "rmse px"):
+    for c in ("camera", "lens", "size", "fx", "fy", "cx", "cy", "centre mm", "angles °", "rmse px"):
         t.add_column(c, justify="right")
     for name, c in cal.cameras.items():
         K = c.matrix
-        t.add_row(name, c.model, f"{c.width}×{c.height}", f"{K[0, 0]:.1f}", f"{K[1, 1]:.1f}", f"{K[0, 2]:.1f}",
+        t.add_row(name, c.lens, f"{c.width}×{c.height}", f"{K[0, 0]:.1f}", f"{K[1, 1]:.1f}", f"{K[0, 2]:.1f}",
                   f"{K[1, 2]:.1f}", ", ".join(f"{v:.0f}" for v in c.center_mm),
                   ", ".join(f"{v:.1f}" for v in euler_angles_deg(c.R)),
                   "—" if c.rmse_px is None else f"{c.rmse_px:.3f}")
