@@ -17,16 +17,20 @@ import numpy as np
 import pandas as pd
 
 from .errors import SandtrackError
-from .xyz import METHOD_CHOICES, METHODS, OUTSIDE_POLICIES, network_rows
+from .xyz import NETWORK_CAMERAS, check_choices, network_rows, pixel_columns, resolve_methods, wanted_methods
 
 RESULT_COLUMNS = ["X_mm", "Y_mm", "Z_mm", "method", "residual_px"]
-_ALIASES = {"side": ("xs", "ys"), "front": ("xf", "yf")}
+COMMAND_LINE_NEEDS = {
+    "calibration": "triangulation needs --calibration CAL.toml",
+    "model": "the {method} method needs --model MODEL.pt (sandtrack train)",
+    "nothing": "nothing to compute XYZ with: give --calibration CAL.toml and/or --model MODEL.pt",
+}
 
 
 def camera_columns(columns) -> dict[str, tuple[str, str]]:
     """{camera: (x column, y column)}: xs/ys = side, xf/yf = front, x_NAME/y_NAME = NAME."""
     cols = set(columns)
-    cams = {n: xy for n, xy in _ALIASES.items() if set(xy) <= cols}
+    cams = {n: pixel_columns(n) for n in NETWORK_CAMERAS if set(pixel_columns(n)) <= cols}
     for c in columns:
         if c.startswith("x_") and len(c) > 2 and f"y_{c[2:]}" in cols and c[2:] not in cams:
             cams[c[2:]] = (c, f"y_{c[2:]}")
@@ -59,13 +63,16 @@ def read_pixels(path: str | Path) -> tuple[pd.DataFrame, dict[str, tuple[str, st
 def xyz_from_pixels(df: pd.DataFrame, cams: dict[str, tuple[str, str]], calibration=None, model=None,
                     method: str = "both", outside: str = "flag", refine: bool = True) -> tuple[pd.DataFrame, list[str]]:
     """The table with XYZ by each method, and notes for the user (renamed columns)."""
-    if method not in METHOD_CHOICES:
-        raise SandtrackError(f"unknown method {method!r} (one of {', '.join(METHOD_CHOICES)})")
-    if outside not in OUTSIDE_POLICIES:
-        raise SandtrackError(f"unknown outside policy {outside!r} (one of {', '.join(OUTSIDE_POLICIES)})")
+    check_choices(method, outside)
     from .triangulation import triangulate
 
-    methods = _methods(method, calibration, model, cams)
+    if calibration is not None and "triangulation" in wanted_methods(method):
+        unknown = [c for c in cams if c not in calibration.cameras]
+        if unknown:
+            raise SandtrackError(
+                f"the pixels name camera(s) {', '.join(unknown)} that the calibration does not have "
+                f"({', '.join(calibration.names)}); name the columns x_NAME, y_NAME after its cameras")
+    methods = resolve_methods(method, calibration, model, cams, COMMAND_LINE_NEEDS)
     notes = []
     clash = [c for c in RESULT_COLUMNS if c in df.columns]
     base = df
@@ -83,7 +90,8 @@ def xyz_from_pixels(df: pd.DataFrame, cams: dict[str, tuple[str, str]], calibrat
             if n:
                 xyz, res = triangulate(calibration, used, refine=refine, world=True)
         else:
-            network_rows(m, model, calibration, np.hstack([pix["side"], pix["front"]]), outside, xyz, res, label)
+            network_rows(m, model, calibration, np.hstack([pix[c] for c in NETWORK_CAMERAS]), outside, xyz, res,
+                         label)
         out = base.copy()
         out["X_mm"], out["Y_mm"], out["Z_mm"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
         out["method"] = label
@@ -94,43 +102,6 @@ def xyz_from_pixels(df: pd.DataFrame, cams: dict[str, tuple[str, str]], calibrat
     table = pd.concat(blocks, ignore_index=True)
     order = np.argsort(np.tile(np.arange(n), len(blocks)), kind="stable")
     return table.iloc[order].reset_index(drop=True), notes
-
-
-def _methods(method: str, calibration, model, cams) -> list[str]:
-    wanted = {"both": ["triangulation", "mlp"], "all": list(METHODS)}.get(method, [method])
-    strict = method in METHODS
-    out = []
-    for m in wanted:
-        if m == "triangulation":
-            if calibration is None:
-                if strict:
-                    raise SandtrackError("triangulation needs --calibration CAL.toml")
-                continue
-            unknown = [c for c in cams if c not in calibration.cameras]
-            if unknown:
-                raise SandtrackError(
-                    f"the pixels name camera(s) {', '.join(unknown)} that the calibration does not have "
-                    f"({', '.join(calibration.names)}); name the columns x_NAME, y_NAME after its cameras")
-            if len(cams) < 2:
-                raise SandtrackError("triangulation needs the pixels of at least two cameras")
-        else:
-            if model is None:
-                if strict:
-                    raise SandtrackError(f"the {m} method needs --model MODEL.pt (sandtrack train)")
-                continue
-            if not {"side", "front"} <= set(cams):
-                if strict:
-                    raise SandtrackError(f"the {m} method reads side and front pixels: give xs, ys, xf, yf "
-                                         "(or x_side, y_side, x_front, y_front)")
-                continue
-            if m == "residual" and not model.has_residual:
-                if strict:
-                    raise SandtrackError("the model has no residual variant (train it with a calibration)")
-                continue
-        out.append(m)
-    if not out:
-        raise SandtrackError("nothing to compute XYZ with: give --calibration CAL.toml and/or --model MODEL.pt")
-    return out
 
 
 def write_table(table: pd.DataFrame, path: str | Path | None) -> None:

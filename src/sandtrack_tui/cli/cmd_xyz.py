@@ -14,13 +14,15 @@ def register(sub) -> None:
     from ..xyz import METHOD_CHOICES, OUTSIDE_POLICIES
 
     p = sub.add_parser("xyz", help="world XYZ (mm) of the tracked markers, or of a pixels CSV",
-                       description="With a project: print the XYZ table of one side frame (--frame N) or write "
-                                   "every frame to a CSV (-o FILE); front pixels are interpolated to the side "
-                                   "frame's time. With a pixels CSV (xs, ys, xf, yf or x_CAMERA, y_CAMERA columns; "
+                       description="With a project: print the XYZ table of one frame of its first camera "
+                                   "(--frame N) or write every frame to a CSV (-o FILE); the other cameras' pixels "
+                                   "are interpolated to that frame's time, and every calibrated camera with a point "
+                                   "is triangulated (one camera: x, y in mm through its scale). With a pixels CSV "
+                                   "(xs, ys, xf, yf or x_CAMERA, y_CAMERA columns; "
                                    "other columns are passed through): XYZ of every row with --calibration and/or "
                                    "--model, written to -o FILE (or to stdout).")
     p.add_argument("project", metavar="INPUT", help="project file (.sandtrack) or pixels CSV")
-    p.add_argument("--frame", type=int, help="side frame index to print (project)")
+    p.add_argument("--frame", type=int, help="frame index of the first camera to print (project)")
     p.add_argument("--calibration", help="calibration.toml (pixels CSV)")
     p.add_argument("--model", help="regression model.pt for the mlp and residual methods (pixels CSV)")
     p.add_argument("--method", choices=METHOD_CHOICES, default="both",
@@ -139,8 +141,11 @@ def run_project(args) -> int:
 
 
 def _format(table) -> str:
+    from ..trajectories import table_cameras
+    from ..xyz import pixel_columns
+
     show = table.copy()
-    for c in ("xs", "ys", "xf", "yf"):
+    for c in (col for cam in table_cameras(table) for col in pixel_columns(cam)):
         show[c] = show[c].round(2)
     for c in ("X_mm", "Y_mm", "Z_mm"):
         show[c] = show[c].round(2)
