@@ -267,6 +267,8 @@ def calibrate_intrinsics(name: str, views: dict[int, BoardView], board: BoardSpe
         if bad:
             frames = [f for f in frames if f not in bad]
             rms, K, D, rv, tv = fit(frames, base)
+        # Face-on views leave the focal length undetermined: refuse before any other model is fitted to them.
+        _refuse_face_on(name, coverage_report(usable, frames, size, K, _poses(frames, rv, tv))["tilt_deg"])
         lens = base
         k3 = "n/a (fisheye k1..k4)" if family == "fisheye" else "fixed at 0"
         radial = coverage_report(usable, frames, size, K, {})["radial_coverage"]
@@ -328,22 +330,29 @@ def calibrate_intrinsics(name: str, views: dict[int, BoardView], board: BoardSpe
     except cv2.error as exc:
         raise SandtrackError(f"camera {name}: calibration failed ({str(exc).strip().splitlines()[-1]}); "
                              "record more varied views of the board") from None
-    poses = {f: (np.asarray(r, float).ravel(), np.asarray(t, float).ravel()) for f, r, t in
-             zip(frames, rv, tv, strict=True)}
+    poses = _poses(frames, rv, tv)
     per_view = {f: _view_rmse(pts3d[usable[f].ids], usable[f].corners, K, D, *poses[f], family) for f in frames}
     cov = coverage_report(usable, frames, size, K, poses)
     cov["blurred_views_skipped"] = blurred
     if cov["image_cells_covered"] < 0.5:
         warnings.append(f"camera {name}: the board covered only {cov['image_cells_covered']:.0%} of the image; "
                         "move it into the corners and edges too")
-    tilt = cov.get("tilt_deg")
+    _refuse_face_on(name, cov.get("tilt_deg"))
+    return IntrinsicsResult(name=name, model=lens.family, size=size, K=K, dist=D, rmse_px=rms, frames=list(frames),
+                            per_view_rmse=per_view, poses=poses, dropped=dropped, k3=k3, coverage=cov,
+                            warnings=warnings, lens=lens.name, lens_selection=selection)
+
+
+def _poses(frames, rv, tv) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    return {f: (np.asarray(r, float).ravel(), np.asarray(t, float).ravel()) for f, r, t in zip(frames, rv, tv,
+                                                                                              strict=True)}
+
+
+def _refuse_face_on(name: str, tilt: list[float] | None) -> None:
     if tilt is not None and tilt[1] - tilt[0] < 5.0 and tilt[1] < 10.0:
         raise SandtrackError(
             f"camera {name}: every view shows the board nearly face-on (tilt {tilt[0]:.0f}-{tilt[1]:.0f} deg), "
             "so the focal length cannot be found; record views tilted 20-45 degrees in different directions")
-    return IntrinsicsResult(name=name, model=lens.family, size=size, K=K, dist=D, rmse_px=rms, frames=list(frames),
-                            per_view_rmse=per_view, poses=poses, dropped=dropped, k3=k3, coverage=cov,
-                            warnings=warnings, lens=lens.name, lens_selection=selection)
 
 
 def board_pose(view: BoardView, board: BoardSpec, K: np.ndarray, D: np.ndarray,
