@@ -16,6 +16,7 @@ $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/pip install --disable-pip-version-check -q -e ".[dev]"
 	$(BIN)/python -m sandtrack_tui.tracking.kernels  # compile the tracker's kernels once (cached)
 	$(BIN)/python -m sandtrack_tui.tui.sixel  # and the sixel encoder's
+	$(BIN)/python -m sandtrack_tui.triangulation  # and the triangulation's
 	@touch $(STAMP)
 
 install: $(STAMP)

@@ -79,7 +79,83 @@ def real_footage() -> dict:
                                            "board_rmse_mm": acc["board_rmse_mm"]}
     out["beats_caliscope_and_aniposelib"] = bool(
         out["reprojection_rmse_px"] < 0.556 and out["board_rmse_mm"] < 0.367)
+    out.update(lens_choice_on_the_rig(res, board))
     return out
+
+
+def lens_choice_on_the_rig(res, board) -> dict:
+    """Why the automatic lens choice and the forced standard model differ on the webcams, from the same
+    detections: each camera's lens and its error alone (board views, pose per view) against its error
+    in the rig; the rig with the standard model forced; the spread of the cameras' capture times
+    (timestamps.csv); and a cross-validation of the whole rig over left-out frames (3 folds: the rig
+    fitted on the others, each left-out frame's board pose fitted with the cameras held, its corners'
+    error) for the automatic choice, the standard model and the simplest radial ones."""
+    from sandtrack_tui.calibration.lens_select import Candidate, excess_over
+
+    names = list(res.views)
+    sizes = {n: (c.width, c.height) for n, c in res.calibration.cameras.items()}
+    per = res.report["per_camera"]
+    out = {"lens_auto": {n: per[n]["lens"] for n in names},
+           "single_camera_rmse_px": {n: round(per[n]["rmse_px"], 4) for n in names},
+           "rig_rmse_px": {n: round(per[n]["reprojection_rmse_px"], 4) for n in names}}
+    stamps = REAL / "timestamps.csv"
+    if stamps.exists():
+        import pandas as pd
+
+        t = pd.read_csv(stamps).groupby("sync_index")["frame_time"]
+        spread = (t.max() - t.min()).to_numpy() * 1000
+        out["capture_spread_ms_median_max"] = [round(float(np.median(spread)), 1), round(float(spread.max()), 1)]
+    assignments = {"auto": None, "standard": "standard", "radial2": "radial2", "radial1": "radial1"}
+    cands = []
+    for label, lens in assignments.items():
+        models = None if lens is None else dict.fromkeys(names, lens)
+        rig = calibrate_rig(res.views, board, sizes, models=models)
+        if lens is not None:
+            frames = sorted(set().union(*[set(v) for v in res.views.values()]))
+            poses = fit_frame_poses(rig.calibration, res.views, board, frames,
+                                    {f: rig.frame_pose(f) for f in rig.frames})
+            acc = accuracy_report(rig.calibration, res.views, board, poses)
+            out[f"forced_{lens}"] = {"reprojection_rmse_px": round(acc["reprojection_rmse_px"], 4),
+                                     "board_rmse_mm": round(acc["board_rmse_mm"], 4)}
+        sse, cnt = _left_out_frames(rig)
+        cands.append(Candidate(lens=label, parameters=0, sse=sse, count=cnt,
+                               cv_rmse_px=float(np.sqrt(sse.sum() / cnt.sum()))))
+    best = min(cands, key=lambda c: c.cv_rmse_px)
+    out["rig_cross_validation_px"] = {c.lens: round(c.cv_rmse_px, 4) for c in cands}
+    out["rig_cross_validation_within_noise_of_best"] = {  # the rule of the automatic choice
+        c.lens: bool(np.subtract(*excess_over(c, best)) <= 0) for c in cands}
+    out["rig_cross_validation_best"] = best.lens
+    return out
+
+
+def _left_out_frames(rig, n_folds: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """Squared corner errors summed per bundle frame and corner count, each frame left out once."""
+    from sandtrack_tui.calibration.bundle import Observations, bundle_adjust, residuals
+
+    st, obs = rig.state, rig.obs
+    n = len(st.frame_rvec)
+    sse, cnt = np.zeros(n), np.zeros(n)
+
+    def part(frames):
+        m = np.isin(obs.frame, frames)
+        index = np.full(n, -1)
+        index[frames] = np.arange(len(frames))
+        sub = Observations(obs.cam[m], index[obs.frame[m]], obs.corner[m], obs.board_xyz[m], obs.uv[m])
+        state = st.copy()
+        state.frame_rvec, state.frame_tvec = st.frame_rvec[frames], st.frame_tvec[frames]
+        return sub, state
+
+    for k in range(n_folds):
+        test = np.arange(k, n, n_folds)
+        sub, state = part(np.setdiff1d(np.arange(n), test))
+        fitted, _ = bundle_adjust(state, sub, max_iter=20)
+        sub, state = part(test)
+        state.cam_rvec, state.cam_tvec, state.K, state.dist = fitted.cam_rvec, fitted.cam_tvec, fitted.K, fitted.dist
+        state, _ = bundle_adjust(state, sub, free_intrinsics=False, free_cameras=False, max_iter=20)
+        e2 = np.sum(residuals(state, sub) ** 2, axis=1)
+        sse[test] += np.bincount(sub.frame, weights=e2, minlength=len(test))
+        cnt[test] += np.bincount(sub.frame, minlength=len(test))
+    return sse, cnt
 
 
 def _synthetic_session(n_frames: int = 100, size=(1920, 1080), seed: int = 7) -> dict:

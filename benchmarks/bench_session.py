@@ -9,7 +9,7 @@ first run of the sample project, XYZ at an instant from three cameras.
   the sample's two videos, each linked twice), in process like bench_tui's step.
 - first run: `sample_project` made afresh (audio sync of the sample, calibration, the network's
   metrics read from its file).
-- xyz: `multiview.xyz_at_frame` for 20 markers seen by three cameras.
+- xyz: `xyz.xyz_at_frame` for 20 markers seen by three cameras.
 
 Wall times depend on how busy the machine is; CPU times are printed beside them.
 """
@@ -159,7 +159,7 @@ def first_run_figures(tmp: Path) -> dict:
 def multiview_figures(tmp: Path, n: int = 20) -> dict:
     import cv2
 
-    from sandtrack_tui import multiview
+    from sandtrack_tui import xyz as xyz_table
     from sandtrack_tui.store import Project
     from tui_synth import calibration
 
@@ -177,7 +177,7 @@ def multiview_figures(tmp: Path, n: int = 20) -> dict:
         rows = [(f, c, m + 1, *map(float, cal.cameras[c].project(xyz[m][None])[0]), "tracked", None, None, None)
                 for f in range(3) for c in cams for m in range(n)]
         proj.set_points(rows, "points")
-        wall, cpu, out = _cpu_ms(lambda: multiview.xyz_at_frame(proj, 1, cams, cal), 7)
+        wall, cpu, out = _cpu_ms(lambda: xyz_table.xyz_at_frame(proj, 1), 7)
         err = np.linalg.norm(out[["X_mm", "Y_mm", "Z_mm"]].to_numpy() - xyz[out.marker.to_numpy() - 1], axis=1)
     return {f"xyz_three_cameras_{n}_markers_ms": round(wall, 1), f"xyz_three_cameras_{n}_markers_cpu_ms": round(cpu, 1),
             "xyz_three_cameras_max_error_mm": float(f"{err.max():.2g}")}

@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from sandtrack_tui import corrections, multiview, scale
+from sandtrack_tui import corrections, scale, xyz
 from sandtrack_tui.camera import Calibration, Camera
 from sandtrack_tui.errors import SandtrackError
 from sandtrack_tui.store import Project
@@ -158,14 +158,16 @@ def test_xyz_at_an_instant_from_three_cameras_interpolates_the_late_one(tmp_path
             x, y = calibration(cams).cameras[cam].project(p[None])[0]
             rows.append((f, cam, 2, float(x), float(y), "tracked", None, None, None))
     proj.set_points(rows, "tracks")
-    out = multiview.xyz_at_frame(proj, 2, cams, proj.calibration())
-    assert len(out) == 1 and out.cameras.iloc[0] == 3
+    out = xyz.xyz_at_frame(proj, 2)  # triangulation only: the project has no network
+    assert len(out) == 1 and (out[["status_side", "status_front", "status_top"]] == "tracked").all(axis=None)
+    assert list(out.columns) == xyz.xyz_columns(cams) and {"xs", "xf", "x_top"} <= set(out.columns)
     assert np.linalg.norm(out[["X_mm", "Y_mm", "Z_mm"]].to_numpy()[0] - true_xyz(2, 2)) < 0.05
     assert out.residual_px.iloc[0] < 0.05
     # with one camera only the marker has no XYZ
     proj.delete_points(2, "front")
     proj.delete_points(2, "top")
-    assert multiview.xyz_at_frame(proj, 2, cams, proj.calibration()).empty
+    out = xyz.xyz_at_frame(proj, 2)
+    assert out.status_front.iloc[0] == "missing" and out[["X_mm", "Y_mm", "Z_mm"]].isna().all(axis=None)
     proj.close()
 
 

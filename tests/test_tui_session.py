@@ -331,3 +331,43 @@ async def test_marker_list_picks_out_of_a_crowd(tmp_path, frames):
         await pilot.press("m", "slash", "n", "i", "n", "e", "enter", "enter")  # filter by name
         await pilot.pause()
         assert app.selected == 9
+
+
+@aio
+async def test_calibration_screen_takes_a_video_of_every_camera(tmp_path, frames, monkeypatch):
+    import sandtrack_tui.calibration.pipeline as pipeline
+    from sandtrack_tui.camera import Calibration
+    from sandtrack_tui.tui.screens.calibration import CalibrationScreen
+
+    cams = ("side", "front", "top")
+    project = new_project(tmp_path, frames, cameras=cams)
+    calls = []
+
+    def fake(videos, board, **kw):  # the pipeline's own tests calibrate; here: what the screen hands it
+        calls.append(dict(videos))
+        return SimpleNamespace(calibration=calibration(cams), report={"reprojection_rmse_px": 0.1},
+                               points=None, warnings=[])
+
+    monkeypatch.setattr(pipeline, "calibrate_videos", fake)
+    for cam in cams:
+        (tmp_path / f"{cam}.mp4").write_bytes(b"")
+    (tmp_path / "board.toml").write_text('type = "charuco"\ncolumns = 5\nrows = 4\nsquare_mm = 20.0\n'
+                                         'dictionary = "DICT_4X4_50"\n')
+    app = SandtrackApp(project)
+    async with app.run_test(size=(120, 40)) as pilot:
+        await settle(pilot, app)
+        await pilot.press("f3")
+        await pilot.pause()
+        screen = app.screen
+        assert isinstance(screen, CalibrationScreen) and screen.cameras == list(cams)
+        from textual.widgets import Input
+
+        for k, cam in enumerate(cams):
+            screen.query_one(f"#video-{k}", Input).value = str(tmp_path / f"{cam}.mp4")
+        screen.query_one("#board", Input).value = str(tmp_path / "board.toml")
+        screen.query_one("#points", Input).value = ""
+        await pilot.press("ctrl+r")
+        await until_idle(pilot, app)
+        assert calls and list(calls[0]) == list(cams)
+        assert [str(p) for p in calls[0].values()] == [str(tmp_path / f"{c}.mp4") for c in cams]
+        assert isinstance(project.calibration(), Calibration) and project.calibration().names == list(cams)

@@ -159,12 +159,68 @@ def test_cli_xyz_frame_and_csv(project, model_file, tmp_path, capsys):
 def test_timeline_from_frame_times_matches_fps_and_never_extrapolates():
     from sandtrack_tui.xyz import Timeline
 
-    by_fps = Timeline(50.0, 50.0, OFFSET_S, side_frames=30, front_frames=30)
-    by_times = Timeline(50.0, 50.0, OFFSET_S, side_times=np.arange(30) / 50.0, front_times=np.arange(30) / 50.0)
+    cams, fps = ["side", "front"], {"side": 50.0, "front": 50.0}
+    by_fps = Timeline(cams, fps, {"front": OFFSET_S}, frames={"side": 30, "front": 30})
+    by_times = Timeline(cams, fps, {"front": OFFSET_S}, times={c: np.arange(30) / 50.0 for c in cams})
     i = np.arange(30)
-    a, b = by_fps.front_position(i), by_times.front_position(i)
+    a, b = by_fps.position("front", i), by_times.position("front", i)
     assert np.allclose(a[1:], i[1:] - 0.685) and np.allclose(b[1:], a[1:])
     assert np.isnan(a[0]) and np.isnan(b[0])  # before the front's first frame
-    late = Timeline(50.0, 50.0, -0.1, side_frames=30, front_frames=30)  # front started 5 frames earlier
-    assert np.allclose(late.front_position(np.array([0, 24])), [5, 29]) and np.isnan(late.front_position(25))
-    assert np.array_equal(by_fps.side_index_of_front(np.array([0, 9])), [1, 10])
+    late = Timeline(cams, fps, {"front": -0.1}, frames={"side": 30, "front": 30})  # front started 5 frames earlier
+    assert np.allclose(late.position("front", np.array([0, 24])), [5, 29]) and np.isnan(late.position("front", 25))
+    assert np.array_equal(by_fps.reference_index("front", np.array([0, 9])), [1, 10])
+
+
+def test_three_cameras_and_one_camera_end_to_end(tmp_path, capsys):
+    """A project of three cameras (the front one half a frame late) gives one table with every camera's
+    pixels, XYZ from all three, and exports it (CSV, Parquet, DLTdv cam1..cam3); one camera gives x, y
+    in mm through its scale, or one line asking for the scale."""
+    import cv2
+
+    from sandtrack_tui.scale import set_scale
+    from sandtrack_tui.xyz import xyz_columns
+    from tui_synth import calibration, true_xyz
+
+    cams = ["side", "front", "top"]
+    for cam in cams:
+        (tmp_path / cam).mkdir()
+        for f in range(4):
+            cv2.imwrite(str(tmp_path / cam / f"{f}.png"), np.zeros((360, 640, 3), np.uint8))
+    cal = calibration(cams)
+    with Project.create(tmp_path / "three.sandtrack", {c: tmp_path / c for c in cams}) as proj:
+        proj.set("sync_offset_s", 0.01)  # the front camera started half a frame later (50 fps)
+        proj.set_calibration(cal)
+        rows = []
+        for f in range(4):
+            for cam in cams:
+                t = f + (0.5 if cam == "front" else 0.0)
+                p = true_xyz(2, 0) + t * (true_xyz(2, 1) - true_xyz(2, 0))
+                rows.append((f, cam, 2, *map(float, cal.cameras[cam].project(p[None])[0]), "tracked", None, None, None))
+        proj.set_points(rows, "tracks")
+    path = str(tmp_path / "three.sandtrack")
+    assert main(["xyz", path, "-o", str(tmp_path / "xyz.csv")]) == 0
+    table = pd.read_csv(tmp_path / "xyz.csv")
+    assert list(table.columns) == xyz_columns(cams) and set(table["method"]) == {"triangulation"}
+    assert table["status_front"].tolist() == ["missing", "tracked", "tracked", "tracked"]  # frame 0: before it
+    truth = np.array([true_xyz(2, f) for f in table["frame"]])
+    err = np.linalg.norm(table[["X_mm", "Y_mm", "Z_mm"]].to_numpy() - truth, axis=1)
+    assert err.max() < 0.01 and table["residual_px"].max() < 0.01  # frame 0 from side and top only
+    assert main(["export", path, "-o", str(tmp_path / "t.parquet")]) == 0
+    assert list(pd.read_parquet(tmp_path / "t.parquet").columns) == xyz_columns(cams)
+    assert main(["export", path, "-o", str(tmp_path / "trial"), "--format", "dltdv"]) == 0
+    xy = pd.read_csv(tmp_path / "trial-xypts.csv")
+    assert list(xy.columns) == [f"pt1_cam{k}_{a}" for k in (1, 2, 3) for a in "XY"]
+    assert np.allclose(xy["pt1_cam3_X"], table["x_top"]) and np.allclose(xy["pt1_cam3_Y"], 360 - table["y_top"])
+    assert list(pd.read_csv(tmp_path / "trial-offsets.csv").columns) == ["cam1_offset", "cam2_offset", "cam3_offset"]
+    capsys.readouterr()
+
+    with Project.create(tmp_path / "one.sandtrack", {"top": tmp_path / "top"}) as proj:
+        proj.set_points([(1, "top", 5, 100.0, 50.0, "tracked", None, None, None)], "a point")
+    one = str(tmp_path / "one.sandtrack")
+    assert main(["xyz", one, "--frame", "1"]) == 1
+    assert "scale" in capsys.readouterr().err
+    with Project.open(one) as proj:
+        set_scale(proj, "top", 0.25, "known length")
+    assert main(["xyz", one, "--frame", "1", "--json"]) == 0
+    row = json.loads(capsys.readouterr().out)["table"][0]
+    assert row["method"] == "scale" and (row["X_mm"], row["Y_mm"]) == (25.0, 12.5) and row["Z_mm"] is None

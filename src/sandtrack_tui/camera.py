@@ -1,8 +1,9 @@
 """Camera models and the calibration file (`calibration.toml`).
 
 Conventions (as OpenCV): a camera maps a point X in the *rig frame* (mm) to its own frame by
-``x_cam = R @ X + t``; pixels follow from the pinhole model with the full OpenCV distortion
-(k1, k2, p1, p2, k3) or the fisheye model (k1..k4). The rig frame is the first camera's frame
+``x_cam = R @ X + t``; pixels follow from the pinhole model with OpenCV's distortion vector (k1 k2
+p1 p2 k3, + rational k4..k6, + thin prism s1..s4, + tilted sensor tau_x tau_y) or the fisheye model
+(k1..k4); `lens` names the fitted terms (see `lens.py`). The rig frame is the first camera's frame
 unless stated otherwise; ``world_from_rig`` (4x4, mm) maps rig coordinates into the sand-box
 world frame (X, Y, Z along the box walls, Y up, Z along the tool's travel).
 """
@@ -19,6 +20,7 @@ import numpy as np
 import tomli_w
 
 from .errors import SandtrackError
+from .lens import LENSES, get_lens, lens_of, project, undistort_normalised
 
 
 @dataclass
@@ -27,11 +29,12 @@ class Camera:
     width: int
     height: int
     matrix: np.ndarray  # 3x3 intrinsic matrix, px
-    distortion: np.ndarray  # (5,) pinhole k1 k2 p1 p2 k3, or (4,) fisheye k1..k4
+    distortion: np.ndarray  # pinhole: OpenCV's order, 4, 5, 8, 12 or 14 terms; fisheye: (4,) k1..k4
     rvec: np.ndarray = field(default_factory=lambda: np.zeros(3))  # Rodrigues, rig -> camera
     tvec: np.ndarray = field(default_factory=lambda: np.zeros(3))  # mm
     model: str = "pinhole"  # "pinhole" | "fisheye"
     rmse_px: float | None = None
+    lens: str | None = None  # lens model name (lens.LENSES); None: the simplest that holds the coefficients
 
     def __post_init__(self) -> None:
         self.matrix = np.asarray(self.matrix, dtype=np.float64).reshape(3, 3)
@@ -40,6 +43,13 @@ class Camera:
         self.tvec = np.asarray(self.tvec, dtype=np.float64).reshape(3)
         if self.model not in ("pinhole", "fisheye"):
             raise SandtrackError(f"camera {self.name}: unknown model {self.model!r} (pinhole or fisheye)")
+        if self.lens is None:
+            self.lens = lens_of(self.distortion, self.model).name if np.isfinite(self.distortion).all() \
+                else ("fisheye" if self.model == "fisheye" else "full")
+        elif not isinstance(self.lens, str) or self.lens not in LENSES:
+            get_lens(str(self.lens))  # raises with the list of names
+        if LENSES[self.lens].family != self.model:
+            raise SandtrackError(f"camera {self.name}: lens {self.lens!r} does not fit the {self.model} model")
 
     @property
     def R(self) -> np.ndarray:
@@ -57,30 +67,27 @@ class Camera:
 
     def project(self, points_mm: np.ndarray) -> np.ndarray:
         """Project (N, 3) rig-frame points to (N, 2) distorted pixels."""
-        pts = np.asarray(points_mm, dtype=np.float64).reshape(-1, 1, 3)
+        pts = np.asarray(points_mm, dtype=np.float64).reshape(-1, 3)
         if len(pts) == 0:
             return np.zeros((0, 2))
-        if self.model == "fisheye":
-            px, _ = cv2.fisheye.projectPoints(pts, self.rvec, self.tvec, self.matrix, self.distortion)
-        else:
-            px, _ = cv2.projectPoints(pts, self.rvec, self.tvec, self.matrix, self.distortion)
-        return px.reshape(-1, 2)
+        return project(rotate(pts, self.R) + self.tvec, self.matrix, self.distortion, self.model)
 
     def undistort(self, pixels: np.ndarray) -> np.ndarray:
-        """Distorted pixels (N, 2) -> undistorted pixels (N, 2) of the same K."""
-        px = np.asarray(pixels, dtype=np.float64).reshape(-1, 1, 2)
+        """Distorted pixels (N, 2) -> undistorted pixels (N, 2) of the same K (NaN where the lens
+        model cannot be inverted)."""
+        px = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
         if len(px) == 0:
             return np.zeros((0, 2))
-        if self.model == "fisheye":
-            out = cv2.fisheye.undistortPoints(px, self.matrix, self.distortion, P=self.matrix)
-        else:
-            crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10)
-            out = cv2.undistortPoints(px, self.matrix, self.distortion, P=self.matrix, criteria=crit)
-        return out.reshape(-1, 2)
+        K = self.matrix
+        yd = (px[:, 1] - K[1, 2]) / K[1, 1]
+        xd = (px[:, 0] - K[0, 2] - K[0, 1] * yd) / K[0, 0]
+        x, y = undistort_normalised(xd, yd, self.distortion, self.model)
+        return np.stack([K[0, 0] * x + K[0, 1] * y + K[0, 2], K[1, 1] * y + K[1, 2]], axis=1)
 
     def to_dict(self) -> dict:
         d = {
             "model": self.model,
+            "lens": self.lens,
             "size": [int(self.width), int(self.height)],
             "matrix": self.matrix.tolist(),
             "distortion": self.distortion.tolist(),
@@ -105,6 +112,7 @@ class Camera:
                 tvec=np.array(d.get("translation_mm", [0, 0, 0]), dtype=float),
                 model=d.get("model", "pinhole"),
                 rmse_px=None if d.get("rmse_px") is None else float(d["rmse_px"]),
+                lens=d.get("lens"),
             )
         except (KeyError, TypeError, ValueError, OverflowError) as exc:
             raise SandtrackError(f"camera {name}: malformed entry ({exc})") from None
@@ -123,6 +131,16 @@ class Camera:
         if len(self.distortion) not in ok:
             raise SandtrackError(f"camera {self.name}: {len(self.distortion)} distortion coefficients for the "
                                  f"{self.model} model (expected {' or '.join(map(str, ok))})")
+        lens = LENSES[self.lens]
+        extra = [i for i in np.nonzero(self.distortion)[0] if i >= len(lens.free) or not lens.free[i]]
+        if extra:
+            raise SandtrackError(f"camera {self.name}: the distortion has terms the {lens.name!r} lens model does "
+                                 f"not fit (entries {', '.join(str(i + 1) for i in extra)})")
+
+
+def rotate(points: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """(N, 3) points times R^T, row by row (einsum: numpy's matmul took 15 times longer on N x 3)."""
+    return np.einsum("ij,kj->ik", points, R)
 
 
 def euler_angles_deg(R: np.ndarray) -> tuple[float, float, float]:
@@ -156,12 +174,12 @@ class Calibration:
 
     def to_world(self, points_rig: np.ndarray) -> np.ndarray:
         p = np.asarray(points_rig, dtype=np.float64).reshape(-1, 3)
-        return p @ self.world_from_rig[:3, :3].T + self.world_from_rig[:3, 3]
+        return rotate(p, self.world_from_rig[:3, :3]) + self.world_from_rig[:3, 3]
 
     def to_rig(self, points_world: np.ndarray) -> np.ndarray:
         p = np.asarray(points_world, dtype=np.float64).reshape(-1, 3)
         R, t = self.world_from_rig[:3, :3], self.world_from_rig[:3, 3]
-        return (p - t) @ R
+        return rotate(p - t, R.T)
 
     def project_world(self, camera: str, points_world: np.ndarray) -> np.ndarray:
         return self.cameras[camera].project(self.to_rig(points_world))

@@ -1,17 +1,19 @@
 """Trajectory export (tidy CSV, Parquet, DLTdv/Argus CSVs) and pixel-track import (DaVinci Resolve, DLTdv).
 
 Export
-    The tidy table has one row per side frame, marker and method:
-    ``frame, time_s, marker, status_side, status_front, xs, ys, xf, yf, X_mm, Y_mm, Z_mm, method,
-    residual_px`` (``frame``/``time_s``: side camera; ``xs, ys``: side pixel; ``xf, yf``: the front
-    track interpolated to the side frame's time through the sync offset; pixels in the OpenCV
+    The tidy table has one row per frame of the first camera (the reference: side in a side/front
+    project), marker and method: ``frame, time_s, marker``, ``status_<camera>`` for each camera,
+    each camera's pixels (``xs, ys`` side, ``xf, yf`` front, ``x_<camera>, y_<camera>`` any other),
+    ``X_mm, Y_mm, Z_mm, method, residual_px`` (see `xyz.py`: the other cameras' tracks are
+    interpolated to the reference frame's time through the sync offset; pixels in the OpenCV
     convention, origin at the top-left pixel's centre, y down).
 
     DLTdv/Argus (``PREFIX-xypts.csv``, ``-xyzpts.csv``, ``-xyzres.csv``, ``-offsets.csv``): one row
-    per side frame (row 1 = frame 0), NaN where missing; ``ptN_camM_X/Y`` with cam1 = side,
-    cam2 = front, point N = the N-th marker (sorted by id); y is flipped to DLTdv's bottom-left
-    origin (``y_dltdv = height - y_px``). The front columns are already resampled to the side
-    frames, so every camera offset is 0.
+    per reference frame (row 1 = frame 0), NaN where missing; ``ptN_camM_X/Y`` with camM = the M-th
+    camera of the table (cam1 = side, cam2 = front in a side/front project), point N = the N-th
+    marker (sorted by id); y is flipped to DLTdv's bottom-left origin (``y_dltdv = height - y_px``).
+    The other cameras' columns are already resampled to the reference frames, so every camera
+    offset is 0.
 
 Import
     DaVinci Resolve / Fusion tracker export: ``frame, x, y``; normalised, origin bottom-left, y up.
@@ -36,10 +38,11 @@ import numpy as np
 import pandas as pd
 
 from .errors import SandtrackError
+from .xyz import XYZ_COLUMNS, pixel_columns, xyz_columns
 
-TIDY_COLUMNS = ["frame", "time_s", "marker", "status_side", "status_front", "xs", "ys", "xf", "yf",
-                "X_mm", "Y_mm", "Z_mm", "method", "residual_px"]
+TIDY_COLUMNS = XYZ_COLUMNS  # a side/front project's; others: xyz.xyz_columns(cameras)
 FORMATS = ("csv", "parquet", "dltdv")
+DEFAULT_HEIGHT = 1080  # px, for the DLTdv y flip of a camera whose image height is not given
 MAX_ROWS = 50_000_000
 
 
@@ -54,13 +57,20 @@ def trajectory_table(project, method: str = "both") -> pd.DataFrame:
     return check_tidy(df)
 
 
+def table_cameras(df: pd.DataFrame) -> list[str]:
+    """The cameras of a tidy table, in its order (from its ``status_<camera>`` columns)."""
+    return [c[len("status_"):] for c in df.columns if str(c).startswith("status_")]
+
+
 def check_tidy(df: pd.DataFrame) -> pd.DataFrame:
-    missing = [c for c in TIDY_COLUMNS if c not in df.columns]
+    cameras = table_cameras(df)
+    columns = xyz_columns(cameras)
+    missing = [c for c in columns if c not in df.columns] if cameras else ["status_<camera>"]
     if missing:
         raise SandtrackError(f"trajectory table lacks columns: {', '.join(missing)}")
     if df.empty:
         raise SandtrackError("nothing to export: no tracked points with 3D positions yet")
-    return df[TIDY_COLUMNS].sort_values(["method", "marker", "frame"], kind="stable").reset_index(drop=True)
+    return df[columns].sort_values(["method", "marker", "frame"], kind="stable").reset_index(drop=True)
 
 
 def _atomic_write(path: Path, writer: Callable[[Path], None]) -> None:
@@ -104,18 +114,19 @@ def dltdv_tables(df: pd.DataFrame, heights: dict[str, float], method: str | None
     markers = sorted(int(m) for m in d["marker"].unique())
     n_rows = int(d["frame"].max()) + 1
     xy, xyz, res = {}, {}, {}
+    cameras = table_cameras(d)
     for n, m in enumerate(markers, start=1):
         dm = d[d["marker"] == m]
         f = dm["frame"].to_numpy(int)
         cols = {}
-        for cam, (cx, cy) in (("cam1", ("xs", "ys")), ("cam2", ("xf", "yf"))):
-            h = heights["side" if cam == "cam1" else "front"]
+        for k, cam in enumerate(cameras, start=1):
+            cx, cy = pixel_columns(cam)
             x = np.full(n_rows, np.nan)
             y = np.full(n_rows, np.nan)
             x[f] = dm[cx].to_numpy(float)
-            y[f] = h - dm[cy].to_numpy(float)
-            cols[f"pt{n}_{cam}_X"] = x
-            cols[f"pt{n}_{cam}_Y"] = y
+            y[f] = heights.get(cam, DEFAULT_HEIGHT) - dm[cy].to_numpy(float)
+            cols[f"pt{n}_cam{k}_X"] = x
+            cols[f"pt{n}_cam{k}_Y"] = y
         xy.update(cols)
         for ax in "XYZ":
             v = np.full(n_rows, np.nan)
@@ -124,7 +135,7 @@ def dltdv_tables(df: pd.DataFrame, heights: dict[str, float], method: str | None
         r = np.full(n_rows, np.nan)
         r[f] = dm["residual_px"].to_numpy(float)
         res[f"pt{n}_dltres"] = r
-    offsets = pd.DataFrame({"cam1_offset": np.zeros(n_rows, int), "cam2_offset": np.zeros(n_rows, int)})
+    offsets = pd.DataFrame({f"cam{k}_offset": np.zeros(n_rows, int) for k in range(1, len(cameras) + 1)})
     return {"xypts": pd.DataFrame(xy), "xyzpts": pd.DataFrame(xyz), "xyzres": pd.DataFrame(res),
             "offsets": offsets, "markers": pd.DataFrame({"point": range(1, len(markers) + 1), "marker": markers})}
 
@@ -156,7 +167,7 @@ def export(df: pd.DataFrame, path: str | Path, fmt: str | None = None, heights: 
         return [write_csv(df, path)]
     if fmt == "parquet":
         return [write_parquet(df, path)]
-    return write_dltdv(df, path, heights or {"side": 1080, "front": 1080}, method)
+    return write_dltdv(df, path, heights or {}, method)
 
 
 # -- import: readers ------------------------------------------------------------------------------

@@ -1,22 +1,30 @@
-"""World XYZ (mm) of the tracked markers, by triangulation and by the regression model.
+"""World XYZ (mm) of the tracked markers, by triangulation and by the regression model, for a
+project with any number of cameras.
 
-`compute_xyz` returns one row per side frame, marker and method with the columns XYZ_COLUMNS:
+`compute_xyz` returns one row per frame of the first camera (the reference: the side camera in a
+side/front project), marker and method, with the columns `xyz_columns(cameras)`:
 
-- ``frame``, ``time_s``: the side camera's frame index and time (s).
-- ``status_side``, ``status_front``: the point statuses used ("missing" where a camera has no
-  point). The front status is the worse of the two front frames interpolated between.
-- ``xs, ys``: side pixels; ``xf, yf``: front pixels at the side frame's time. The cameras are not
-  frame-locked: side time t is front time t - offset_s (sync offset: the front started that much
-  later), which usually falls between two front frames, so the front pixels are interpolated
-  linearly between them, and only when both are real observations (status other than "lost").
-- ``X_mm, Y_mm, Z_mm``: world frame; NaN when a camera has no usable point.
+- ``frame``, ``time_s``: the reference camera's frame index and time (s).
+- ``status_<camera>`` for each camera: the point status used ("missing" where the camera has no
+  point). For the other cameras it is the worse of the two frames interpolated between.
+- pixels of each camera at the reference frame's time: ``xs, ys`` (side), ``xf, yf`` (front),
+  ``x_<camera>, y_<camera>`` (any other camera). The cameras are not frame-locked: a camera that
+  started recording `offset` s later (`video.camera_offsets`: the project's sync offset belongs to
+  the front camera, or to the second of two) sees reference time t at its own time t - offset,
+  which usually falls between two of its frames; its pixels are interpolated linearly between them,
+  and only when both are real observations (status other than "lost").
+- ``X_mm, Y_mm, Z_mm``: world frame; NaN when fewer than two calibrated cameras have a usable point.
+  Triangulation uses every calibrated camera that has one.
 - ``method``: "triangulation", "mlp", "residual" (triangulation + learned correction), or
   "mlp_outside": an MLP result whose query lies outside the training volume (pixels beyond the
   training range or XYZ more than a few mm outside the hull of the training points), where the MLP
   extrapolates badly. With ``outside="nan"`` such rows stay "mlp" but get NaN XYZ; with
-  ``outside="keep"`` they are left unflagged.
+  ``outside="keep"`` they are left unflagged. The network reads the side and front pixels, as it
+  was trained. A project with one camera has "scale" rows instead: X_mm, Y_mm are the pixel
+  (undistorted when the camera is calibrated) times the camera's mm-per-px scale (`scale.py`), in
+  the image's axes; Z_mm is NaN.
 - ``residual_px``: RMS reprojection error of the XYZ through the calibration (px); a large value
-  means the two views do not agree (a bad track or a poor model). NaN without a calibration.
+  means the views do not agree (a bad track or a poor model). NaN without a calibration.
 
 Frame times come from the project's stored fps (times = index / fps) unless `times` gives each
 camera's real frame times (e.g. ``FrameSource.times_s``).
@@ -34,75 +42,92 @@ import pandas as pd
 
 from .errors import SandtrackError
 
-XYZ_COLUMNS = ["frame", "time_s", "marker", "status_side", "status_front", "xs", "ys", "xf", "yf",
-               "X_mm", "Y_mm", "Z_mm", "method", "residual_px"]
 METHODS = ("triangulation", "mlp", "residual")
 METHOD_CHOICES = ("triangulation", "mlp", "residual", "both", "all")
 OUTSIDE_POLICIES = ("flag", "nan", "keep")
-# Worse statuses win when two front observations are combined.
+NETWORK_CAMERAS = ("side", "front")  # the network's inputs: xs, ys, xf, yf
+_PIXEL_ALIASES = {"side": ("xs", "ys"), "front": ("xf", "yf")}
+# Worse statuses win when two observations of a camera are combined.
 _SEVERITY = {"manual": 0, "tracked": 1, "imported": 2, "interpolated": 3, "occluded": 4, "lost": 5,
              "missing": 6}
 _EPS = 1e-6
 _KEY = 1 << 32  # (marker, frame) -> one int64 key
 
 
-class Timeline:
-    """Frame times of both cameras and the sync offset."""
+def pixel_columns(camera: str) -> tuple[str, str]:
+    """The x and y columns of a camera's pixels: xs, ys (side), xf, yf (front), else x_NAME, y_NAME."""
+    return _PIXEL_ALIASES.get(camera, (f"x_{camera}", f"y_{camera}"))
 
-    def __init__(self, side_fps: float, front_fps: float, offset_s: float, side_frames: int | None = None,
-                 front_frames: int | None = None, side_times=None, front_times=None):
-        self.side_fps, self.front_fps, self.offset_s = float(side_fps), float(front_fps), float(offset_s)
-        self.side_frames, self.front_frames = side_frames, front_frames
-        self.side_times = None if side_times is None else np.asarray(side_times, dtype=float)
-        self.front_times = None if front_times is None else np.asarray(front_times, dtype=float)
-        if self.side_times is not None:
-            self.side_frames = len(self.side_times)
-        if self.front_times is not None:
-            self.front_frames = len(self.front_times)
+
+def xyz_columns(cameras) -> list[str]:
+    """Columns of the XYZ table of a project with these cameras (the first is the reference)."""
+    return ["frame", "time_s", "marker", *(f"status_{c}" for c in cameras),
+            *(col for c in cameras for col in pixel_columns(c)), "X_mm", "Y_mm", "Z_mm", "method", "residual_px"]
+
+
+XYZ_COLUMNS = xyz_columns(NETWORK_CAMERAS)
+
+
+class Timeline:
+    """Frame times of the cameras and their start offsets; the first camera is the reference.
+
+    fps, frames, times: per camera (frames / times may be missing: then index / fps, unbounded);
+    offsets: how much later (s) each camera started than the reference."""
+
+    def __init__(self, cameras, fps: dict, offsets: dict, frames: dict | None = None, times: dict | None = None):
+        self.cameras = list(cameras)
+        self.fps = {c: float(fps[c]) for c in self.cameras}
+        self.offsets = {c: float(offsets.get(c, 0.0)) for c in self.cameras}
+        self.times = {c: np.asarray(t, dtype=float) for c, t in (times or {}).items() if t is not None}
+        self.frames = {c: (len(self.times[c]) if c in self.times else (frames or {}).get(c)) for c in self.cameras}
 
     @classmethod
     def from_project(cls, project, times: dict | None = None) -> Timeline:
+        from .video import camera_offsets
+
         vids = project.videos()
-        times = times or {}
-        fps = {c: (vids[c].fps if c in vids and vids[c].fps else 50.0) for c in ("side", "front")}
-        count = {c: (vids[c].frames if c in vids else None) for c in ("side", "front")}
-        return cls(fps["side"], fps["front"], project.sync_offset_s, count["side"], count["front"],
-                   times.get("side"), times.get("front"))
+        cameras = [c for c in project.cameras() if c in vids]
+        fps = {c: vids[c].fps or 50.0 for c in cameras}
+        return cls(cameras, fps, camera_offsets(cameras, project.sync_offset_s),
+                   {c: vids[c].frames for c in cameras}, times)
 
-    def side_time(self, i: np.ndarray) -> np.ndarray:
-        i = np.asarray(i, dtype=np.int64)
-        if self.side_times is not None:
-            return self.side_times[np.clip(i, 0, len(self.side_times) - 1)]
-        return i / self.side_fps
+    @property
+    def reference(self) -> str:
+        return self.cameras[0]
 
-    def front_index(self, side_index: np.ndarray) -> np.ndarray:
-        """Continuous front frame index at each side frame's time (may lie outside the front video)."""
-        tf = self.side_time(side_index) - self.offset_s
-        if self.front_times is not None:
-            ft = self.front_times
-            u = np.interp(tf, ft, np.arange(len(ft), dtype=float))
+    def time(self, camera: str, index: np.ndarray) -> np.ndarray:
+        """Time (s, on the camera's own clock) of its frames."""
+        i = np.asarray(index, dtype=np.int64)
+        t = self.times.get(camera)
+        return t[np.clip(i, 0, len(t) - 1)] if t is not None else i / self.fps[camera]
+
+    def index(self, camera: str, ref_index: np.ndarray) -> np.ndarray:
+        """Continuous frame index of `camera` at each reference frame's time (may lie outside its video)."""
+        tc = self.time(self.reference, ref_index) - self.offsets[camera]
+        ft = self.times.get(camera)
+        if ft is not None:
+            u = np.interp(tc, ft, np.arange(len(ft), dtype=float))
             # beyond either end: continue at the nominal frame rate
-            return np.where(tf < ft[0], (tf - ft[0]) * self.front_fps,
-                            np.where(tf > ft[-1], len(ft) - 1 + (tf - ft[-1]) * self.front_fps, u))
-        return tf * self.front_fps
+            fps = self.fps[camera]
+            return np.where(tc < ft[0], (tc - ft[0]) * fps, np.where(tc > ft[-1], len(ft) - 1 + (tc - ft[-1]) * fps, u))
+        return tc * self.fps[camera]
 
-    def front_position(self, side_index: np.ndarray) -> np.ndarray:
-        """front_index, NaN outside the front video (no extrapolation: a side frame before the first or
-        after the last front frame has no front point)."""
-        u = self.front_index(side_index)
-        last = math.inf if self.front_frames is None else self.front_frames - 1
+    def position(self, camera: str, ref_index: np.ndarray) -> np.ndarray:
+        """`index`, NaN outside the camera's video (no extrapolation: a reference frame before its first
+        or after its last frame has no point of that camera)."""
+        u = self.index(camera, ref_index)
+        n = self.frames.get(camera)
+        last = math.inf if n is None else n - 1
         inside = (u >= -_EPS) & (u <= last + _EPS)
         return np.where(inside, np.clip(u, 0, None), np.nan)
 
-    def side_index_of_front(self, front_index: np.ndarray) -> np.ndarray:
-        """Nearest side frame for each front frame."""
-        j = np.asarray(front_index, dtype=np.int64)
-        tf = self.front_times[np.clip(j, 0, len(self.front_times) - 1)] if self.front_times is not None \
-            else j / self.front_fps
-        ts = tf + self.offset_s
-        if self.side_times is not None:
-            return np.clip(np.searchsorted(self.side_times, ts), 0, len(self.side_times) - 1)
-        return np.rint(ts * self.side_fps).astype(np.int64)
+    def reference_index(self, camera: str, index: np.ndarray) -> np.ndarray:
+        """Nearest reference frame for each frame of `camera`."""
+        ts = self.time(camera, index) + self.offsets[camera]
+        ref = self.times.get(self.reference)
+        if ref is not None:
+            return np.clip(np.searchsorted(ref, ts), 0, len(ref) - 1)
+        return np.rint(ts * self.fps[self.reference]).astype(np.int64)
 
 
 # -- model and calibration caches (the live table calls xyz_at_frame on every step) ---------------
@@ -152,87 +177,127 @@ def project_calibration(project):
 # -- main entry points ----------------------------------------------------------------------------
 def compute_xyz(project, method: str = "both", frames=None, model=None, calibration=None,
                 times: dict | None = None, outside: str = "flag", refine: bool = True) -> pd.DataFrame:
-    """XYZ of every marker at every side frame (or only `frames`: an iterable of side frame
+    """XYZ of every marker at every reference frame (or only `frames`: an iterable of reference frame
     indices). method: "triangulation", "mlp", "residual", "both" (triangulation + mlp) or "all".
-    An explicitly asked method that cannot run (no calibration, no model) raises SandtrackError;
-    "both"/"all" give what is available and raise only if nothing is."""
+    An explicitly asked method that cannot run (no calibration, no model, too few cameras) raises
+    SandtrackError; "both"/"all" give what is available and raise only if nothing is."""
+    check_choices(method, outside)
+    timeline = Timeline.from_project(project, times)
+    if not timeline.cameras:
+        raise SandtrackError("the project has no videos")
+    calibration = calibration if calibration is not None else project_calibration(project)
+    obs = _observations(project, timeline, frames)
+    if len(timeline.cameras) == 1:
+        return _solve_scaled(project, obs, timeline.reference, calibration)
+    if model is None and wants_network(method):
+        path = model_path(project)
+        if path is not None and (method in METHODS or path.exists()):
+            model = load_cached_model(path)
+    methods = resolve_methods(method, calibration, model, timeline.cameras, PROJECT_NEEDS)
+    return _solve(obs, timeline.cameras, methods, model, calibration, outside, refine)
+
+
+def xyz_at_frame(project, frame: int, method: str = "both", **kw) -> pd.DataFrame:
+    """The rows of one reference frame (fast: reads only that frame's points; the model is cached)."""
+    return compute_xyz(project, method=method, frames=[int(frame)], **kw)
+
+
+# -- which methods can run --------------------------------------------------------------------------
+PROJECT_NEEDS = {
+    "calibration": "the project has no calibration yet (sandtrack calibrate, or set one in the TUI)",
+    "model": "the project has no regression model yet (sandtrack train ... --project P)",
+    "nothing": "nothing to compute XYZ with: the project needs a calibration or a trained model",
+}
+
+
+def check_choices(method: str, outside: str) -> None:
     if method not in METHOD_CHOICES:
         raise SandtrackError(f"unknown method {method!r} (one of {', '.join(METHOD_CHOICES)})")
     if outside not in OUTSIDE_POLICIES:
         raise SandtrackError(f"unknown outside policy {outside!r} (one of {', '.join(OUTSIDE_POLICIES)})")
-    timeline = Timeline.from_project(project, times)
-    calibration = calibration if calibration is not None else project_calibration(project)
-    methods, model = _resolve_methods(project, method, model, calibration)
-    obs = _observations(project, timeline, frames)
-    return _solve(obs, methods, model, calibration, outside, refine)
 
 
-def xyz_at_frame(project, frame: int, method: str = "both", **kw) -> pd.DataFrame:
-    """The rows of one side frame (fast: reads only that frame's points; the model is cached)."""
-    return compute_xyz(project, method=method, frames=[int(frame)], **kw)
+def wanted_methods(method: str) -> list[str]:
+    return {"both": ["triangulation", "mlp"], "all": list(METHODS)}.get(method, [method])
 
 
-def _resolve_methods(project, method: str, model, calibration):
-    wanted = {"both": ["triangulation", "mlp"], "all": list(METHODS)}.get(method, [method])
+def wants_network(method: str) -> bool:
+    return any(m in ("mlp", "residual") for m in wanted_methods(method))
+
+
+def resolve_methods(method: str, calibration, model, cameras, needs: dict[str, str]) -> list[str]:
+    """The methods of `method` that can run with this calibration, model and cameras. A method asked
+    for by name that cannot run raises SandtrackError with the reason (`needs` words the missing
+    calibration, model and "nothing" for the caller: a project, or the command line's options);
+    "both" and "all" keep what can run and raise only when nothing can."""
     strict = method in METHODS
-    if model is None and ("mlp" in wanted or "residual" in wanted):
-        path = model_path(project)
-        if path is not None and (strict or path.exists()):
-            model = load_cached_model(path)
+    out, reasons = [], []
+    for m in wanted_methods(method):
+        reason = _cannot_run(m, calibration, model, list(cameras), needs)
+        if reason is None:
+            out.append(m)
         elif strict:
-            raise SandtrackError("the project has no regression model yet (sandtrack train ... --project P)")
-    out = []
-    for m in wanted:
-        if m == "triangulation" and calibration is None:
-            if strict:
-                raise SandtrackError("the project has no calibration yet (sandtrack calibrate, or set one in the TUI)")
-            continue
-        if m in ("mlp", "residual") and model is None:
-            continue
-        if m == "residual" and not model.has_residual:
-            if strict:
-                raise SandtrackError("the model has no residual variant (train it with a calibration)")
-            continue
-        out.append(m)
+            raise SandtrackError(reason)
+        elif reason not in (needs["calibration"], needs["model"].format(method=m)):
+            reasons.append(reason)  # an input was given but does not fit
     if not out:
-        raise SandtrackError("nothing to compute XYZ with: the project needs a calibration or a trained model")
-    return out, model
+        raise SandtrackError("; ".join(reasons) if reasons else needs["nothing"])
+    return out
 
 
+def _cannot_run(m: str, calibration, model, cameras: list[str], needs: dict[str, str]) -> str | None:
+    if m == "triangulation":
+        if calibration is None:
+            return needs["calibration"]
+        if sum(c in calibration.cameras for c in cameras) < 2:
+            return "triangulation needs the pixels of at least two calibrated cameras"
+        return None
+    if model is None:
+        return needs["model"].format(method=m)
+    if not set(NETWORK_CAMERAS) <= set(cameras):
+        return (f"the {m} method reads side and front pixels: give xs, ys, xf, yf "
+                "(or x_side, y_side, x_front, y_front)")
+    if m == "residual" and not model.has_residual:
+        return "the model has no residual variant (train it with a calibration)"
+    return None
+
+
+# -- observations -----------------------------------------------------------------------------------
 def _observations(project, timeline: Timeline, frames) -> dict:
-    """One row per (side frame, marker): side pixels and front pixels interpolated to its time."""
+    """One row per (reference frame, marker): each camera's pixels and status at that frame's time
+    (the reference camera's own point; the others' interpolated)."""
+    ref = timeline.reference
+    others = timeline.cameras[1:]
     wanted = None
     if frames is not None:
         wanted = np.unique(np.asarray(list(frames), dtype=np.int64))
-        if len(wanted) == 0:
-            wanted = np.zeros(0, np.int64)
-            lo, hi = 0, -1
-        else:
-            lo, hi = int(wanted[0]), int(wanted[-1])
-        side = project.points(camera="side", frames=(lo, hi))
-        u = timeline.front_index(np.array([lo, hi]))
-        front = project.points(camera="front", frames=(int(np.floor(u[0])) - 1, int(np.ceil(u[1])) + 1))
+        lo, hi = (int(wanted[0]), int(wanted[-1])) if len(wanted) else (0, -1)
+        points = {ref: project.points(camera=ref, frames=(lo, hi))}
+        for c in others:
+            u = timeline.index(c, np.array([lo, hi]))
+            points[c] = project.points(camera=c, frames=(int(np.floor(u[0])) - 1, int(np.ceil(u[1])) + 1))
     else:
-        side = project.points(camera="side")
-        front = project.points(camera="front")
+        points = {c: project.points(camera=c) for c in timeline.cameras}
 
-    keys = [side[["frame", "marker"]].to_numpy(np.int64)]
-    if len(front):
-        keys.append(np.stack([timeline.side_index_of_front(front["frame"].to_numpy()),
-                              front["marker"].to_numpy(np.int64)], axis=1))
+    keys = [points[ref][["frame", "marker"]].to_numpy(np.int64)]
+    for c in others:
+        if len(points[c]):
+            keys.append(np.stack([timeline.reference_index(c, points[c]["frame"].to_numpy()),
+                                  points[c]["marker"].to_numpy(np.int64)], axis=1))
     keys = np.unique(np.concatenate(keys), axis=0)
     if wanted is not None:
         keys = keys[np.isin(keys[:, 0], wanted)]
     keys = keys[keys[:, 0] >= 0]
-    if timeline.side_frames is not None:
-        keys = keys[keys[:, 0] < timeline.side_frames]
+    if timeline.frames.get(ref) is not None:
+        keys = keys[keys[:, 0] < timeline.frames[ref]]
     frame, marker = keys[:, 0], keys[:, 1]
-    obs = {"frame": frame, "marker": marker, "time_s": timeline.side_time(frame)}
-    obs["xs"], obs["ys"], obs["status_side"], ok = _lookup(side, marker, frame)
-    lost = obs["status_side"] == "lost"
-    obs["xs"][lost] = np.nan
-    obs["ys"][lost] = np.nan
-    _interpolate_front(obs, front, timeline.front_position(frame))
+    obs = {"frame": frame, "marker": marker, "time_s": timeline.time(ref, frame), "pixels": {}, "status": {}}
+    x, y, status, _ = _lookup(points[ref], marker, frame)
+    lost = status == "lost"
+    x[lost], y[lost] = np.nan, np.nan
+    obs["pixels"][ref], obs["status"][ref] = np.stack([x, y], axis=1), status
+    for c in others:
+        obs["pixels"][c], obs["status"][c] = _interpolated(points[c], marker, timeline.position(c, frame))
     return obs
 
 
@@ -256,71 +321,117 @@ def _lookup(points: pd.DataFrame, marker: np.ndarray, frame: np.ndarray):
     return x, y, status, usable
 
 
-def _interpolate_front(obs: dict, front: pd.DataFrame, u: np.ndarray) -> None:
-    """Fill obs xf, yf, status_front from the two front frames around continuous index u."""
+def _interpolated(points: pd.DataFrame, marker: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 2) pixels and statuses of a camera at continuous frame indices u, from the two frames around."""
     n = len(u)
     j0 = np.floor(np.nan_to_num(u, nan=-10) + _EPS).astype(np.int64)
     w = np.where(np.isfinite(u), u - j0, np.nan)
     w[np.abs(w) < _EPS] = 0.0
-    x0, y0, s0, ok0 = _lookup(front, obs["marker"], j0)
-    x1, y1, s1, ok1 = _lookup(front, obs["marker"], j0 + 1)
+    x0, y0, s0, ok0 = _lookup(points, marker, j0)
+    x1, y1, s1, ok1 = _lookup(points, marker, j0 + 1)
     exact = w == 0.0
     one = exact & ok0
     both = ok0 & ok1 & ~exact & np.isfinite(w)
-    xf, yf = np.full(n, np.nan), np.full(n, np.nan)
-    xf[one], yf[one] = x0[one], y0[one]
-    xf[both] = (1 - w[both]) * x0[both] + w[both] * x1[both]
-    yf[both] = (1 - w[both]) * y0[both] + w[both] * y1[both]
+    x, y = np.full(n, np.nan), np.full(n, np.nan)
+    x[one], y[one] = x0[one], y0[one]
+    x[both] = (1 - w[both]) * x0[both] + w[both] * x1[both]
+    y[both] = (1 - w[both]) * y0[both] + w[both] * y1[both]
     sev0 = np.array([_SEVERITY.get(v, 6) for v in s0], dtype=int)
     sev1 = np.array([_SEVERITY.get(v, 6) for v in s1], dtype=int)
     status = np.where(exact | (sev0 >= sev1), s0, s1).astype(object)
     status[~np.isfinite(u)] = "missing"
-    obs["xf"], obs["yf"], obs["status_front"] = xf, yf, status
+    return np.stack([x, y], axis=1), status
 
 
-def _solve(obs: dict, methods: list[str], model, calibration, outside: str, refine: bool) -> pd.DataFrame:
-    from .triangulation import reprojection_residual, triangulate
+# -- XYZ --------------------------------------------------------------------------------------------
+def _solve(obs: dict, cameras: list[str], methods: list[str], model, calibration, outside: str,
+           refine: bool) -> pd.DataFrame:
+    from .triangulation import triangulate
 
-    pix = np.stack([obs[c] for c in ("xs", "ys", "xf", "yf")], axis=1) if len(obs["frame"]) else np.zeros((0, 4))
-    ok = np.isfinite(pix).all(axis=1)
-    n = len(pix)
-    cols: dict[str, list] = {c: [] for c in XYZ_COLUMNS}
+    n = len(obs["frame"])
+    pix = obs["pixels"]
+    tri_cams = [c for c in cameras if calibration is not None and c in calibration.cameras]
+    seen = np.sum([np.isfinite(pix[c]).all(axis=1) for c in tri_cams], axis=0) if tri_cams else np.zeros(n)
+    ok = seen >= 2
+    blocks = []
     for m in methods:
         xyz = np.full((n, 3), np.nan)
         res = np.full(n, np.nan)
         label = np.full(n, m, dtype=object)
-        if ok.any():
-            if m == "triangulation":
-                pts, r = triangulate(calibration, {"side": pix[ok, :2], "front": pix[ok, 2:]}, refine=refine,
-                                     world=True)
-                xyz[ok], res[ok] = pts, r
-            else:
-                from .regression import outside_training, predict
+        if m == "triangulation":
+            if ok.any():
+                xyz[ok], res[ok] = triangulate(calibration, {c: pix[c][ok] for c in tri_cams}, refine=refine,
+                                               world=True)
+        elif n:
+            network_rows(m, model, calibration, np.hstack([pix[c] for c in NETWORK_CAMERAS]), outside, xyz, res,
+                         label)
+        blocks.append((xyz, res, label))
+    return _table(obs, cameras, blocks)
 
-                xyz[ok] = predict(model, pix[ok], method=m)
-                cal = calibration if calibration is not None else model.calibration
-                if cal is not None:
-                    res[ok] = reprojection_residual(cal, {"side": pix[ok, :2], "front": pix[ok, 2:]},
-                                                    cal.to_rig(xyz[ok]))
-                if m == "mlp" and outside != "keep":
-                    out = np.zeros(n, bool)
-                    out[ok] = outside_training(model, pix[ok], xyz[ok])
-                    if outside == "flag":
-                        label[out] = "mlp_outside"
-                    else:
-                        xyz[out] = np.nan
-        for c in ("frame", "time_s", "marker", "status_side", "status_front", "xs", "ys", "xf", "yf"):
+
+def _solve_scaled(project, obs: dict, camera: str, calibration) -> pd.DataFrame:
+    """One camera: the pixels in mm through the camera's scale (method "scale"; no Z)."""
+    from .scale import project_scale, to_mm
+
+    found = project_scale(project, camera, calibration)
+    if found is None:
+        raise SandtrackError(f"one camera ({camera}): set its scale first (a known length in the TUI, or a "
+                             "calibration of the camera), then its pixels give x, y in mm")
+    cam = calibration.cameras.get(camera) if calibration is not None else None
+    n = len(obs["frame"])
+    xyz = np.full((n, 3), np.nan)
+    xyz[:, :2] = to_mm(obs["pixels"][camera], found[0], cam)
+    return _table(obs, [camera], [(xyz, np.full(n, np.nan), np.full(n, "scale", dtype=object))])
+
+
+def _table(obs: dict, cameras: list[str], blocks: list) -> pd.DataFrame:
+    """The rows of every method's block, ordered by frame, marker and method."""
+    n = len(obs["frame"])
+    columns = xyz_columns(cameras)
+    cols: dict[str, list] = {c: [] for c in columns}
+    for xyz, res, label in blocks:
+        for c in ("frame", "time_s", "marker"):
             cols[c].append(obs[c])
+        for c in cameras:
+            cols[f"status_{c}"].append(obs["status"][c])
+            xc, yc = pixel_columns(c)
+            cols[xc].append(obs["pixels"][c][:, 0])
+            cols[yc].append(obs["pixels"][c][:, 1])
         for k, c in enumerate(("X_mm", "Y_mm", "Z_mm")):
             cols[c].append(xyz[:, k])
         cols["method"].append(label)
         cols["residual_px"].append(res)
     table = pd.DataFrame({c: np.concatenate(v) if v else np.zeros(0) for c, v in cols.items()})
-    order = np.lexsort((np.repeat(np.arange(len(methods)), n), table["marker"].to_numpy(),
+    order = np.lexsort((np.repeat(np.arange(len(blocks)), n), table["marker"].to_numpy(),
                         table["frame"].to_numpy()))
     table = table.iloc[order].reset_index(drop=True)
     table["frame"] = table["frame"].astype(np.int64)
     table["marker"] = table["marker"].astype(np.int64)
-    for c in ("status_side", "status_front", "method"):
+    for c in [*(f"status_{c}" for c in cameras), "method"]:
         table[c] = table[c].astype(object)
     return table
+
+
+def network_rows(m: str, model, calibration, x: np.ndarray, outside: str, xyz: np.ndarray, res: np.ndarray,
+                 label: np.ndarray) -> None:
+    """Fill xyz, res and label (in place) for the rows of x (N, 4: xs, ys, xf, yf) without a missing
+    pixel, by the network ("mlp") or its residual variant: the reprojection residual through the
+    calibration (else the model's own), MLP rows outside the training volume flagged "mlp_outside"
+    (outside="flag"), emptied ("nan") or left ("keep")."""
+    from .regression import outside_training, predict
+    from .triangulation import reprojection_residual
+
+    ok = np.isfinite(x).all(axis=1)
+    if not ok.any():
+        return
+    xyz[ok] = predict(model, x[ok], method=m)
+    cal = calibration if calibration is not None else model.calibration
+    if cal is not None and {"side", "front"} <= set(cal.cameras):
+        res[ok] = reprojection_residual(cal, {"side": x[ok, :2], "front": x[ok, 2:]}, cal.to_rig(xyz[ok]))
+    if m == "mlp" and outside != "keep":
+        out = np.zeros(len(x), bool)
+        out[ok] = outside_training(model, x[ok], xyz[ok])
+        if outside == "flag":
+            label[out] = "mlp_outside"
+        else:
+            xyz[out] = np.nan

@@ -14,6 +14,7 @@ import tomli_w
 
 from ..camera import Calibration, Camera
 from ..errors import SandtrackError
+from ..lens import TERMS, standard_approximation
 from ..tomlfile import read_toml
 from .geometry import inv_T, to_T
 
@@ -85,12 +86,31 @@ def import_caliscope(path: str | Path, names: list[str] | None = None) -> Calibr
                        report={"source": f"imported from Caliscope {p.name}"})
 
 
-def export_caliscope(calibration: Calibration, path: str | Path) -> None:
-    """Write a Caliscope camera_array.toml: world -> camera poses (metres), rotation as 3x3 matrix."""
+def export_caliscope(calibration: Calibration, path: str | Path) -> list[str]:
+    """Write a Caliscope camera_array.toml: world -> camera poses (metres), rotation as 3x3 matrix.
+
+    Caliscope keeps five pinhole distortion terms (k1 k2 p1 p2 k3) or the fisheye's four: a camera
+    with rational, thin-prism or tilt terms is written with the five-term model closest to its own
+    over the image, and the returned notes say what was dropped and by how many pixels that moves a
+    point at most."""
     rig_from_world = inv_T(calibration.world_from_rig)
     doc: dict = {"cameras": {}}
+    notes = []
     for i, (n, cam) in enumerate(calibration.cameras.items()):
         T = to_T(cam.rvec, cam.tvec) @ rig_from_world
+        distortion = cam.distortion
+        if cam.model == "pinhole" and len(distortion) > 5 and np.any(distortion[5:]):
+            grid = np.stack(np.meshgrid(np.linspace(0, cam.width, 41), np.linspace(0, cam.height, 41)), -1)
+            und = cam.undistort(grid.reshape(-1, 2))  # the image's own field, in undistorted pixels
+            K = cam.matrix
+            xy = np.stack([(und[:, 0] - K[0, 2]) / K[0, 0], (und[:, 1] - K[1, 2]) / K[1, 1]], axis=1)
+            distortion, moved = standard_approximation(K, distortion, xy)
+            dropped = [t for t, v in zip(TERMS[5:], cam.distortion[5:], strict=False) if v]
+            notes.append(f"Caliscope export, camera {n}: the {cam.lens} lens's {' '.join(dropped)} terms do not fit "
+                         f"Caliscope's five-term model; written as the closest k1 k2 p1 p2 k3 model "
+                         f"(points move by up to {moved:.2f} px over the image)")
+        elif cam.model == "pinhole":
+            distortion = np.r_[distortion, np.zeros(5)][:5]
         entry = {
             "cam_id": i,
             "name": n,
@@ -98,7 +118,7 @@ def export_caliscope(calibration: Calibration, path: str | Path) -> None:
             "rotation_count": 0,
             "error": float(cam.rmse_px) if cam.rmse_px is not None else 0.0,
             "matrix": cam.matrix.tolist(),
-            "distortions": cam.distortion.tolist(),
+            "distortions": np.asarray(distortion, dtype=float).tolist(),
             "translation": (T[:3, 3] / 1000.0).tolist(),
             "rotation": T[:3, :3].tolist(),
             "ignore": False,
@@ -107,3 +127,4 @@ def export_caliscope(calibration: Calibration, path: str | Path) -> None:
             entry["fisheye"] = True
         doc["cameras"][str(i)] = entry
     Path(path).write_text(tomli_w.dumps(doc))
+    return notes

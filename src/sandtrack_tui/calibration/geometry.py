@@ -1,14 +1,16 @@
 """Vectorised pose and projection maths shared by the calibration modules (numpy, no OpenCV loops).
 
 Poses are 4x4 matrices `T_a_b` mapping b-frame points into frame a, or (rvec, tvec) pairs in the
-OpenCV convention. Projection follows OpenCV's pinhole model with (k1, k2, p1, p2, k3) distortion,
-or its fisheye model (k1..k4), so results match `cv2.projectPoints` to float precision.
+OpenCV convention. Projection is `lens.project` (OpenCV's pinhole model with up to 14 distortion terms, or its fisheye
+model), matching `cv2.projectPoints` to float precision.
 """
 
 from __future__ import annotations
 
 import cv2
 import numpy as np
+
+from ..lens import project, radial_factor
 
 
 def rodrigues(rvecs: np.ndarray) -> np.ndarray:
@@ -60,46 +62,26 @@ def mean_rotation(Rs: np.ndarray) -> np.ndarray:
 
 
 def distort_project(xc: np.ndarray, K: np.ndarray, dist: np.ndarray, model: str = "pinhole") -> np.ndarray:
-    """Camera-frame points (N, 3) -> distorted pixels (N, 2).
-
-    `K` may be (3, 3) or per point (N, 3, 3); `dist` (D,) or per point (N, D)."""
-    z = xc[:, 2]
-    x = xc[:, 0] / z
-    y = xc[:, 1] / z
-    dist = np.asarray(dist, dtype=np.float64)
-    d = dist if dist.ndim == 2 else np.broadcast_to(dist, (len(xc), dist.shape[-1]))
-    if model == "fisheye":
-        r = np.hypot(x, y)
-        th = np.arctan(r)
-        th2 = th * th
-        thd = th * (1 + th2 * (d[:, 0] + th2 * (d[:, 1] + th2 * (d[:, 2] + th2 * d[:, 3]))))
-        scale = np.where(r > 1e-12, thd / np.where(r > 1e-12, r, 1.0), 1.0)
-        xd, yd = x * scale, y * scale
-    else:
-        k1, k2, p1, p2 = d[:, 0], d[:, 1], d[:, 2], d[:, 3]
-        k3 = d[:, 4] if d.shape[1] > 4 else 0.0
-        r2 = x * x + y * y
-        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-    K = np.asarray(K, dtype=np.float64)
-    if K.ndim == 2:
-        return np.stack([K[0, 0] * xd + K[0, 1] * yd + K[0, 2], K[1, 1] * yd + K[1, 2]], axis=1)
-    return np.stack([K[:, 0, 0] * xd + K[:, 0, 1] * yd + K[:, 0, 2], K[:, 1, 1] * yd + K[:, 1, 2]], axis=1)
+    """Camera-frame points (N, 3) -> distorted pixels (N, 2), every lens model (see `lens.project`)."""
+    return project(xc, K, dist, model)
 
 
-def radial_is_monotonic(dist: np.ndarray, K: np.ndarray, size: tuple[int, int], model: str = "pinhole") -> bool:
+def radial_is_monotonic(dist: np.ndarray, K: np.ndarray, size: tuple[int, int] | None, model: str = "pinhole",
+                        radius: float | None = None) -> bool:
     """True if the distorted radius keeps growing with the undistorted radius over the whole image
-    (a fitted k3 that folds the image back on itself is over-fitting)."""
+    (a fitted k3 that folds the image back on itself is over-fitting). Without a known image size,
+    `radius` (normalised, e.g. the farthest observed point) stands for the image corner."""
     if model == "fisheye":
         return True
-    w, h = size
-    corners = np.array([[0, 0], [w, 0], [0, h], [w, h]], dtype=float)
-    r_img = np.max(np.hypot((corners[:, 0] - K[0, 2]) / K[0, 0], (corners[:, 1] - K[1, 2]) / K[1, 1]))
+    if size is not None:
+        w, h = size
+        corners = np.array([[0, 0], [w, 0], [0, h], [w, h]], dtype=float)
+        r_img = np.max(np.hypot((corners[:, 0] - K[0, 2]) / K[0, 0], (corners[:, 1] - K[1, 2]) / K[1, 1]))
+    else:
+        r_img = float(radius)
     r = np.linspace(0, 4 * r_img, 4000)
-    k1, k2, k3 = dist[0], dist[1], (dist[4] if len(dist) > 4 else 0.0)
-    rd = r * (1 + k1 * r**2 + k2 * r**4 + k3 * r**6)
-    falling = np.nonzero(np.diff(rd) <= 0)[0]
+    rd = r * radial_factor(r, dist)
+    falling = np.nonzero((np.diff(rd) <= 0) | ~np.isfinite(rd[1:]) | (rd[1:] < 0))[0]
     reach = rd[: falling[0] + 1].max() if len(falling) else rd.max()
     # The distorted radius must reach the image corner before the curve turns back.
     return bool(reach >= 1.02 * r_img)

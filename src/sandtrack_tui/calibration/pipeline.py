@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -92,7 +93,8 @@ def calibrate_videos(videos: dict[str, str | Path], board: BoardSpec, *, offsets
     t0 = time.perf_counter()
     if len(videos) < 2:
         raise SandtrackError("calibration needs videos from at least two cameras")
-    sources = {n: open_source(p) for n, p in videos.items()}
+    with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:  # each opening reads the whole file's index
+        sources = dict(zip(videos, pool.map(open_source, videos.values()), strict=True))
     names = list(sources)
     warnings: list[str] = []
     offsets_s, sync_info = _offsets(videos, sources, offsets_s, warnings)
@@ -123,7 +125,8 @@ def calibrate_videos(videos: dict[str, str | Path], board: BoardSpec, *, offsets
                 "file (columns, rows, dictionary, inverted) matches the printed board, and record it sharp, well lit "
                 "and filling a good part of the image")
     sizes = {n: (s.width, s.height) for n, s in sources.items()}
-    rig = calibrate_rig(views, board, sizes, models=models, max_frames=max_bundle_frames, progress=progress)
+    rig = calibrate_rig(views, board, sizes, models=models, max_frames=max_bundle_frames, progress=progress,
+                        workers=workers)
     t_calib = time.perf_counter() - t0 - t_detect
     if with_points:
         rest = sorted(set(range(n_ref)) - detected)

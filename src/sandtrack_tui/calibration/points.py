@@ -5,8 +5,8 @@ position, as the training table of the pixel -> XYZ regression.
 (frame = side camera frame index; xs, ys = side pixel; xf, yf = front pixel, both as detected,
 distorted; X, Y, Z = world mm). X, Y, Z come from the board's fitted rigid pose in that frame (all
 cameras that see it, cameras fixed at the calibration) applied to the known corner positions of
-the board, not from triangulating the two pixels: they carry no triangulation noise. With other
-camera names than side/front the pixel columns are ``x_NAME, y_NAME``.
+the board, not from triangulating the two pixels: they carry no triangulation noise. A camera
+named otherwise than side or front has the pixel columns ``x_NAME, y_NAME``.
 """
 
 from __future__ import annotations
@@ -24,9 +24,9 @@ Views = dict[str, dict[int, BoardView]]
 
 
 def pixel_columns(names: list[str]) -> dict[str, tuple[str, str]]:
-    if names[:2] == ["side", "front"]:
-        return {"side": ("xs", "ys"), "front": ("xf", "yf")}
-    return {n: (f"x_{n}", f"y_{n}") for n in names}
+    from ..xyz import pixel_columns as columns_of
+
+    return {n: columns_of(n) for n in names}
 
 
 def calibration_points(calibration: Calibration, views: Views, board: BoardSpec,

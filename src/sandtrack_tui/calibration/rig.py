@@ -4,6 +4,7 @@ shared views (a spanning tree over the cameras, robust averages), then bundle ad
 from __future__ import annotations
 
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -11,6 +12,7 @@ import numpy as np
 from ..board import BoardSpec
 from ..camera import Calibration, Camera
 from ..errors import SandtrackError
+from ..lens import LENSES, padded
 from .bundle import BundleState, Observations, bundle_adjust, residuals, view_weights
 from .detect import BoardView
 from .geometry import from_T, inv_T, mean_rotation, rotation_angle_deg, to_T
@@ -126,7 +128,7 @@ def calibrate_rig(views: Views, board: BoardSpec, sizes: dict[str, tuple[int, in
                   models: dict[str, str] | None = None, fixed_intrinsics: dict[str, Camera] | None = None,
                   max_frames: int = 200, max_intrinsic_views: int = 30, min_move_px: float = 1.5,
                   min_sharpness: float = 0.8, min_sharp_views: int = 100, reweight_rounds: int = 2,
-                  progress: Callable[[str, int, int], None] | None = None) -> RigResult:
+                  progress: Callable[[str, int, int], None] | None = None, workers: int = 2) -> RigResult:
     names = list(views)
     models = models or {}
     if len(names) < 2:
@@ -138,19 +140,23 @@ def calibrate_rig(views: Views, board: BoardSpec, sizes: dict[str, tuple[int, in
                 "the printed board, and record it sharp, well lit and filling a good part of the image")
     many = np.array([len(views[n]) > min_sharp_views for n in names])  # before blurred views are dropped
     views, blurred = _drop_blurred(views, min_sharpness, min_sharp_views)
-    # 1. intrinsics
+    # 1. intrinsics, two cameras at a time (OpenCV's calibration runs without the interpreter lock)
     intr: dict[str, IntrinsicsResult] = {}
-    for k, n in enumerate(names):
+
+    def intrinsics(n: str) -> IntrinsicsResult:
         if fixed_intrinsics and n in fixed_intrinsics:
             cam = fixed_intrinsics[n]
-            intr[n] = IntrinsicsResult(name=n, model=cam.model, size=(cam.width, cam.height), K=cam.matrix.copy(),
-                                       dist=cam.distortion.copy(), rmse_px=float("nan"), frames=[],
-                                       per_view_rmse={}, poses={}, k3="given")
-        else:
-            intr[n] = calibrate_intrinsics(n, views[n], board, sizes[n], models.get(n, "pinhole"),
-                                           max_views=max_intrinsic_views)
-        if progress:
-            progress("intrinsics", k + 1, len(names))
+            return IntrinsicsResult(name=n, model=cam.model, size=(cam.width, cam.height), K=cam.matrix.copy(),
+                                    dist=padded(cam.distortion, LENSES[cam.lens]), rmse_px=float("nan"),
+                                    frames=[], per_view_rmse={}, poses={}, k3="given", lens=cam.lens)
+        return calibrate_intrinsics(n, views[n], board, sizes[n], models.get(n, "auto"),
+                                    max_views=max_intrinsic_views)
+
+    with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
+        for k, (n, result) in enumerate(zip(names, pool.map(intrinsics, names), strict=True)):
+            intr[n] = result
+            if progress:
+                progress("intrinsics", k + 1, len(names))
     # 2. frames for the bundle: multi-camera frames first, near duplicates skipped
     all_frames = sorted(set().union(*[set(views[n]) for n in names]))
     shared = [f for f in all_frames if sum(f in views[n] for n in names) >= 2]
@@ -218,7 +224,8 @@ def calibrate_rig(views: Views, board: BoardSpec, sizes: dict[str, tuple[int, in
         K=np.array([intr[n].K for n in names]), dist=[intr[n].dist.copy() for n in names],
         models=[intr[n].model for n in names],
         frame_rvec=np.array([r for r, _ in frame_rt]), frame_tvec=np.array([t for _, t in frame_rt]),
-        fixed_k3=[intr[n].k3.startswith("fixed") for n in names])
+        fixed_k3=[intr[n].k3.startswith("fixed") for n in names],
+        dist_free=[LENSES[intr[n].lens].free for n in names])
     obs = make_observations(views, names, frames, board)
     if progress:
         progress("bundle", 0, 2)
@@ -248,7 +255,8 @@ def calibrate_rig(views: Views, board: BoardSpec, sizes: dict[str, tuple[int, in
         cameras[n] = Camera(name=n, width=sizes[n][0], height=sizes[n][1], matrix=state.K[ci],
                             distortion=state.dist[ci],
                             rvec=state.cam_rvec[ci], tvec=state.cam_tvec[ci], model=state.models[ci],
-                            rmse_px=float(np.sqrt(np.mean(err[m] ** 2))) if m.any() else None)
+                            rmse_px=float(np.sqrt(np.mean(err[m] ** 2))) if m.any() else None,
+                            lens=intr[n].lens)
     warnings = [w for n in names for w in intr[n].warnings]
     return RigResult(calibration=Calibration(cameras=cameras), intrinsics=intr, state=state, frames=frames, obs=obs,
                      bundle=info, skipped_duplicates=skipped, skipped_blurred=blurred,

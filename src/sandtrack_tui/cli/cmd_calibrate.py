@@ -3,7 +3,7 @@
     sandtrack calibrate --board BOARD.toml --side SIDE --front FRONT -o calibration.toml
         [--points points.csv] [--reference-frame N] [--reference-origin-mm X,Y,Z]
         [--reference reference.toml] [--camera NAME=PATH ...] [--project P.sandtrack] [--json]
-    sandtrack calibrate --from-points points.csv -o calibration.toml
+    sandtrack calibrate --from-points points.csv -o calibration.toml [--image-size WxH] [--side V --front V]
     sandtrack calibrate --import-caliscope camera_array.toml [--names side,front] -o calibration.toml
     sandtrack calibrate --calibration calibration.toml --export-caliscope camera_array.toml
 """
@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 from ..errors import SandtrackError
+from ..lens import LENS_NAMES
 from .common import Progress, add_json_flag, emit, log
 
 
@@ -34,8 +35,14 @@ def register(sub) -> None:
     p.add_argument("--offset-s", type=float, default=None,
                    help="how much later the front camera started recording than the side camera (s); "
                    "default: measured from the audio (or the video) as `sandtrack sync` does")
+    p.add_argument("--lens", action="append", default=[], metavar="[CAMERA=]MODEL",
+                   help="lens model: auto (default: the simplest model whose cross-validated error is within "
+                   f"noise of the best), or one of {', '.join(LENS_NAMES)}; CAMERA=MODEL for one camera (repeatable)")
     p.add_argument("--fisheye", action="append", default=[], metavar="NAME",
-                   help="use the fisheye lens model for this camera (repeatable)")
+                   help="use the fisheye lens model for this camera (repeatable; same as --lens NAME=fisheye)")
+    p.add_argument("--image-size", action="append", default=[], metavar="[CAMERA=]WxH",
+                   help="image size for --from-points (default: read from the videos when given, else unknown: "
+                   "the fit then uses the points only); CAMERA=WxH for one camera (repeatable)")
     p.add_argument("--budget", type=int, default=400, help="frames per camera searched first (default 400)")
     p.add_argument("--project", help="store the calibration and board in this project")
     p.add_argument("--from-points", help="fit the cameras to known correspondences (CSV: pixel columns + X/Y/Z_mm)")
@@ -88,8 +95,10 @@ def run(args) -> int:
     if args.export_caliscope:
         from ..calibration.caliscope import export_caliscope
 
-        export_caliscope(cal, args.export_caliscope)
+        notes = export_caliscope(cal, args.export_caliscope)
         report["caliscope_export"] = str(args.export_caliscope)
+        if notes:
+            report["warnings"] = list(report.get("warnings") or []) + notes
     if args.project:
         from ..store import Project
 
@@ -129,7 +138,10 @@ def _text(r: dict) -> str:
     for n, c in (r.get("per_camera") or {}).items():
         rm = c.get("reprojection_rmse_px", c.get("rmse_px"))
         fx = c.get("fx")
-        lines.append(f"  {n}: fx {fx:.1f} px, RMSE {rm:.3f} px" if fx is not None and rm is not None else f"  {n}")
+        lens = f", lens {c['lens']}" if c.get("lens") else ""
+        lines.append(f"  {n}: fx {fx:.1f} px, RMSE {rm:.3f} px{lens}" if fx is not None and rm is not None
+                     else f"  {n}")
+        lines += _selection_lines(c.get("lens_selection"))
     if "views_used" in r:
         lines.append(f"views used {r['views_used']}, points {r.get('points', 0)}, {r.get('seconds', 0):.1f} s")
     for w in r.get("warnings", []) or []:
@@ -140,7 +152,67 @@ def _text(r: dict) -> str:
     return "\n".join(lines)
 
 
+def _selection_lines(sel: dict | None) -> list[str]:
+    """The candidates of an automatic lens choice: training and cross-validated RMSE (px)."""
+    if not sel:
+        return []
+    out = [f"    lens auto: {sel['cross_validation']}; candidates (train / cross-validated px):"]
+    for c in sel["candidates"]:
+        if c.get("cv_rmse_px") is None:
+            out.append(f"      {c['lens']:<15} {c.get('excluded', '')}")
+            continue
+        mark = "  <- chosen" if c["chosen"] else ("  (within noise)" if c["within_noise"] else "")
+        out.append(f"      {c['lens']:<15} {c['train_rmse_px']:.3f} / {c['cv_rmse_px']:.3f}{mark}")
+    return out
+
+
+def _per_camera(values: list[str], parse) -> tuple[object | None, dict[str, object]]:
+    """`--opt VALUE` (every camera) and `--opt CAMERA=VALUE` (one camera) -> (default, {camera: value})."""
+    default, per = None, {}
+    for v in values:
+        name, _, value = v.rpartition("=")
+        if name:
+            per[name] = parse(value)
+        else:
+            default = parse(value)
+    return default, per
+
+
+def _lens_name(value: str) -> str:
+    if value != "auto" and value not in LENS_NAMES:
+        raise SandtrackError(f"--lens {value!r}: unknown lens model (auto, {', '.join(LENS_NAMES)})")
+    return value
+
+
+def _image_size(value: str) -> tuple[int, int]:
+    w, sep, h = value.lower().partition("x")
+    try:
+        size = (int(w), int(h))
+    except ValueError:
+        size = (0, 0)
+    if not sep or min(size) <= 0:
+        raise SandtrackError(f"--image-size {value!r}: give the size as WIDTHxHEIGHT in pixels, e.g. 1920x1080")
+    return size
+
+
+def _lenses(args, names: list[str]) -> dict[str, str]:
+    default, per = _per_camera(args.lens, _lens_name)
+    for n in args.fisheye:
+        per[n] = "fisheye"
+    unknown = sorted(set(per) - set(names))
+    if unknown:
+        raise SandtrackError(f"--lens/--fisheye {', '.join(unknown)}: no such camera ({', '.join(names)})")
+    return {n: per.get(n, default or "auto") for n in names}
+
+
 def _videos(args) -> dict[str, str]:
+    videos = _videos_given(args)
+    if len(videos) < 2:
+        raise SandtrackError("give the calibration videos of two cameras: --side SIDE --front FRONT")
+    return videos
+
+
+def _videos_given(args) -> dict[str, str]:
     videos: dict[str, str] = {}
     if args.side:
         videos["side"] = args.side
@@ -153,8 +225,6 @@ def _videos(args) -> dict[str, str]:
         if not name or name in videos:
             raise SandtrackError(f"--camera {spec!r}: empty or repeated camera name")
         videos[name] = path
-    if len(videos) < 2:
-        raise SandtrackError("give the calibration videos of two cameras: --side SIDE --front FRONT")
     return videos
 
 
@@ -185,11 +255,7 @@ def _from_videos(args) -> dict:
             raise SandtrackError(f"known points file not found: {p}")
         known = pd.read_csv(p)
     offsets = {"front": float(args.offset_s)} if ("front" in videos and args.offset_s is not None) else None
-    models = {}
-    for n in args.fisheye:
-        if n not in videos:
-            raise SandtrackError(f"--fisheye {n}: no such camera ({', '.join(names)})")
-        models[n] = "fisheye"
+    models = _lenses(args, names)
     if not args.json:
         log(f"calibrating {', '.join(names)} with a {board.columns}x{board.rows} {board.type} board")
     res = calibrate_videos(videos, board, offsets_s=offsets, reference_frame=ref_frame, origin_mm=origin,
@@ -209,13 +275,33 @@ def _from_points(args) -> dict:
     df, cams = read_points_table(args.from_points)
     if len(cams) < 2:
         raise SandtrackError(f"{args.from_points}: pixel columns of at least two cameras are needed")
-    cal = calibrate_from_points(df, cams)
+    names = list(cams)
+    cal = calibrate_from_points(df, cams, sizes=_sizes(args, names), lens=_lenses(args, names))
     report = dict(cal.report)
     report["per_camera"] = report.pop("per_camera")
     report["views_used"] = 0
     report["seconds"] = time.perf_counter() - t0
     cal.report = report
     return {"calibration": cal, "report": report}
+
+
+def _sizes(args, names: list[str]) -> dict[str, tuple[int, int]]:
+    """Image sizes for --from-points: --image-size, else the videos' (--side/--front/--camera)."""
+    default, per = _per_camera(args.image_size, _image_size)
+    sizes = {n: per.get(n, default) for n in names if per.get(n, default) is not None}
+    videos = {}
+    if args.side or args.front or args.camera:
+        videos = {n: p for n, p in _videos_given(args).items() if n not in sizes}
+    from ..calibration.detect import open_source
+
+    for n, path in videos.items():
+        if n in names:
+            src = open_source(path)
+            sizes[n] = (src.width, src.height)
+    unknown = sorted(set(per) - set(names))
+    if unknown:
+        raise SandtrackError(f"--image-size {', '.join(unknown)}: no such camera in the points ({', '.join(names)})")
+    return sizes
 
 
 def _import(args) -> dict:

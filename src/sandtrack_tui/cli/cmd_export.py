@@ -1,4 +1,4 @@
-"""`sandtrack export PROJECT -o FILE [--format csv|parquet|dltdv]`: the 3D trajectories."""
+"""`sandtrack export PROJECT -o FILE [--format csv|parquet|dltdv]`: the 3D trajectories of every camera."""
 
 from __future__ import annotations
 
@@ -27,10 +27,9 @@ def run(args) -> int:
 
     with Project.open(args.project) as proj:
         vids = proj.videos()
-        if "side" not in vids:
-            raise SandtrackError(f"{args.project}: the project has no side video")
+        if not vids:
+            raise SandtrackError(f"{args.project}: the project has no videos")
         heights = {c: float(v.height) for c, v in vids.items()}
-        heights.setdefault("front", heights["side"])
         log(f"export: computing 3D positions ({args.method})")
         df = trajectory_table(proj, method=args.method)
     method = None if args.method == "both" else args.method

@@ -15,15 +15,16 @@ def register(sub) -> None:
     p.add_argument("project", help="project file (NAME.sandtrack)")
     p.add_argument("file", help="the file to import")
     p.add_argument("--format", choices=["davinci", "dltdv"], required=True)
-    p.add_argument("--camera", choices=["side", "front"], help="davinci: the camera the track belongs to")
+    p.add_argument("--camera", help="davinci: the camera the track belongs to (a camera of the project)")
     p.add_argument("--marker", type=int, help="davinci: marker id to write (created if new)")
     p.add_argument("--label", help="davinci: label for a new marker")
     p.add_argument("--y-units", choices=["height", "width"],
                    help="davinci: y normalised by image height (point controls) or width (paths; 0-0.5625 for 16:9)")
     p.add_argument("--frame-offset", type=int, default=0,
                    help="davinci: subtract this from the file's frame numbers (e.g. a timeline start)")
-    p.add_argument("--cameras", default="side,front",
-                   help="dltdv: project camera names for cam1,cam2,... (default side,front)")
+    p.add_argument("--cameras",
+                   help="dltdv: project camera names for cam1,cam2,... (default: the project's cameras in order, "
+                        "side and front first)")
     p.add_argument("--first-frame", type=int, default=0, help="dltdv: frame index of the file's first row")
     p.add_argument("--no-flip-y", action="store_true", help="dltdv: y is already top-left origin, y down")
     p.add_argument("--preview", metavar="PNG",
@@ -44,13 +45,15 @@ def run(args) -> int:
             if not args.camera or args.marker is None or not args.y_units:
                 raise SandtrackError("davinci import needs --camera, --marker and --y-units (height or width)")
             if args.camera not in vids:
-                raise SandtrackError(f"the project has no {args.camera} video")
+                raise SandtrackError(f"the project has no {args.camera} video "
+                                     f"(its cameras: {', '.join(proj.cameras())})")
             ref = vids[args.camera]
             pts = read_davinci(args.file, ref.width, ref.height, args.y_units, args.frame_offset)
             rows = pts.assign(camera=args.camera, marker=args.marker)
             labels = {args.marker: args.label} if args.label else None
         else:
-            cams = tuple(c.strip() for c in args.cameras.split(",") if c.strip())
+            cams = tuple(c.strip() for c in args.cameras.split(",") if c.strip()) if args.cameras else \
+                tuple(proj.cameras())
             missing = [c for c in cams if c not in vids]
             if missing:
                 raise SandtrackError(f"the project has no {', '.join(missing)} video")

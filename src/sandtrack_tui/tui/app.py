@@ -500,22 +500,13 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, MarkersMixin, App):
         return rows
 
     def _fill_xyz(self, rows: list[MarkerRow], frame: int, project: Project) -> None:
-        """XYZ by triangulation and by the network (a side and a front camera), by triangulation over
-        every camera (other rigs), or x, y in mm through the scale (one camera)."""
+        """XYZ by triangulation over every camera and by the network (side and front pixels), or x, y
+        in mm through the scale (one camera)."""
         if not rows:
             return
         by_id = {r.marker: r for r in rows}
         if len(self.cameras) == 1:
             self._fill_scaled(rows, project)
-            return
-        if self.cameras != ["side", "front"]:
-            if self._calibration is None:
-                return
-            xyz = core("multiview", "xyz_at_frame").xyz_at_frame(project, frame, self.cameras, self._calibration)
-            for rec in xyz.itertuples(index=False):
-                r = by_id.get(int(rec.marker))
-                if r is not None:
-                    r.xyz_tri, r.residual_px = (rec.X_mm, rec.Y_mm, rec.Z_mm), rec.residual_px
             return
         if self._calibration is None and not project.get("model"):
             return

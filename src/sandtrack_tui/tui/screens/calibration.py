@@ -22,11 +22,11 @@ def summary_table(cal: Calibration | None):
     if cal is None:
         return "No calibration yet: calibrate from the board videos below, or load a calibration.toml."
     t = Table(box=box.SIMPLE_HEAD, title="Cameras (rig frame = first camera, mm)", title_justify="left")
-    for c in ("camera", "model", "size", "fx", "fy", "cx", "cy", "centre mm", "angles °", "rmse px"):
+    for c in ("camera", "lens", "size", "fx", "fy", "cx", "cy", "centre mm", "angles °", "rmse px"):
         t.add_column(c, justify="right")
     for name, c in cal.cameras.items():
         K = c.matrix
-        t.add_row(name, c.model, f"{c.width}×{c.height}", f"{K[0, 0]:.1f}", f"{K[1, 1]:.1f}", f"{K[0, 2]:.1f}",
+        t.add_row(name, c.lens, f"{c.width}×{c.height}", f"{K[0, 0]:.1f}", f"{K[1, 1]:.1f}", f"{K[0, 2]:.1f}",
                   f"{K[1, 2]:.1f}", ", ".join(f"{v:.0f}" for v in c.center_mm),
                   ", ".join(f"{v:.1f}" for v in euler_angles_deg(c.R)),
                   "—" if c.rmse_px is None else f"{c.rmse_px:.3f}")
@@ -47,20 +47,22 @@ def summary_table(cal: Calibration | None):
     return Group(t, r)
 
 
-def guess_inputs(project) -> dict[str, str]:
-    """Calibration videos, board and reference next to the experiment videos, as the sample lays
-    them out (experiment/ and calibration/ side by side, board.toml above)."""
-    out = {"side": "", "front": "", "board": "", "reference": ""}
+def guess_inputs(project) -> dict:
+    """Calibration videos (one per camera of the project), board and reference next to the
+    experiment videos, as the sample lays them out (experiment/ and calibration/ side by side,
+    board.toml above): {"videos": {camera: path or ""}, "board": path, "reference": path}."""
     vids = project.videos()
-    if "side" not in vids:
+    cameras = [c for c in project.cameras() if c in vids]
+    out: dict = {"videos": dict.fromkeys(cameras, ""), "board": "", "reference": ""}
+    if not cameras:
         return out
-    exp = Path(vids["side"].path).parent
+    exp = Path(vids[cameras[0]].path).parent
     for root in (exp.parent / "calibration", exp):
-        for cam in ("side", "front"):
+        for cam in cameras:
             for suffix in (".mp4", ".MP4", ".mov"):
                 p = root / f"{cam}{suffix}"
-                if not out[cam] and p.is_file() and str(p) != vids[cam].path:
-                    out[cam] = str(p)
+                if not out["videos"][cam] and p.is_file() and str(p) != vids[cam].path:
+                    out["videos"][cam] = str(p)
         if not out["reference"] and (root / "reference.toml").is_file():
             out["reference"] = str(root / "reference.toml")
     for p in (exp.parent / "board.toml", exp / "board.toml"):
@@ -78,20 +80,24 @@ class CalibrationScreen(TaskScreen):
 
     def compose(self) -> ComposeResult:
         guess = guess_inputs(self.main.project)
+        self.cameras = list(guess["videos"])
         points = self.main.project.path.with_name(self.main.project.path.stem + "_points.csv")
         with VerticalScroll():
             yield Static("Calibration", classes="title")
             yield Static(summary_table(self.main._calibration), id="summary")
-            yield Static("[b]Calibrate from the board videos[/] (ChArUco; the sync is found from their audio)")
-            for key, label, hint in (("side", "Side video:", "calibration video of the side camera"),
-                                     ("front", "Front video:", "calibration video of the front camera"),
-                                     ("board", "Board:", "board.toml or Caliscope charuco.toml"),
-                                     ("reference", "Reference:", "reference.toml (board flat on the sand), optional"),
-                                     ("points", "Points CSV:", "write the calibration points here (for training)")):
+            yield Static("[b]Calibrate from the board videos[/] (ChArUco, one video per camera; the sync is found "
+                         "from their audio)")
+            rows = [(f"video-{k}", f"{cam} video:", f"calibration video of the {cam} camera", guess["videos"][cam])
+                    for k, cam in enumerate(self.cameras)]
+            rows += [("board", "Board:", "board.toml or Caliscope charuco.toml", guess["board"]),
+                     ("reference", "Reference:", "reference.toml (board flat on the sand), optional",
+                      guess["reference"]),
+                     ("points", "Points CSV:", "write the calibration points here (for training)", str(points))]
+            width = max(13, *(len(label) + 1 for _, label, _, _ in rows))
+            for key, label, hint, value in rows:
                 with Horizontal(classes="row"):
-                    yield Label(f"{label:<13}")
-                    yield Input(value=str(points) if key == "points" else guess[key], placeholder=hint, id=key,
-                                compact=True)
+                    yield Label(f"{label:<{width}}")
+                    yield Input(value=value, placeholder=hint, id=key, compact=True)
             with Horizontal(classes="row"):
                 yield Button("Calibrate", id="calibrate", variant="primary", compact=True)
             yield self.progress_row()
@@ -117,10 +123,16 @@ class CalibrationScreen(TaskScreen):
 
     def calibrate(self) -> None:
         pipeline = core("calibration.pipeline", "calibrate_videos")
-        videos = {cam: Path(self._value(cam)).expanduser() for cam in ("side", "front")}
-        for cam, p in videos.items():
-            if not self._value(cam) or not p.exists():
-                self.notify(f"{cam} calibration video not found: {p}", severity="error")
+        if len(self.cameras) < 2:
+            self.notify("calibrating from board videos needs two cameras or more; with one camera, set a px -> mm "
+                        "scale from a known length (c), or load a calibration.toml", severity="error")
+            return
+        videos = {}
+        for k, cam in enumerate(self.cameras):
+            text = self._value(f"video-{k}")
+            videos[cam] = Path(text).expanduser()
+            if not text or not videos[cam].exists():
+                self.notify(f"{cam} calibration video not found: {videos[cam]}", severity="error")
                 return
         if not self._value("board"):
             self.notify("give the board file (board.toml)", severity="error")

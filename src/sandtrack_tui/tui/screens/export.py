@@ -31,9 +31,10 @@ class ExportScreen(TaskScreen):
     def compose(self) -> ComposeResult:
         with VerticalScroll():
             yield Static("Export trajectories", classes="title")
-            yield Static("One row per side frame, marker and method: frame, time_s, marker, statuses, side and "
-                         "front pixels, X_mm Y_mm Z_mm, method, residual_px. DLTdv writes PREFIX-xypts.csv, "
-                         "-xyzpts.csv, -xyzres.csv, -offsets.csv.")
+            yield Static("One row per frame of the first camera, marker and method: frame, time_s, marker, each "
+                         "camera's status and pixels, X_mm Y_mm Z_mm, method, residual_px. DLTdv writes "
+                         "PREFIX-xypts.csv (cam1, cam2, … in the project's camera order), -xyzpts.csv, -xyzres.csv, "
+                         "-offsets.csv.")
             with Horizontal(classes="row"):
                 yield Label("Format:")
                 yield Select([(f, f) for f in self.traj.FORMATS], value="csv", allow_blank=False, id="format",
