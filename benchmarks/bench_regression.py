@@ -125,13 +125,29 @@ def _twin(epochs: int | None) -> dict:
     return out
 
 
+def _blank_clip(path: Path, frames: int, fps: int = 50) -> Path:
+    """A small grey H.264 clip: the project's cameras are its videos (their frame count and rate)."""
+    import av
+
+    with av.open(str(path), "w") as out:
+        stream = out.add_stream("libx264", rate=fps)
+        stream.width, stream.height, stream.pix_fmt = 64, 48, "yuv420p"
+        stream.options = {"preset": "ultrafast", "bf": "0"}
+        frame = av.VideoFrame.from_ndarray(np.full((48, 64, 3), 128, np.uint8), format="bgr24")
+        for _ in range(frames):
+            out.mux(stream.encode(frame))
+        out.mux(stream.encode())
+    return path
+
+
 def _xyz_speed(rig: Calibration, model, markers: int = 20, frames: int = 1500) -> dict:
     """XYZ table of `markers` markers over `frames` side frames (both methods), and one frame of it."""
     rng = np.random.default_rng(0)
     with tempfile.TemporaryDirectory() as tmp:
         model_path = Path(tmp) / "model.pt"
         model.save(model_path)
-        proj = Project.create(Path(tmp) / "bench.sandtrack")
+        videos = {cam: _blank_clip(Path(tmp) / f"{cam}.mp4", frames) for cam in ("side", "front")}
+        proj = Project.create(Path(tmp) / "bench.sandtrack", videos)
         proj.set_calibration(rig)
         proj.set("sync_offset_s", 0.0137)
         proj.set("model", {"path": str(model_path)})
