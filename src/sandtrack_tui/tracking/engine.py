@@ -17,7 +17,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .appearance import BRIGHT, DARK
 from .globalmotion import image_shift
 from .matcher import Match
 from .reacquire import find_blobs, unexplained
@@ -363,13 +362,8 @@ class Engine:
 
     def _band_blobs(self, cam, img, model, band_from, px, py, inner: float, reach: float) -> list:
         """Blobs along the other view's epipolar band through `band_from`, out to `reach` px from
-        (px, py), outside the window of half-size `inner` searched already (the caller keeps those
-        on the band). A colour model reads the whole square at once (a compiled linear test, and only
-        the part holding marker colour is labelled); a brightness model small tiles along the line
-        (it reads its sand level per tile, as in any search window)."""
-        if model.kind not in (DARK, BRIGHT):
-            return [b for b in find_blobs(img, model, px, py, reach, reach)
-                    if abs(b.x - px) > inner or abs(b.y - py) > inner]
+        (px, py), outside the window of half-size `inner` searched already: small tiles along the
+        line (a brightness model reads its sand level per tile, as in any search window)."""
         h = 2 * model.radius + 8
         n = int(math.ceil(reach / (2 * h)))
         offs = np.arange(-n, n + 1) * 2 * h
