@@ -324,8 +324,10 @@ class Engine:
                     hx = hy = min(reach, p.max_band_search_px)
                 else:
                     # Hidden a while: the sand may have carried it anywhere along the line.
-                    carried = (t.misses > JUMP_FRAMES and t.model.has_blob and not t.model.crowd
-                               and hx < p.max_band_search_px)
+                    # Every other frame: a marker back in sight stays in sight, so this costs at most a
+                    # frame of delay, and the band search is most of a hidden marker's cost.
+                    carried = (t.misses > JUMP_FRAMES and t.misses % 2 == 1 and t.model.has_blob
+                               and not t.model.crowd and hx < p.max_band_search_px)
             elif reach > max(hx, hy):
                 hx = hy = min(reach, p.max_search_px)
             jump = not carried and max(hx, hy) > max(t.search_halfsize()) and t.model.has_blob
