@@ -10,13 +10,13 @@ $(BIN)/python:
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "Python 3.11 is needed (set PYTHON=...)"; exit 1; }
 	$(PYTHON) -m venv $(VENV)
 
-# torch is pinned first and on its own: an unpinned torch pulls several GB of CUDA wheels.
+# torch is pinned (an unpinned torch pulls several GB of CUDA wheels); pyproject.toml pins it too.
+# Then the compiled kernels of the tracker, the sixel encoder and the triangulation, once (cached on disk),
+# in three processes at once.
 $(STAMP): pyproject.toml | $(BIN)/python
-	$(BIN)/pip install --disable-pip-version-check -q "torch==2.13.0"
-	$(BIN)/pip install --disable-pip-version-check -q -e ".[dev]"
-	$(BIN)/python -m sandtrack_tui.tracking.kernels  # compile the tracker's kernels once (cached)
-	$(BIN)/python -m sandtrack_tui.tui.sixel  # and the sixel encoder's
-	$(BIN)/python -m sandtrack_tui.triangulation  # and the triangulation's
+	$(BIN)/pip install --disable-pip-version-check -q "torch==2.13.0" -e ".[dev]"
+	$(BIN)/python -m sandtrack_tui.tracking.kernels & k=$$!; $(BIN)/python -m sandtrack_tui.tui.sixel & s=$$!; \
+		$(BIN)/python -m sandtrack_tui.triangulation; t=$$?; wait $$k && wait $$s && test $$t -eq 0
 	@touch $(STAMP)
 
 install: $(STAMP)
@@ -27,8 +27,10 @@ run: $(STAMP)
 lint: $(STAMP)
 	$(BIN)/ruff check src tests benchmarks
 
+# Two workers: the suite is mostly single-threaded Python (TEST_WORKERS=0 runs it in one process).
+TEST_WORKERS ?= 2
 test: lint
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n $(TEST_WORKERS)
 
 # The deep property-test run: fresh random examples (not the fixed ones of `make test`), 30 times as many.
 FUZZ_TESTS := tests/test_fuzz_readers.py tests/test_dem_readers.py tests/test_export_import.py tests/test_regression_fuzz.py

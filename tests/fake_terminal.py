@@ -297,6 +297,8 @@ class PtyTerminal:
         import threading
 
         self.kitty, self.sixel, self.cell_px = kitty, sixel, cell_px
+        # the size comes from the pty, as in a real terminal: COLUMNS/LINES (set by pytest-xdist) would override it
+        env = {k: v for k, v in (os.environ if env is None else env).items() if k not in ("COLUMNS", "LINES")}
         self.master, slave = os.openpty()
         fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", rows, cols, cols * cell_px[0], rows * cell_px[1]))
 
