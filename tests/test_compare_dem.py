@@ -78,6 +78,23 @@ def test_recovers_shift_and_flags_drifting_particles(shift, drift, seed):
         assert c.per_particle.set_index("marker").loc[worst, "drift_mm_per_s"] == pytest.approx(drift[worst], rel=0.2)
 
 
+def test_rows_built_on_predictions_are_left_out():
+    """An exported table holds XYZ for frames where a camera's status is "occluded": the tracker's held
+    position while the marker was hidden, lagging the moving particle. Those rows must not pull the time
+    alignment nor count in the errors (kept, they flag good particles as drifting)."""
+    exp, dem = make_case(shift_s=0.137, seed=0)
+    exp["status_side"], exp["status_front"] = "tracked", "tracked"
+    for m, g in exp.groupby("marker"):  # each marker hidden for 0.4 s while it moves, frozen where it vanished
+        hidden = g.index[(g["time_s"] > 2.0 + 0.2 * m) & (g["time_s"] < 2.4 + 0.2 * m)]
+        exp.loc[hidden, list(C.AXES)] = exp.loc[hidden[0] - 1, list(C.AXES)].to_numpy(float)
+        exp.loc[hidden, "status_side"] = "occluded" if m % 2 else "lost"
+    kept_all = C.compare(exp.drop(columns=["status_side", "status_front"]), dem, fps=FPS)
+    assert kept_all.summary["flagged_markers"] and kept_all.per_particle["rmse_3d_mm"].max() > 2.0
+    c = C.compare(exp, dem, fps=FPS)
+    assert abs(c.time_shift_s - 0.137) < 0.004
+    assert c.per_particle["rmse_3d_mm"].max() < 1.0 and not c.summary["flagged_markers"]
+
+
 def test_matching_by_nearest_start_and_tool_onset():
     exp, dem = make_case(shift_s=0.2, seed=1)
     dem = dem.assign(particle_id=dem["particle_id"] + 100)  # ids differ: match by start position

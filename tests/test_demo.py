@@ -29,6 +29,6 @@ def test_demo_fast_end_to_end(tmp_path):
     assert trk["mean_error_px"] < 0.5 and trk["hidden_flagged_pct"] > 90
     assert stages["xyz"]["mean_error_mm"] < 2.0
     cmp = stages["compare"]
-    assert cmp["particles"] == 8 and cmp["shift_error_frames"] <= 1.5
+    assert cmp["particles"] == 8 and cmp["shift_error_frames"] <= 0.5
     assert cmp["flagged_particles"] == cmp["drifting_particles"]
     assert (tmp_path / "trajectories.csv").stat().st_size > 0

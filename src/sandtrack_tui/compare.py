@@ -1,7 +1,9 @@
 """Measured (experiment) versus simulated (DEM) particle trajectories.
 
 Inputs: experiment ``marker, time_s, X_mm, Y_mm, Z_mm`` and DEM ``particle_id, time_s, X_mm,
-Y_mm, Z_mm`` (see `dem`), both in the rig's world frame.
+Y_mm, Z_mm`` (see `dem`), both in the rig's world frame. Experiment rows where a camera's status
+(``status_<camera>`` of an exported table) is "occluded" or "lost" are left out: their XYZ is built on
+the tracker's prediction while the marker was hidden, not on a measurement.
 
 Matching
     "id": marker id = particle id; "nearest": by initial positions (Hungarian assignment on the
@@ -42,6 +44,7 @@ import pandas as pd
 from .errors import SandtrackError
 
 AXES = ("X_mm", "Y_mm", "Z_mm")
+UNOBSERVED = ("occluded", "lost")  # point statuses whose pixel is a prediction, not a measurement
 METRICS = ["rmse_3d_mm", "rmse_x_mm", "rmse_y_mm", "rmse_z_mm", "final_error_mm", "frechet_mm", "dtw_norm_mm",
            "max_dev_mm", "drift_mm_per_s"]
 
@@ -170,12 +173,22 @@ def experiment_table(df: pd.DataFrame, method: str | None = None, source: str = 
                 raise SandtrackError(f"{source}: no rows with method {method!r}")
             df = df[df["method"] == method]
     out = df[need].apply(pd.to_numeric, errors="coerce")
-    out = out[np.isfinite(out.to_numpy()).all(axis=1)]
+    out = out[np.isfinite(out.to_numpy()).all(axis=1) & measured_rows(df)]
     if out.empty:
-        raise SandtrackError(f"{source}: no rows with a finite time and 3D position")
+        raise SandtrackError(f"{source}: no rows with a finite time and a 3D position from observed pixels")
     out["marker"] = out["marker"].astype(np.int64)
     return out.sort_values(["marker", "time_s"], kind="stable").drop_duplicates(["marker", "time_s"]).reset_index(
         drop=True)
+
+
+def measured_rows(df: pd.DataFrame) -> np.ndarray:
+    """Rows whose XYZ comes from observed pixels only: a camera's status "occluded" or "lost" (an exported
+    table's ``status_<camera>``) means its pixel is the tracker's prediction, not a measurement, and such an
+    XYZ lags the particle while it is hidden; it would bias the time alignment and every error metric."""
+    keep = np.ones(len(df), bool)
+    for col in (c for c in df.columns if str(c).startswith("status_")):
+        keep &= ~df[col].isin(UNOBSERVED).to_numpy()
+    return keep
 
 
 def read_tool(path: str | Path) -> pd.DataFrame:
