@@ -120,6 +120,10 @@ class TemplateMatcher:
         x, y = mx + x0, my + y0
         if self.model.crowd:
             e = self.silhouette(frame_bgr, x, y, strict=True)
+            if e is None and math.hypot(px - x, py - y) <= self.model.radius:
+                # (the coverage centroid is pulled by the touching neighbours: the outline may be found
+                # from the prediction instead)
+                e = self.silhouette(frame_bgr, px, py, strict=True)
             if e is None:  # (among touching lookalikes only a marker whose own outline is found is measured)
                 return Match(x=x, y=y, score=peak, psr=psr, colour_frac=frac, used_centroid=False, touching=True,
                              outline=False)
