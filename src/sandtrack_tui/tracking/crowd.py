@@ -14,6 +14,8 @@ pair's own distance. Anything else stays flagged for the operator.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
@@ -63,3 +65,16 @@ def assign(markers: np.ndarray, beads: np.ndarray, gate: float, margin: float) -
         else:
             pairs[int(r)] = int(c)
     return pairs, ambiguous
+
+
+def packed_coverage(radius: float, at_least: float, rim_px: float = 1.5, slack: float = 0.18) -> float:
+    """Marker coverage (in discs) a bead shows in the centroid's window (radius + rim_px) when six
+    beads like it touch it all round: its own disc plus the six neighbours' slivers inside the window
+    (a small bead's window holds relatively more of them), plus `slack` for the soft rims; never below
+    `at_least`. More than that: a bead partly hidden behind or merged with another."""
+    big = radius + rim_px
+    d = 2.0 * radius
+    a = big * big * math.acos((d * d + big * big - radius * radius) / (2 * d * big))
+    b = radius * radius * math.acos((d * d + radius * radius - big * big) / (2 * d * radius))
+    c = 0.5 * math.sqrt(max((-d + big + radius) * (d + big - radius) * (d - big + radius) * (d + big + radius), 0.0))
+    return max(at_least, 1.0 + 6.0 * (a + b - c) / (math.pi * radius * radius) + slack)

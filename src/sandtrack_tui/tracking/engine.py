@@ -289,6 +289,10 @@ class Engine:
         for _o, q in neighbours:
             if math.hypot(m.x - q[0], m.y - q[1]) < own:
                 return True
+        if t.model.crowd and m.outline:
+            # (centred on its own outline: the coverage around it holds the rims of its touching neighbours)
+            return m.score < self.crowded_min_score or m.colour_frac > crowd_rules.packed_coverage(
+                t.model.radius, self.crowded_max_colour)
         if m.touching and m.used_centroid:
             return m.colour_frac > self.crowded_max_colour
         return m.score < self.crowded_min_score or m.colour_frac > self.crowded_max_colour
