@@ -63,6 +63,9 @@ def test_a_blob_beyond_half_a_bead_from_a_marker_known_now_is_new():
     both = pd.concat([known, known.assign(camera="front")])
     split = proposal([(1, "side", 0, 101.0, 100.0, 14, 14, 0.5), (1, "front", 0, 160.0, 100.0, 14, 14, 0.5)])
     assert not match_proposals(split, both)
+    # unpaired (touching lookalikes): one proposal per camera, each on the marker's place in its camera
+    unpaired = proposal([(1, "side", 0, 101.0, 100.0, 14, 14, np.nan), (2, "front", 0, 99.5, 100.0, 14, 14, np.nan)])
+    assert {p: m for p, (m, _d) in match_proposals(unpaired, both).items()} == {1: 1, 2: 1}
 
 
 # -- merge and rename ----------------------------------------------------------------------------

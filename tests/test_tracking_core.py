@@ -251,3 +251,24 @@ def test_marker_resting_at_the_image_edge_is_tracked(x):
     tracked = [o for o in obs if o.status == "tracked"]
     assert len(tracked) == n - 1
     assert max(np.hypot(o.x_px - x, o.y_px - 200.0) for o in tracked) < 0.5
+
+
+def test_missed_crowd_markers_are_carried_by_neighbours_and_given_back_only_when_unambiguous():
+    from sandtrack_tui.tracking import crowd
+
+    r = 6.0
+    # Three measured neighbours moved (3, -1) px (one of them 1 px more: the median rules); the far one
+    # moved otherwise and is out of reach. A missed marker with one neighbour only is not carried.
+    src = np.array([[10.0, 0.0], [0.0, 10.0], [-10.0, 0.0], [200.0, 200.0]])
+    dst = src + [[3.0, -1.0], [4.0, -1.0], [3.0, -1.0], [-20.0, 5.0]]
+    where = crowd.carried(np.array([[0.0, 0.0], [190.0, 190.0]]), src, dst, 4 * r)
+    assert np.allclose(where[0], [3.0, -1.0]) and np.isnan(where[1]).all()
+    # Beads 2r apart (touching): each carried marker takes the bead at its place, one to one.
+    markers = np.array([[0.0, 0.0], [12.0, 0.0], [np.nan, np.nan]])
+    beads = np.array([[12.5, 0.3], [0.4, -0.2], [24.0, 0.0]])
+    pairs, ambiguous = crowd.assign(markers, beads, 0.5 * r, 0.5 * r)
+    assert pairs == {0: 1, 1: 0} and ambiguous == []
+    # A bead beyond the gate is not taken; two beads about as near are left to the operator.
+    assert crowd.assign(np.array([[0.0, 0.0]]), np.array([[3.5, 0.0]]), 0.5 * r, 0.5 * r) == ({}, [])
+    pairs, ambiguous = crowd.assign(np.array([[0.0, 0.0]]), np.array([[1.0, 0.0], [-2.0, 0.0]]), 0.5 * r, 0.5 * r)
+    assert pairs == {} and ambiguous == [0]

@@ -112,8 +112,11 @@ def test_retrack_from_a_frame_and_backward(stereo_data, tmp_path):
         opened = []  # frame cache asked for: a few frames in either direction
         real_open = proj.open_sources
         proj.open_sources = lambda cache_mb=256: opened.append(cache_mb) or real_open(cache_mb=cache_mb)
-        s = track_project(proj, markers=[7], direction="backward")
+        t3 = clips["side"].truth.query("frame == 20 and marker == 3").iloc[0]
+        seed_marker(proj, 8, "side", 20, t3.x_px, t3.y_px, 14, 14)  # placed in one camera only: 2D, no problem
+        s = track_project(proj, markers=[7, 8], direction="backward")
         assert s["first_frame"] == 20 and s["last_frame"] == 0
+        assert s["one_camera_markers"] == [8] and not s["problems"]
         back = proj.points(marker=7, camera="side")
         assert back.frame.min() == 0 and back.frame.max() == 20
         # Re-tracking forward from frame 10 overwrites frames 11.. and keeps the manual seed at 20.

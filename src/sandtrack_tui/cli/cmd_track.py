@@ -158,6 +158,9 @@ def run(args) -> int:
     summary["seed_points"] = seeded
     for p in summary.get("problems", []):
         log(f"warning: {p}")
+    one = summary.get("one_camera_markers") or []
+    if one and len(summary.get("cameras", [])) > 1:
+        log(f"note: {len(one)} marker(s) placed in one camera only (no 3D for them): {', '.join(map(str, one))}")
     emit(summary, args.json, _text(summary))
     return 0 if summary.get("frames", 0) > 0 else 1
 

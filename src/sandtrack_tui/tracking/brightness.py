@@ -114,6 +114,8 @@ def learn_brightness(seed: SeedPatch, sign: float | None = None) -> tuple[Appear
     own_radius, own_centre = None, None
     if seed.crowded:
         chosen, others, own_radius, own_centre = _own_disc(seed, p_in >= t, chosen, others, sign)
+        if chosen.sum() < 3:  # (no disc of its own among the touching ones)
+            return None, float("nan")
     # A bright marker is lit on one side and shaded on the other: its level is that of its shaded
     # part (its dimmest tenth), so the whole marker weighs alike and the centre is its outline's.
     level_d = float(inside[chosen].mean() if sign < 0 else np.percentile(inside[chosen], 10))

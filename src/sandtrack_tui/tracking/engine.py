@@ -17,6 +17,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import crowd as crowd_rules
+from .detection import detect_like
 from .globalmotion import image_shift
 from .matcher import Match
 from .reacquire import find_blobs, unexplained
@@ -52,6 +54,8 @@ class Engine:
     _open_ambiguity: dict = field(default_factory=dict)
     _both_cache: tuple | None = None
     _by_camera: dict | None = None  # camera -> [(key, track, start frame)], in the order of `tracks`
+    _crowd_at: dict = field(default_factory=dict)  # crowd track key -> (x, y) measured at the last step
+    _crowd_carried: dict = field(default_factory=dict)  # missed crowd track key -> (x, y) carried by neighbours
 
     def add(self, track: MarkerTrack, start_frame: int) -> None:
         self.tracks[(track.marker, track.camera)] = track
@@ -110,6 +114,9 @@ class Engine:
                 reattached += 1
                 self._resolve_conflicts(live[cam], props, forced)  # (a pass leaves no clash behind)
                 self._crowd_coherence(live[cam], props, self._neighbours(live[cam]))
+        for cam, (j, img, _rem) in frames.items():
+            if self._crowd_return(cam, img, int(j), live[cam], props, forced):
+                reattached += 1
         if self.stereo is not None and reattached:
             self._stereo_check(frames, props, forced, only_reattached=True)
         for cam, (j, img, _rem) in frames.items():
@@ -117,12 +124,87 @@ class Engine:
                 p = props.get((t.marker, cam))
                 obs.append(t.apply(j, img, p.match if p else None, reattach=bool(p and p.reattach),
                                    jump=bool(p and p.jump)))
+                if t.model.crowd:
+                    self._remember_crowd((t.marker, cam), p)
         for key, (x, y) in forced.items():
             t = self.tracks[key]
             obs.append(t.set_manual(frames[t.camera][0], None, x, y))
+            if t.model.crowd:
+                self._crowd_at[key] = (float(x), float(y))
+                self._crowd_carried.pop(key, None)
         return obs
 
     # -- steps ---------------------------------------------------------------------------------
+    def _crowd_return(self, cam, img, j: int, tracks, props, forced) -> int:
+        """Missed markers among touching lookalikes, carried by their measured neighbours, assigned at
+        once to the beads no track explains (crowd.py); returns how many came back."""
+        members = [t for t in tracks if t.model.crowd]
+        missed = [t for t in members if (t.marker, cam) not in props and (t.marker, cam) not in forced]
+        if not missed:
+            return 0
+        src, dst = [], []
+        for t in members:
+            key = (t.marker, cam)
+            p, last = props.get(key), self._crowd_at.get(key)
+            if p is not None and last is not None and not p.reattach:
+                src.append(last)
+                dst.append((p.match.x, p.match.y))
+        r = max(t.model.radius for t in missed)
+        start = [self._crowd_carried.get((t.marker, cam)) or self._crowd_at.get((t.marker, cam)) or t.kf.xy
+                 for t in missed]
+        where = crowd_rules.carried(np.array(start), src, dst, 4.0 * r)
+        for t, xy in zip(missed, where, strict=True):
+            self._crowd_carried[(t.marker, cam)] = (float(xy[0]), float(xy[1]))
+        known = np.isfinite(where[:, 0])
+        if not known.any():
+            return 0
+        missed = [t for t, k in zip(missed, known, strict=True) if k]
+        where = where[known]
+        beads = self._unexplained_beads(cam, img, missed[0].model, where, props, forced)
+        if not len(beads):
+            return 0
+        pairs, ambiguous = crowd_rules.assign(where, beads, 0.5 * r, 0.5 * r)
+        for i in ambiguous:
+            self._note_ambiguous(missed[i].marker, cam, j, 2)
+        n = 0
+        for i, b in pairs.items():
+            t = missed[i]
+            m = t.verify_at(img, float(beads[b, 0]), float(beads[b, 1]))
+            if m is not None and math.hypot(m.x - beads[b, 0], m.y - beads[b, 1]) <= 0.5 * t.model.radius:
+                props[(t.marker, cam)] = _Proposal(m, reattach=True)
+                n += 1
+        return n
+
+    def _unexplained_beads(self, cam, img, model, near: np.ndarray, props, forced) -> np.ndarray:
+        """Beads like `model` (detection.py) around the points `near` that no match of this camera
+        explains: (n, 2) px."""
+        r = model.radius
+        H, W = img.shape[:2]
+        pad = 3.0 * r + 4
+        x0, y0 = max(int(near[:, 0].min() - pad), 0), max(int(near[:, 1].min() - pad), 0)
+        x1, y1 = min(int(near[:, 0].max() + pad) + 1, W), min(int(near[:, 1].max() + pad) + 1, H)
+        if x1 - x0 < 3 or y1 - y0 < 3:
+            return np.empty((0, 2))
+        det = detect_like(np.ascontiguousarray(img[y0:y1, x0:x1]), model)
+        if det.empty:
+            return np.empty((0, 2))
+        beads = det[["x_px", "y_px"]].to_numpy(float) + (x0, y0)
+        explained = [(p.match.x, p.match.y) for k, p in props.items() if k[1] == cam]
+        explained += [xy for k, xy in forced.items() if k[1] == cam]
+        if explained:
+            e = np.array(explained, float)
+            d = np.hypot(beads[:, None, 0] - e[None, :, 0], beads[:, None, 1] - e[None, :, 1])
+            beads = beads[d.min(axis=1) > r]
+        return beads
+
+    def _remember_crowd(self, key, p) -> None:
+        """A crowd track's position this step (measured: its neighbours' next moves start here)."""
+        if p is not None:
+            self._crowd_at[key] = (p.match.x, p.match.y)
+            self._crowd_carried.pop(key, None)
+        else:
+            self._crowd_at.pop(key, None)
+
     def _follow_view(self, cam, j, img, tracks, props) -> None:
         """The tracks of this camera seen last frame mostly missed their gates, or found their markers
         all displaced alike: if the whole view moved since the previous frame (globalmotion.py),
@@ -207,6 +289,10 @@ class Engine:
         for _o, q in neighbours:
             if math.hypot(m.x - q[0], m.y - q[1]) < own:
                 return True
+        if t.model.crowd and m.outline:
+            # (centred on its own outline: the coverage around it holds the rims of its touching neighbours)
+            return m.score < self.crowded_min_score or m.colour_frac > crowd_rules.packed_coverage(
+                t.model.radius, self.crowded_max_colour)
         if m.touching and m.used_centroid:
             return m.colour_frac > self.crowded_max_colour
         return m.score < self.crowded_min_score or m.colour_frac > self.crowded_max_colour

@@ -45,7 +45,8 @@ def match_proposals(proposals: pd.DataFrame, known: pd.DataFrame, motion_px_per_
                     max_gate_px: float = 60.0, default_diameter_px: float = 10.0) -> dict[int, tuple[int, float]]:
     """Assign proposals (auto-seed rows: marker = proposal id, camera, x_px, y_px, w, h) to known
     markers (`known_positions`). Returns {proposal id: (marker id, distance px)} for the matched
-    proposals; the distance is the mean over the cameras both have.
+    proposals; the distance is the mean over the cameras both have. A proposal of one camera only that
+is left over takes a marker whose place in that camera no matched proposal holds, if one is there.
 
     A proposal and a marker can match when, in every camera both have a position in, the blob lies
     within max(half its diameter, 2 px) + motion_px_per_frame x the marker's gap in frames there
@@ -57,6 +58,7 @@ def match_proposals(proposals: pd.DataFrame, known: pd.DataFrame, motion_px_per_
     total = np.zeros((len(pids), len(mids)))
     shared = np.zeros((len(pids), len(mids)), int)
     feasible = np.ones((len(pids), len(mids)), bool)
+    dist_in, shared_in = {}, {}  # camera -> distances (inf: not both in it), both in it
     for cam in sorted(set(proposals["camera"]) & set(known["camera"])):
         p = proposals[proposals["camera"] == cam].drop_duplicates("marker")
         k = known[known["camera"] == cam].drop_duplicates("marker")
@@ -68,11 +70,29 @@ def match_proposals(proposals: pd.DataFrame, known: pd.DataFrame, motion_px_per_
         total[sub] += d
         shared[sub] += 1
         feasible[sub] &= d <= gate
+        dist_in[cam] = np.full((len(pids), len(mids)), np.inf)
+        dist_in[cam][sub] = d
+        shared_in[cam] = np.isfinite(dist_in[cam])
     big = 1e9
     cost = np.where(feasible & (shared > 0), total / np.maximum(shared, 1), big)
     rows, cols = linear_sum_assignment(cost)
-    return {int(pids[r]): (int(mids[c]), float(cost[r, c])) for r, c in zip(rows, cols, strict=True)
-            if cost[r, c] < big}
+    out = {int(pids[r]): (int(mids[c]), float(cost[r, c])) for r, c in zip(rows, cols, strict=True)
+           if cost[r, c] < big}
+    # A proposal seen in one camera only (not paired: touching lookalikes) may be the bead a marker is in
+    # that camera while another one-camera proposal took the marker in the other camera.
+    cams_of = proposals.groupby("marker")["camera"].agg(frozenset)
+    taken = {(m, c) for p, (m, _) in out.items() for c in cams_of[p]}
+    for cam in sorted(set(proposals["camera"]) & set(known["camera"])):
+        rest = [i for i, p in enumerate(pids) if p not in out and cams_of[p] == {cam}]
+        free = [k for k, m in enumerate(mids) if (m, cam) not in taken and shared_in[cam][:, k].any()]
+        if not rest or not free:
+            continue
+        sub = np.where(feasible[np.ix_(rest, free)] & shared_in[cam][np.ix_(rest, free)],
+                       dist_in[cam][np.ix_(rest, free)], big)
+        for r, c in zip(*linear_sum_assignment(sub), strict=True):
+            if sub[r, c] < big:
+                out[int(pids[rest[r]])] = (int(mids[free[c]]), float(sub[r, c]))
+    return out
 
 
 def _half_bead(blobs: pd.DataFrame, default_diameter: float) -> np.ndarray:

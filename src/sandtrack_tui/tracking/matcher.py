@@ -34,6 +34,7 @@ class Match:
     luma: tuple | None = None  # centre of the marker's brightness edge (luma.py), when measured
     rest: bool = False  # the last full measurement moved by the brightness shift since (rest.py)
     touching: bool = False  # other markers touch this one: its centre is from its own share of the blob
+    outline: bool = True  # False: a crowd marker whose own outline was not found (its NCC peak only)
 
 
 STREAK_MIN_SPEED = 4.0  # px per frame from which a marker may be smeared into a streak
@@ -119,8 +120,13 @@ class TemplateMatcher:
         x, y = mx + x0, my + y0
         if self.model.crowd:
             e = self.silhouette(frame_bgr, x, y, strict=True)
-            if e is None:
-                return None  # (among touching lookalikes only a marker whose own outline is found is one)
+            if e is None and math.hypot(px - x, py - y) <= self.model.radius:
+                # (the coverage centroid is pulled by the touching neighbours: the outline may be found
+                # from the prediction instead)
+                e = self.silhouette(frame_bgr, px, py, strict=True)
+            if e is None:  # (among touching lookalikes only a marker whose own outline is found is measured)
+                return Match(x=x, y=y, score=peak, psr=psr, colour_frac=frac, used_centroid=False, touching=True,
+                             outline=False)
             x, y = e
         elif used and not touching and not streak:
             x, y = self.silhouette(frame_bgr, x, y)

@@ -295,9 +295,12 @@ def _close(sources):
 
 
 def _find_seeds(project, points: pd.DataFrame, markers, cams, sources, offsets, ref, start, direction):
-    """Per (marker, camera): (frame, x, y) to start from, plus problems for those without one."""
-    seeds, problems = {}, []
+    """Per (marker, camera): (frame, x, y) to start from; problems for those without one; and the
+    markers of one camera only (never placed in the other: e.g. auto-seeded among touching lookalikes,
+    which are not paired across cameras), which are no problem."""
+    seeds, problems, one_camera = {}, [], set()
     have = points[points.x_px.notna()]
+    placed = set(zip(points.marker.astype(int), points.camera, strict=True))
     if start is None:  # each track's first (last, backward) manual point
         found = {}
         for r in have[have.status == MANUAL].sort_values("frame").itertuples(index=False):
@@ -316,7 +319,9 @@ def _find_seeds(project, points: pd.DataFrame, markers, cams, sources, offsets, 
         for c in cams:
             r = found.get((m, c))
             if r is None:
-                if start is None:
+                if (m, c) not in placed and any((m, o) in found for o in cams):
+                    one_camera.add(m)
+                elif start is None:
                     problems.append(f"marker {m} {c}: no seed (manual point)")
                 elif at[c] is None:
                     problems.append(f"marker {m} {c}: frame {start} has no paired {c} frame")
@@ -324,7 +329,7 @@ def _find_seeds(project, points: pd.DataFrame, markers, cams, sources, offsets, 
                     problems.append(f"marker {m} {c}: no point at frame {at[c]} to start from")
                 continue
             seeds[(m, c)] = (int(r.frame), float(r.x_px), float(r.y_px))
-    return seeds, problems
+    return seeds, problems, sorted(one_camera)
 
 
 def track_project(project, markers=None, start: int | None = None, stop: int | None = None,
@@ -361,8 +366,9 @@ def track_project(project, markers=None, start: int | None = None, stop: int | N
         unknown = [m for m in markers if m not in all_markers and m not in set(points.marker)]
         if unknown:
             raise SandtrackError(f"unknown marker(s): {', '.join(map(str, unknown))}")
-        seeds, problems = _find_seeds(project, points, markers, cams, sources, offsets, ref, start, dirn)
+        seeds, problems, one_camera = _find_seeds(project, points, markers, cams, sources, offsets, ref, start, dirn)
         summary = {"direction": direction, "cameras": cams, "markers": markers, "problems": problems,
+                   "one_camera_markers": one_camera,
                    "stereo": False, "rows_written": 0, "stopped": False, "per_marker": {}}
         for c in cams:
             if getattr(sources[c], "truncated", False):

@@ -5,6 +5,9 @@ Status per frame (the store's STATUSES):
 - ``occluded``: no acceptable match; the position written is the Kalman prediction (coasting);
 - ``lost``: more than ``lost_after`` frames without a match; no position is claimed;
 - ``manual``: the operator's point (a seed or a correction), used as a measurement as is.
+A marker among touching lookalikes whose template is found but not its own outline is *held*:
+followed by its template's peak (a loose measurement) but flagged ``occluded``, as its centre
+is not measured.
 A track never invents a match: when in doubt it coasts and says so.
 """
 
@@ -30,6 +33,7 @@ DEFAULT_BOX_PX = 16
 # who is the crowd rules' business: engine.py.)
 TOUCHING_RELAX = 0.85
 MERGED_COVERAGE = 1.4  # marker coverage (in seed discs) above which a blob is two markers merged
+HELD_MEAS_PX = 1.0  # measurement noise of a held marker's template peak (no outline), px
 SHORT_MISS = 3  # frames unseen up to which a returning marker's match is judged leniently (verify_at)
 
 
@@ -118,12 +122,14 @@ class MarkerTrack:
         self._anchor_luma: tuple | None = None
         self._rest: RestReference | None = None
         self.rest_frames = 0
+        self.held = False
         self._last_measured: tuple | None = (frame_index, x, y)  # (frame, x, y) of the last match or point
 
     # -- per frame -----------------------------------------------------------------------------
     @property
     def coasting(self) -> bool:
-        return self.status in (OCCLUDED, LOST)
+        """Not followed: unseen (a held track is followed, though flagged)."""
+        return self.status in (OCCLUDED, LOST) and not self.held
 
     def predict(self) -> None:
         self.kf.advance()
@@ -150,6 +156,8 @@ class MarkerTrack:
                                self.kf.vxy)
         if m is None:
             return None
+        if not m.outline and self.counts[TRACKED] == 0:
+            return None  # (held only once measured since its seed: a seed nothing confirmed is not followed)
         m.d2 = self.kf.d2(m.x, m.y)
         if not self.acceptable(m, TOUCHING_RELAX if m.touching else 1.0) or self._cut_by_border(frame_bgr, m):
             return None
@@ -249,7 +257,13 @@ class MarkerTrack:
         self.frame_index = frame_index
         p = self.params
         self._update_offset(frame_index, m, reattach)
-        if m is not None:
+        self.held = m is not None and not m.outline
+        if self.held:
+            self._rest = None
+            self.kf.update((m.x, m.y), HELD_MEAS_PX)
+            self.status = OCCLUDED
+            obs = Observation(frame_index, self.camera, self.marker, m.x, m.y, OCCLUDED, m.score, m.psr, m.colour_frac)
+        elif m is not None:
             last = self._last_measured
             steps = abs(frame_index - last[0]) if last is not None else 0
             if jump and 0 < steps <= 3:
@@ -293,6 +307,7 @@ class MarkerTrack:
         """An operator's point met along the way: trust it, keep tracking from it."""
         self._offset = self._anchor_luma = None
         self._rest = None
+        self.held = False
         if self.misses > 2:
             self.kf.reset(x, y)
         else:
