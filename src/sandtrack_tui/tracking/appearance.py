@@ -41,7 +41,12 @@ _CLOSE = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
 _SQUARE3 = np.ones((3, 3), np.uint8)
 MIN_SEPARATION = 0.2  # marker median score minus the sand's 99.5th percentile, in marker-contrast units
 MARKER_MEDIAN = 0.75  # a window whose median scores this much is mostly marker (a crowd): its sand level is unknown
+# A colour model covering less than this share of the brightness model's marker area learned from the
+# same box has found a part of the marker (a rim, a reflection), not the marker.
+PART_OF_MARKER = 0.5
 CENTRE_RING_SHARE = 0.75  # share of a circle of half its radius around a seed box's centre that is marker
+FOLLOW_RANGE = (0.5, 1.5)  # a dark model's contrast follows its marker within these multiples of the seed's ...
+FOLLOW_DEADBAND = 0.1  # ... once its middle's score has changed by more than this share
 
 
 @dataclass
@@ -146,11 +151,42 @@ class AppearanceModel:
         xa..xb-1 of `bgr`, and the component's pixel count there."""
         return kernels.blob_moments(bgr, labels, k, xa, ya, xb, yb, *self._score_coeffs, self.weight_floor)
 
+    def follow_level(self, marker_score: float, alpha: float) -> None:
+        """Let a dark model's marker level follow the marker. A glass bead shows the sand beneath it
+        through its body, a wetted or dusted bead darkens or lightens: its body's brightness changes
+        while the sand's does not. `marker_score`: the score of the marker's middle in a clean match;
+        the first call gives its level as learned. The level moves by `alpha` of the change beyond
+        FOLLOW_DEADBAND and stays within FOLLOW_RANGE times the seed's contrast with the sand (never
+        onto the sand's own level). (A bright model's level is its shaded part, which moves with the
+        light across it as it rolls: following it followed the light, not the marker, and cost the
+        bright variants accuracy; a crowd's model is shared by its beads.)"""
+        if self.kind != DARK or not self.levels or self.crowd or not np.isfinite(marker_score):
+            return
+        level_d, level_s = self.levels
+        seed_d = self.__dict__.setdefault("_seed_levels", self.levels)[0]
+        ref = self.__dict__.setdefault("_seed_middle", marker_score)
+        if ref <= 0.25:
+            return
+        lo, hi = FOLLOW_RANGE
+        c0 = seed_d - level_s
+        change = marker_score / ref - 1.0  # (noise, blur and shading within FOLLOW_DEADBAND are not followed)
+        change = float(np.sign(change) * max(abs(change) - FOLLOW_DEADBAND, 0.0))
+        c = (level_d - level_s) * (1.0 + alpha * change)
+        c = float(np.clip(abs(c), lo * abs(c0), hi * abs(c0))) * np.sign(c0)
+        if abs(c - (level_d - level_s)) < 1e-3 * abs(c0):
+            return
+        self.w = self.w * ((level_d - level_s) / c)
+        self.b = -level_s / c
+        self.levels = (level_s + c, level_s)
+        for key in ("_score_coeffs", "_mask_coeffs"):
+            self.__dict__.pop(key, None)
+
     def describe(self) -> dict:
         """What the model is and what it measured, for reports (`track --json`, the seeding list)."""
         out = {"model": self.kind, "contrast": round(float(self.contrast), 1), "radius_px": round(self.radius, 2)}
-        if self.levels:
-            out["marker_level"], out["sand_level"] = (round(float(v), 3) for v in self.levels)
+        levels = self.__dict__.get("_seed_levels", self.levels)  # (as learned at the seed)
+        if levels:
+            out["marker_level"], out["sand_level"] = (round(float(v), 3) for v in levels)
         return out
 
 
@@ -197,6 +233,8 @@ def learn(frame, cx: float, cy: float, w: float, h: float, centred: bool = True,
         model = model if model is None or seed.centre_scores(model) else None
         bright = bright if bright is None or seed.centre_scores(bright) else None
     grey = model is not None and colour.achromatic(seed, model)
+    if model is not None and bright is not None and model.disc_area < PART_OF_MARKER * bright.disc_area:
+        grey = True  # its colour is a part of the marker (a glass bead's rim): its brightness is the marker
     if bright is not None and (model is None or grey):
         return bright  # a white, grey or black marker: its brightness is what it is
     if model is not None and not grey:
@@ -304,13 +342,26 @@ class SeedPatch:
         on = [np.median(scores[ring][sector == k]) >= model.threshold for k in range(8) if np.any(sector == k)]
         return bool(np.mean(on) >= CENTRE_RING_SHARE)
 
+    def _central_holes_filled(self, own: np.ndarray, solid: np.ndarray, x0: int, y0: int) -> np.ndarray:
+        """`own` with its holes near the box's centre filled: with sand all around the box, a hole
+        there is the marker's own highlight (a glossy bead reflects the lamp near its middle), not a
+        gap between touching markers (which lie about a marker's radius from its centre)."""
+        holes = (solid & ~own).astype(np.uint8)
+        if not holes.any():
+            return own
+        _n, labels = cv2.connectedComponents(holes, connectivity=4)
+        gy, gx = np.mgrid[0:own.shape[0], 0:own.shape[1]]
+        near = np.hypot(gx + x0 - self.cx, gy + y0 - self.cy) <= 0.25 * min(self.w, self.h)
+        central = np.unique(labels[near & (labels > 0)])
+        return own | np.isin(labels, central) if len(central) else own
+
     @cached_property
     def luma(self) -> np.ndarray:
         from .chroma import LUMA_BGR
 
         return self.bgr @ LUMA_BGR.astype(np.float64)
 
-    def centre_component(self, selected: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def centre_component(self, selected: np.ndarray, sand_around: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """(chosen, others): `selected` (a mask over the inner pixels) reduced to its connected part at
         the box centre, when it splits into several parts of some size (a loose box holding more
         than one marker; parts of 1-2 pixels, noise, are kept); and the other parts grown by a pixel
@@ -332,15 +383,16 @@ class SeedPatch:
         # Touching markers (a dense layer) are one connected part: the marker's own disc is the one
         # around the distance-transform peak nearest the centre, of the radius at which rays from it
         # first meet sand (the median: rays through the contacts with neighbours meet none in the box).
-        dt = cv2.distanceTransform(own.astype(np.uint8), cv2.DIST_L2, 5)
-        peaks = (dt >= cv2.dilate(dt, np.ones((3, 3), np.uint8))) & (dt >= 0.6 * dt.max()) & own
+        # (a dusty marker's sand specks are not gaps: closed and filled first)
+        solid = binary_fill_holes(cv2.morphologyEx(own.astype(np.uint8), cv2.MORPH_CLOSE, _SQUARE3))
+        body = self._central_holes_filled(own, solid, x0, y0) if sand_around else own
+        dt = cv2.distanceTransform(body.astype(np.uint8), cv2.DIST_L2, 5)
+        peaks = (dt >= cv2.dilate(dt, np.ones((3, 3), np.uint8))) & (dt >= 0.6 * dt.max()) & body
         ys, xs = np.nonzero(peaks)
         crowded = own[0].any() or own[-1].any() or own[:, 0].any() or own[:, -1].any()  # runs out of the box
         if len(xs) and crowded:
             k = int(np.argmin(np.hypot(xs + x0 - self.cx, ys + y0 - self.cy)))
             px, py = int(xs[k]), int(ys[k])
-            # (a dusty marker's sand specks are not gaps: closed and filled first)
-            solid = binary_fill_holes(cv2.morphologyEx(own.astype(np.uint8), cv2.MORPH_CLOSE, _SQUARE3))
             rd = _first_gap(solid, px, py)
             if rd is not None and own.sum() > 1.3 * np.pi * rd**2:
                 gy, gx = np.mgrid[0:own.shape[0], 0:own.shape[1]]

@@ -85,6 +85,7 @@ def learn_brightness(seed: SeedPatch, sign: float | None = None) -> tuple[Appear
     L = seed.luma
     inside = L[seed.inner]
     sand = _surround(L[seed.ring], _centre_level(seed), sign)
+    sand_around = len(sand) == np.count_nonzero(seed.ring)  # (the ring is one group: no lookalikes in it)
     med, mad = _robust(sand)
     mad = max(mad, 1.0)  # quantised, clean sand (grey-level images): one level
     z = (inside - med) / mad
@@ -108,7 +109,7 @@ def learn_brightness(seed: SeedPatch, sign: float | None = None) -> tuple[Appear
         if abs(t_new - t) < 1e-6:
             break
         t = t_new
-    chosen, others = seed.centre_component(p_in >= t)
+    chosen, others = seed.centre_component(p_in >= t, sand_around=sand_around)
     if chosen.sum() < 3:
         return None, float("nan")
     own_radius, own_centre = None, None

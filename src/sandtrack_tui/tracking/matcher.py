@@ -152,6 +152,28 @@ class TemplateMatcher:
             return None if strict else (x, y)
         return e[0], e[1]
 
+    def middle_score(self, frame_bgr, x: float, y: float) -> float:
+        """The score of the marker's middle (the median within half its radius of (x, y)), relative to its
+        window's sand (the median beyond 1.8 radii) and to the light on it (as prepared() scales it);
+        NaN near the image's edge."""
+        r = self.model.radius
+        R = int(np.ceil(2.5 * r + 2))
+        H, W = frame_bgr.shape[:2]
+        x0, y0 = int(round(x)) - R, int(round(y)) - R
+        if x0 < 0 or y0 < 0 or x0 + 2 * R + 1 > W or y0 + 2 * R + 1 > H:
+            return float("nan")
+        masks = self.__dict__.get("_middle_masks")
+        if masks is None or masks[0] != R:
+            yy, xx = np.mgrid[-R:R + 1, -R:R + 1]
+            d = np.hypot(xx, yy)
+            masks = self._middle_masks = (R, d <= 0.5 * r, d >= 1.8 * r)
+        score = self.model.score_window(frame_bgr, x0, y0, x0 + 2 * R + 1, y0 + 2 * R + 1)
+        sand = float(np.median(score[masks[2]]))
+        mid = float(np.median(score[masks[1]]))
+        level_d, level_s = self.model.levels
+        k = 1.0 + sand * (level_d - level_s) / level_s  # (the light on the sand, as in prepared())
+        return (mid - sand) / k if k > 0.25 else float("nan")
+
     def _streaks(self, score: np.ndarray, res: np.ndarray, velocity: tuple) -> tuple[np.ndarray, float]:
         """A marker moving v px per frame is smeared over e |v| px by an exposure of e frames. For a
         fast marker (|v| >= STREAK_MIN_SPEED) the seed template smeared along v over half and a whole

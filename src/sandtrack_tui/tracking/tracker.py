@@ -20,7 +20,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..errors import SandtrackError
-from .appearance import COLOUR, AppearanceModel, learn
+from .appearance import COLOUR, DARK, AppearanceModel, learn
 from .kalman import GATE_D2, ConstantVelocityKF
 from .luma import edge_centre
 from .matcher import Match, TemplateMatcher
@@ -45,6 +45,7 @@ class TrackParams:
     confident_score: float = 0.85  # the updated template learns only from matches this good ...
     confident_colour: float = 0.85  # ... and this complete
     template_alpha: float = 0.15
+    level_alpha: float = 0.3  # share of a dark marker's change in brightness its model follows per frame
     template_every: int = 2  # frames between template updates (slow drift; half the cost)
     lost_after: int = 25  # frames of coasting before a track is declared lost
     accel_px: float = 2.0  # Kalman process noise: white acceleration, px/frame²
@@ -274,6 +275,12 @@ class MarkerTrack:
                 self.reacquisitions += 1
             else:
                 self.kf.update((m.x, m.y), None if m.used_centroid else 1.0)
+            # A dark marker's level follows its body (appearance.follow_level), also at rest (a glass bead
+            # shows the sand beneath it): the marker's look, not its coverage by the model, says the
+            # match is good, since a marker whose body lightens loses coverage first.
+            if frame_bgr is not None and self.model.kind == DARK and not self.model.crowd \
+                    and m.score >= p.confident_score and m.used_centroid:
+                self.model.follow_level(self.matcher.middle_score(frame_bgr, m.x, m.y), p.level_alpha)
             if m.rest:
                 self.rest_frames += 1
             else:
