@@ -20,6 +20,11 @@ settings.register_profile("deep", derandomize=False, deadline=None, database=Non
 settings.load_profile("deep" if DEEP else "deterministic")
 
 
+# The safety net of every wait in the tests that polls until something holds (a worker done, a screen shown):
+# only a broken build ever waits this long, so it is generous enough for a machine under any load.
+POLL_LIMIT_S = 300.0
+
+
 def examples(n: int) -> int:
     """A property test's number of examples: n in `make test`, FUZZ_FACTOR x n in the deep run."""
     return n * FUZZ_FACTOR

@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from conftest import write_clip
+from conftest import POLL_LIMIT_S, write_clip
 from sandtrack_tui.cli import main
 from sandtrack_tui.store import Project
 from sandtrack_tui.tracking import synthetic
@@ -134,7 +134,7 @@ def test_sigkill_while_tracking_loses_nothing_and_resumes(media):
     path = make_project(root, cal, "killed.sandtrack")
     child = sandtrack("track", path, "--auto-seed")
     seen = 0
-    deadline = time.time() + 120
+    deadline = time.time() + POLL_LIMIT_S
     while seen == 0 and child.poll() is None and time.time() < deadline:
         time.sleep(0.01)
         seen = tracked_rows(path)

@@ -13,6 +13,7 @@ import time
 
 import pytest
 
+from conftest import POLL_LIMIT_S
 from sandtrack_tui.cli import main
 from sandtrack_tui.regression.dataset import load_points
 from sandtrack_tui.regression.model import load_model
@@ -59,7 +60,7 @@ def project_model(proj):
 def kill_after_first_epoch(args: list[str]) -> None:
     child = subprocess.Popen([sys.executable, "-m", "sandtrack_tui", *args], stdout=subprocess.DEVNULL,
                              stderr=subprocess.PIPE, text=True)
-    deadline = time.time() + 180
+    deadline = time.time() + POLL_LIMIT_S
     line = ""
     while time.time() < deadline:
         line = child.stderr.readline()

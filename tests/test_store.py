@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from conftest import write_clip
+from conftest import POLL_LIMIT_S, write_clip
 from sandtrack_tui.errors import SandtrackError
 from sandtrack_tui.store import SCHEMA_VERSION, Project
 
@@ -144,7 +144,7 @@ def test_sigkill_while_writing_keeps_every_committed_edit(project, tmp_path):
     """)
     child = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
     last = -1
-    deadline = time.time() + 60
+    deadline = time.time() + POLL_LIMIT_S
     while last < 30 and time.time() < deadline:
         last = int(child.stdout.readline())
     os.kill(child.pid, signal.SIGKILL)

@@ -10,6 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from conftest import POLL_LIMIT_S
 from sandtrack_tui.tui.app import SandtrackApp
 from tui_synth import N_FRAMES, make_frames, make_project, true_xy, true_xyz
 
@@ -37,7 +38,7 @@ def project(tmp_path, frames):
     proj.close()
 
 
-async def settle(pilot, app, cond=None, timeout=10.0):
+async def settle(pilot, app, cond=None, timeout=POLL_LIMIT_S):
     """Wait until both views show what was asked for (and `cond()` holds)."""
     import time
 
@@ -142,7 +143,7 @@ async def test_track_correct_undo(project):
         await click_source(pilot, app, "front", *true_xy(1, 0, "front"))
         assert len(project.points(marker=1)) == 2
         await pilot.press("t")
-        await settle(pilot, app, lambda: app.bg_task is None, timeout=60)
+        await settle(pilot, app, lambda: app.bg_task is None)
         pts = project.points(marker=1, camera="side")
         assert len(pts) == N_FRAMES
         err = [math.hypot(r.x_px - true_xy(1, r.frame)[0], r.y_px - true_xy(1, r.frame)[1])
@@ -221,13 +222,13 @@ async def test_table_and_export_give_true_xyz(tmp_path, frames):
         t = np.clip(np.sum((np.array([fx, fy]) - a) * (b - a), 1) / np.sum((b - a) ** 2, 1), 0, 1)
         assert np.hypot(*(a + t[:, None] * (b - a) - [fx, fy]).T).min() < 1.0
         await pilot.press("t")
-        await settle(pilot, app, lambda: app.bg_task is None, timeout=60)
+        await settle(pilot, app, lambda: app.bg_task is None)
         await pilot.press("e")
         await pilot.pause(0.2)
         out = tmp_path / "out.csv"
         app.screen.query_one("#path").value = str(out)
         await pilot.click("#export")
-        await settle(pilot, app, lambda: app.bg_task is None and out.exists(), timeout=60)
+        await settle(pilot, app, lambda: app.bg_task is None and out.exists())
         df = pd.read_csv(out)
         tri = df[(df["method"] == "triangulation") & (df["marker"] == 2)].dropna(subset=["X_mm"])
         assert len(tri) >= N_FRAMES - 2
@@ -246,7 +247,7 @@ async def test_auto_seed_confirm_list_then_swap_over_range(tmp_path, frames):
     async with app.run_test(size=SIZE) as pilot:
         await settle(pilot, app)
         await pilot.press("A")
-        await settle(pilot, app, lambda: isinstance(app.screen, AutoSeedScreen), timeout=30)
+        await settle(pilot, app, lambda: isinstance(app.screen, AutoSeedScreen))
         assert len(app.screen.markers) == 3
         await pilot.press("space", "enter")  # skip the first proposal, accept the others
         await settle(pilot, app, lambda: app.screen is app._main_screen)
@@ -258,7 +259,7 @@ async def test_auto_seed_confirm_list_then_swap_over_range(tmp_path, frames):
             assert min(np.hypot(r.x_px - x, r.y_px - y) for x, y in truth.values()) < 1.0
         a, b = sorted(side["marker"])
         await pilot.press("r")
-        await settle(pilot, app, lambda: app.bg_task is None, timeout=60)
+        await settle(pilot, app, lambda: app.bg_task is None)
         before = project.points(camera="side")
         # swap a and b over frames 5..8
         await pilot.press(str(a), *["right"] * 5, "left_square_bracket", "right", "right", "right",

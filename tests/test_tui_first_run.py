@@ -32,7 +32,7 @@ async def test_sample_project_shows_both_xyz_columns_on_first_run(tmp_path):
     xyz = pd.read_csv(SAMPLE_DATA / "ground_truth" / "trajectories.csv")
     app = SandtrackApp(path)
     async with app.run_test(size=(200, 55)) as pilot:
-        await settle(pilot, app, timeout=30)
+        await settle(pilot, app)
         first, _ = app.common_range()
         app.go_to(first)
         marker = 3
@@ -50,7 +50,7 @@ async def test_sample_project_shows_both_xyz_columns_on_first_run(tmp_path):
         def shown() -> bool:
             return len(table.rows) == 1 and "—" not in {str(v) for v in table.get_row(str(marker))[5:7]}
 
-        await settle(pilot, app, shown, timeout=60)
+        await settle(pilot, app, shown)
         row = next(r for r in app.table_rows() if r.marker == marker)
         true = xyz[(xyz.frame == first) & (xyz.marker == marker)][["X_mm", "Y_mm", "Z_mm"]].to_numpy()[0]
         assert np.linalg.norm(np.array(row.xyz_tri) - true) < 1.0

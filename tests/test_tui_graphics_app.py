@@ -13,6 +13,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from conftest import POLL_LIMIT_S
 from fake_terminal import FakeTerminal, PtyTerminal
 from sandtrack_tui.tui.app import SandtrackApp
 from sandtrack_tui.tui.frame_view import HALF, ViewTransform
@@ -193,7 +194,8 @@ def test_over_a_real_pty(tmp_path, frames):
         return np.median(err) <= 4 and (err > TOLERANCE + 24).mean() < 0.03
 
     def wait_for(condition, what: str) -> None:
-        for _ in range(600):  # polled until it holds; the time limit is only a safety net
+        t0 = time.perf_counter()
+        while time.perf_counter() - t0 < POLL_LIMIT_S:  # polled until it holds
             if condition():
                 return
             if term.proc.poll() is not None:

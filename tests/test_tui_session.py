@@ -10,6 +10,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from conftest import POLL_LIMIT_S
 from sandtrack_tui.store import Project
 from sandtrack_tui.tui.app import SandtrackApp
 from test_tui_app import SIZE, aio, click_source, settle
@@ -37,7 +38,7 @@ async def seed_by_clicks(pilot, app, marker, cameras=("side", "front"), bead=Non
         await click_source(pilot, app, cam, *true_xy(bead or marker, app.cam_index(cam), cam))
 
 
-async def until_idle(pilot, app, timeout=60):
+async def until_idle(pilot, app, timeout=POLL_LIMIT_S):
     await settle(pilot, app, lambda: app.bg_task is None, timeout=timeout)
 
 
@@ -66,7 +67,7 @@ async def test_tracking_unsynced_cameras_asks_first(tmp_path, frames, monkeypatc
         await pilot.pause()
         await pilot.press("s")
         await until_idle(pilot, app)
-        await settle(pilot, app, lambda: app.bg_task is None and len(project.points()) > 2, timeout=60)
+        await settle(pilot, app, lambda: app.bg_task is None and len(project.points()) > 2)
         await until_idle(pilot, app)
         assert project.sync_confirmed() and project.sync_offset_s == 0.0
         assert len(project.points(marker=1, camera="side")) == N_FRAMES
@@ -116,7 +117,7 @@ async def test_auto_seed_again_keeps_the_markers_ids(tmp_path, frames):
     async with app.run_test(size=SIZE) as pilot:
         await settle(pilot, app)
         await pilot.press("A")
-        await settle(pilot, app, lambda: isinstance(app.screen, AutoSeedScreen), timeout=30)
+        await settle(pilot, app, lambda: isinstance(app.screen, AutoSeedScreen))
         await pilot.press("enter")
         await settle(pilot, app, lambda: app.screen is app._main_screen)
         first = project.points(frame=0, camera="side").set_index("marker")
@@ -125,7 +126,7 @@ async def test_auto_seed_again_keeps_the_markers_ids(tmp_path, frames):
         await until_idle(pilot, app)
         # undo the run, seed again at the start: the same beads keep their ids
         await pilot.press("u", "home", "A")
-        await settle(pilot, app, lambda: isinstance(app.screen, AutoSeedScreen), timeout=30)
+        await settle(pilot, app, lambda: isinstance(app.screen, AutoSeedScreen))
         assert sorted(app.screen.markers) == [1, 2, 3] and app.screen.seeds["existing"].all()
         await pilot.press("enter")
         await settle(pilot, app, lambda: app.screen is app._main_screen)
@@ -136,7 +137,7 @@ async def test_auto_seed_again_keeps_the_markers_ids(tmp_path, frames):
         for _ in range(20):
             await pilot.press("right")
         await pilot.press("A")
-        await settle(pilot, app, lambda: isinstance(app.screen, AutoSeedScreen), timeout=30)
+        await settle(pilot, app, lambda: isinstance(app.screen, AutoSeedScreen))
         seeds = app.screen.seeds
         assert sorted(app.screen.markers) == [1, 2, 3]
         for r in seeds[seeds.camera == "side"].itertuples():  # each id on the bead it was tracked on

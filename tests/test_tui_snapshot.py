@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import time
 
+from conftest import POLL_LIMIT_S
 from sandtrack_tui.tui.app import SandtrackApp
 from tui_synth import make_project, true_xy
 
@@ -12,7 +13,7 @@ from tui_synth import make_project, true_xy
 async def _ready(pilot) -> None:
     app = pilot.app
     t0 = time.perf_counter()
-    while time.perf_counter() - t0 < 10:
+    while time.perf_counter() - t0 < POLL_LIMIT_S:
         await pilot.pause(0.02)
         if app.views_ready():
             return
@@ -54,7 +55,7 @@ def test_main_screen_256_colours_after_tracking_with_a_gap(snap_compare, tmp_pat
                 await pilot.click(f"#view-{cam}", offset=(col + v.gutter.left, row + v.gutter.top))
         await pilot.press("r")
         t0 = time.perf_counter()
-        while app.bg_task is not None and time.perf_counter() - t0 < 60:
+        while app.bg_task is not None and time.perf_counter() - t0 < POLL_LIMIT_S:
             await pilot.pause(0.05)
         await pilot.press("tab", "1", *["right"] * 10, "left_square_bracket", *["right"] * 4,
                           "right_square_bracket", "delete", "escape", "home", "n")
