@@ -576,6 +576,7 @@ def warm_up() -> None:
         rest = RestReference(img, 40.3, 47.6, track.model.radius, m or Match(40.3, 47.6, 1.0, 10.0, 1.0))
         rest.shift(img, 0.2, 3.0)
         find_blobs(img, track.model, 40.0, 47.0, 30.0, 30.0)
+        track.model.any_in(img, np.array([[20, 27, 60, 67]], np.int64))
 
 
 if __name__ == "__main__":
