@@ -69,6 +69,7 @@ def test_linear_mask_equals_the_test_on_the_converted_window():
     with FrameSource(SAMPLE, cache_mb=0) as src:
         frame = src.lazy_frame(7)
     rng = np.random.default_rng(5)
+    founds = 0
     for _ in range(30):
         coeffs = tuple(np.float32(rng.normal(0, 1, 4) * [1, 1, 1, 50]))
         y0, x0 = rng.integers(0, 1000), rng.integers(0, 1800)
@@ -76,11 +77,19 @@ def test_linear_mask_equals_the_test_on_the_converted_window():
         want = kernels.colour_mask(frame[y0:y1, x0:x1], *coeffs)
         got = frame.linear_mask(coeffs, x0, y0, x1, y1)
         assert np.array_equal(got[0], want[0]) and got[1:] == want[1:]
+        # many windows at once, found or not (the epipolar band's tiles): each as linear_mask finds it
+        boxes = np.array([(x0 + dx, y0 + dy, x1 + dx, y1 + dy) for dx, dy in rng.integers(-40, 40, (6, 2))], np.int64)
+        boxes = np.clip(boxes, 0, [1920, 1080, 1920, 1080])
+        many = frame.linear_found(coeffs, boxes)
+        assert many.tolist() == [bool(frame.linear_mask(coeffs, *b)[1]) if b[2] > b[0] and b[3] > b[1] else False
+                                 for b in boxes]
+        founds += int(many.sum())
         # every chroma tested pixel by pixel (as when its passing levels are not one run)
         irregular = np.full(65536, 2, np.uint32)
         y, u, v, tables = frame.yuv
         got = yuv._linear_mask(y, u, v, x0, y0, x1, y1, *tables, *coeffs, irregular)
         assert np.array_equal(got[0], want[0]) and got[1:] == want[1:]
+    assert 0 < founds < 180  # (both outcomes were tested)
 
 
 def test_window_reads_follow_numpy_slicing(tmp_path):

@@ -139,6 +139,18 @@ def _linear_mask(yp, up, vp, x0, y0, x1, y1, yt, cb, gu, gv, cr, m0, m1, m2, m3,
     return out, True, bx0, by0, bx1 + 1, by1 + 1
 
 
+@jit
+def _linear_found(yp, up, vp, boxes, yt, cb, gu, gv, cr, m0, m1, m2, m3, passing):
+    """Per window (x0, y0, x1, y1) of `boxes` (n x 4): does any pixel pass _linear_mask's test (its
+    `found`, by the same arithmetic), in one call for many windows."""
+    out = np.zeros(boxes.shape[0], np.bool_)
+    for i in range(boxes.shape[0]):
+        x0, y0, x1, y1 = boxes[i, 0], boxes[i, 1], boxes[i, 2], boxes[i, 3]
+        if x1 > x0 and y1 > y0:
+            out[i] = _linear_mask(yp, up, vp, x0, y0, x1, y1, yt, cb, gu, gv, cr, m0, m1, m2, m3, passing)[1]
+    return out
+
+
 def _plane(plane, rows: int) -> np.ndarray:
     """A decoded plane as a (rows, line size) uint8 array sharing the frame's memory (the array
     keeps the frame alive). The line may be padded beyond the image width; only the width is read."""
@@ -188,6 +200,10 @@ class Yuv420Frame:
         planes without converting the window, and the box of its ones (window coordinates)."""
         return _linear_mask(self._y, self._u, self._v, x0, y0, max(x1, x0), max(y1, y0), *self._tables, *coeffs,
                             _passing(self._tables, coeffs))
+
+    def linear_found(self, coeffs: tuple, boxes: np.ndarray) -> np.ndarray:
+        """linear_mask's `found` for each window (x0, y0, x1, y1) of `boxes` (n x 4 int64), in one call."""
+        return _linear_found(self._y, self._u, self._v, boxes, *self._tables, *coeffs, _passing(self._tables, coeffs))
 
     def bgr(self) -> np.ndarray:
         """The whole frame as BGR (FFmpeg's conversion, as FrameSource.frame gives it)."""

@@ -100,15 +100,15 @@ class ConstantVelocityKF:
 
     def innovation_inv(self) -> tuple[float, float, float]:
         """(i00, i01, i11) of the inverse innovation covariance, as plain floats (per track and frame)."""
-        p, r = self._p, self.R
-        s00, s01, s10, s11 = p[0] + r[0, 0], p[1] + r[0, 1], p[1] + r[1, 0], p[4] + r[1, 1]
-        det = s00 * s11 - s01 * s10
+        p, r = self._p, self._r  # (R = r I, a plain float: numpy scalars would slow every term down)
+        s00, s01, s11 = p[0] + r, p[1], p[4] + r
+        det = s00 * s11 - s01 * s01
         return s11 / det, -s01 / det, s00 / det
 
     def d2(self, zx: float, zy: float) -> float:
         """Squared Mahalanobis distance of one measurement (zx, zy) from the prediction."""
-        p, r = self._p, self.R
-        s00, s01, s11 = p[0] + r[0, 0], p[1] + r[0, 1], p[4] + r[1, 1]
+        p, r = self._p, self._r
+        s00, s01, s11 = p[0] + r, p[1], p[4] + r
         det = s00 * s11 - s01 * s01
         dx, dy = float(zx) - self._x[0], float(zy) - self._x[1]
         return (s11 * dx * dx - 2 * s01 * dx * dy + s00 * dy * dy) / det
@@ -117,8 +117,8 @@ class ConstantVelocityKF:
         """Squared Mahalanobis distance(s) of measurement(s) z (2,) or (N, 2) from the prediction."""
         if isinstance(z, tuple) and len(z) == 2:  # one point: plain floats (per track and frame)
             return np.array([self.d2(z[0], z[1])])
-        p, r = self._p, self.R
-        s00, s01, s11 = p[0] + r[0, 0], p[1] + r[0, 1], p[4] + r[1, 1]
+        p, r = self._p, self._r
+        s00, s01, s11 = p[0] + r, p[1], p[4] + r
         det = s00 * s11 - s01 * s01
         z = np.atleast_2d(np.asarray(z, dtype=np.float64))
         d = z - np.array(self._x[:2])
@@ -126,8 +126,8 @@ class ConstantVelocityKF:
 
     def gate_halfsize(self, d2: float = GATE_D2) -> tuple[float, float]:
         """Half extents (x, y) of the box enclosing the gate ellipse."""
-        p, R = self._p, self.R
-        return math.sqrt(d2 * (p[0] + R[0, 0])), math.sqrt(d2 * (p[4] + R[1, 1]))
+        p, r = self._p, self._r
+        return math.sqrt(d2 * (p[0] + r)), math.sqrt(d2 * (p[4] + r))
 
     def update(self, z, meas_px: float | None = None) -> None:
         r = self._r if meas_px is None else meas_px**2

@@ -131,6 +131,14 @@ def _cubic_sample(img, x, y, wx, wy):
     _cubic_weights(x - fx, wx)
     _cubic_weights(y - fy, wy)
     s = 0.0
+    if 1 <= ix < w - 2 and 1 <= iy < h - 2:  # (most samples: no edge to replicate)
+        for r in range(4):
+            yy = iy - 1 + r
+            row = 0.0
+            for c in range(4):
+                row += wx[c] * img[yy, ix - 1 + c]
+            s += wy[r] * row
+        return s
     for r in range(4):
         yy = min(max(iy - 1 + r, 0), h - 1)
         row = 0.0
@@ -576,6 +584,7 @@ def warm_up() -> None:
         rest = RestReference(img, 40.3, 47.6, track.model.radius, m or Match(40.3, 47.6, 1.0, 10.0, 1.0))
         rest.shift(img, 0.2, 3.0)
         find_blobs(img, track.model, 40.0, 47.0, 30.0, 30.0)
+        track.model.any_in(img, np.array([[20, 27, 60, 67]], np.int64))
 
 
 if __name__ == "__main__":

@@ -93,15 +93,17 @@ class TemplateMatcher:
         score = self.model.prepared(self.model.score_window(frame_bgr, x0, y0, x1, y1))
         res = cv2.matchTemplate(score, self.seed_template, cv2.TM_CCOEFF_NORMED)
         cv2.patchNaNs(res, -1.0)
-        if float(res.max()) < self.skip_updated_above and self.model.has_blob:
+        top = float(res.max())
+        if top < self.skip_updated_above and self.model.has_blob:
             # The seed template alone is not convincing: let the updated one (dust, blur) compete. (Not
             # for a pattern: with no blob to centre on, an updated template would carry its drift on.)
             res2 = cv2.matchTemplate(score, self.template, cv2.TM_CCOEFF_NORMED)
             cv2.patchNaNs(res2, -1.0)
             res = np.maximum(res, res2)
+            top = max(top, float(res2.max()))
         streak = 0.0
-        if velocity is not None and float(res.max()) < self.skip_updated_above:
-            res, streak = self._streaks(score, res, velocity)
+        if velocity is not None and top < self.skip_updated_above:
+            res, streak = self._streaks(score, res, velocity, top)
         # The search box (hx, hy around the prediction) in result-grid indices.
         ox, oy = x0 + self.half - px, y0 + self.half - py  # grid index 0 -> offset from prediction
         c_lo, c_hi = max(math.ceil(-hx - 0.5 - ox), 0), min(math.floor(hx + 0.5 - ox), res.shape[1] - 1)
@@ -174,12 +176,12 @@ class TemplateMatcher:
         k = 1.0 + sand * (level_d - level_s) / level_s  # (the light on the sand, as in prepared())
         return (mid - sand) / k if k > 0.25 else float("nan")
 
-    def _streaks(self, score: np.ndarray, res: np.ndarray, velocity: tuple) -> tuple[np.ndarray, float]:
+    def _streaks(self, score: np.ndarray, res: np.ndarray, velocity: tuple, top: float) -> tuple[np.ndarray, float]:
         """A marker moving v px per frame is smeared over e |v| px by an exposure of e frames. For a
         fast marker (|v| >= STREAK_MIN_SPEED) the seed template smeared along v over half and a whole
-        frame's move competes too; returns the best NCC surface and the winning smear length (px; 0:
-        the round marker won). The centroid then covers the streak: its coverage centre is the
-        marker at mid-exposure."""
+        frame's move competes too (`top`: the maximum of `res`); returns the best NCC surface and the
+        winning smear length (px; 0: the round marker won). The centroid then covers the streak: its
+        coverage centre is the marker at mid-exposure."""
         vx, vy = velocity
         speed = math.hypot(vx, vy)
         if speed < STREAK_MIN_SPEED:
@@ -189,8 +191,9 @@ class TemplateMatcher:
             length = e * speed
             res_e = cv2.matchTemplate(score, self._smeared(vx / speed, vy / speed, length), cv2.TM_CCOEFF_NORMED)
             cv2.patchNaNs(res_e, -1.0)
-            if float(res_e.max()) > float(best.max()):
-                best, best_len = res_e, length
+            top_e = float(res_e.max())
+            if top_e > top:
+                best, best_len, top = res_e, length, top_e
         return best, best_len
 
     def _dilution(self, streak: float) -> float:

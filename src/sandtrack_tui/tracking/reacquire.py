@@ -9,6 +9,7 @@ wanted by two tracks, is ambiguous and left to the operator: the track keeps coa
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -33,10 +34,7 @@ def find_blobs(frame_bgr: np.ndarray, model: AppearanceModel, cx: float, cy: flo
                min_frac: float = 0.4, max_frac: float = 2.5, threshold: float | None = None) -> list[Blob]:
     """Blobs of the model's colour and roughly its size whose centre lies within (hx, hy) of (cx, cy);
     pixels count from `threshold` (default: the model's; lower for a streak, whose coverage is spread)."""
-    H, W = frame_bgr.shape[:2]
-    pad = int(np.ceil(model.radius)) + 2
-    x0, x1 = max(int(np.floor(cx - hx)) - pad, 0), min(int(np.ceil(cx + hx)) + pad + 1, W)
-    y0, y1 = max(int(np.floor(cy - hy)) - pad, 0), min(int(np.ceil(cy + hy)) + pad + 1, H)
+    x0, y0, x1, y1 = search_window(frame_bgr.shape, model, cx, cy, hx, hy)
     if x1 - x0 < 3 or y1 - y0 < 3:
         return []
     if model.kind in (DARK, BRIGHT):
@@ -75,6 +73,14 @@ def find_blobs(frame_bgr: np.ndarray, model: AppearanceModel, cx: float, cy: flo
             continue
         out += [b for b in parts if abs(b.x - cx) <= hx and abs(b.y - cy) <= hy]
     return out
+
+
+def search_window(shape: tuple, model: AppearanceModel, cx: float, cy: float, hx: float, hy: float) -> tuple:
+    """(x0, y0, x1, y1): the pixels find_blobs reads for centres within (hx, hy) of (cx, cy)."""
+    H, W = shape[:2]
+    pad = int(math.ceil(model.radius)) + 2
+    return (max(math.floor(cx - hx) - pad, 0), max(math.floor(cy - hy) - pad, 0),
+            min(math.ceil(cx + hx) + pad + 1, W), min(math.ceil(cy + hy) + pad + 1, H))
 
 
 def _split(model: AppearanceModel, score: np.ndarray, on: np.ndarray, area: float, x0: int, y0: int) -> list[Blob]:
