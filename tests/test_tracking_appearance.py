@@ -228,3 +228,19 @@ def test_a_carried_layer_of_touching_identical_beads_keeps_every_identity():
     for x, y in lattice:
         with contextlib.suppress(SandtrackError):
             learn(img, x + 0.3, y - 0.2, 13, 13)
+
+
+def test_a_coloured_sphere_lit_from_one_side_is_centred_on_its_outline():
+    # A lit sphere is paler on its lit side (the light adds the colours it lacks): its body's
+    # colour fades towards the light, its outline stays round. The centre is the outline's, not
+    # pulled towards the more saturated shaded side.
+    cx, cy, r = 40.3, 39.6, 5.0
+    img = _scene(RED, synthetic.SAND_BGR, r=r).astype(np.float64)
+    yy, xx = np.mgrid[0:80, 0:80]
+    body = np.hypot(xx - cx, yy - cy) <= r - 0.7
+    lit = np.clip((cy - yy) / r + 0.2, 0, 1)[..., None] * 0.2  # paler towards the top
+    img = np.where(body[..., None], (1 - lit) * img + lit * 225.0, img).astype(np.uint8)
+    model = learn(img, cx, cy, 14, 14)
+    assert model.kind == "colour"
+    x, y, _ = MarkerTrack(1, "cam", img, 0, cx + 1.0, cy - 0.8, 14, 14).matcher.refine_at(img, cx + 1.0, cy - 0.8)
+    assert abs(x - cx) < 0.08 and abs(y - cy) < 0.08

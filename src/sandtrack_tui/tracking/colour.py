@@ -18,6 +18,9 @@ from .appearance import COLOUR, MIN_SEPARATION, AppearanceModel
 
 EPS = 3.0  # added to B + G + R: keeps the chromaticity of near-black pixels finite
 MIN_LUMA_FRACTION = 0.25  # a marker darker than this share of the sand's brightness is left to brightness
+BODY_SHARE = 0.7  # a marker's body: its pixels within this share of its radius from its middle
+BODY_LEVEL_MIN = 0.6  # the body's least coloured tenth scores 1, unless it scores below this (then this) ...
+BODY_UNIFORM = 0.95  # ... or above this: a body this uniform has no paler side, only noise
 
 
 def chromaticity(bgr: np.ndarray) -> np.ndarray:
@@ -49,6 +52,24 @@ def achromatic(seed, model) -> bool:
     if len(disc) < 3:
         return False
     return bool(np.abs(chromaticity(disc.mean(axis=0)) - 1 / 3).max() < GREY_CHROMA)
+
+
+def _body_level(seed, inner: np.ndarray, chosen: np.ndarray, s_disc: np.ndarray) -> float:
+    """Score of the least coloured tenth of the marker's body (its pixels well inside its outline),
+    at least BODY_LEVEL_MIN. A lit sphere is less saturated on its lit side (the highlight and the
+    light add the colours it lacks) than on its shaded side: scaled so that the body's mean scores 1,
+    the lit side weighed less than the shaded side and the centroid slid towards the shade (a red
+    marker: ~0.2 px). Scaled so this level scores 1, the whole body weighs 1 (clipped) and only the
+    pixels of its outline, mixed with sand, weigh by their coverage, as for a bright marker
+    (brightness.py). A grey marker (white on beige sand) has no saturation to lose: 1."""
+    if np.abs(chromaticity(seed.bgr[inner][chosen].mean(axis=0)) - 1 / 3).max() < GREY_CHROMA:
+        return 1.0
+    xs, ys = seed.xx[inner][chosen], seed.yy[inner][chosen]
+    r_body = BODY_SHARE * np.sqrt(len(xs) / np.pi)
+    body = np.hypot(xs - xs.mean(), ys - ys.mean()) <= r_body
+    if np.count_nonzero(body) < 5:
+        return 1.0
+    return float(np.clip(np.percentile(s_disc[body], 10), BODY_LEVEL_MIN, 1.0))
 
 
 def learn_colour(seed) -> tuple[AppearanceModel | None, float]:
@@ -104,6 +125,11 @@ def learn_colour(seed) -> tuple[AppearanceModel | None, float]:
     separation = float(np.median(s_disc)) - sand_hi
     if separation < MIN_SEPARATION:
         return None, separation
+    level = _body_level(seed, inner, chosen, s_disc)
+    if level < BODY_UNIFORM:
+        wv, b = wv / level, b / level
+        s_sand, s_disc = s_sand / level, s_disc / level
+        sand_hi /= level
     threshold = float(np.clip(max(0.45, sand_hi + 0.1), 0.3, 0.7))
     # Soft marker area: the box's clipped scores, less what the sand among them scores on its own
     # (its noise clipped at 0 is positive on average), so the area does not grow with the box.
