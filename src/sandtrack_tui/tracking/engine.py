@@ -125,13 +125,12 @@ class Engine:
                 obs.append(t.apply(j, img, p.match if p else None, reattach=bool(p and p.reattach),
                                    jump=bool(p and p.jump)))
                 if t.model.crowd:
-                    self._remember_crowd((t.marker, cam), p)
+                    self._remember_crowd((t.marker, cam), (p.match.x, p.match.y) if p else None)
         for key, (x, y) in forced.items():
             t = self.tracks[key]
             obs.append(t.set_manual(frames[t.camera][0], None, x, y))
             if t.model.crowd:
-                self._crowd_at[key] = (float(x), float(y))
-                self._crowd_carried.pop(key, None)
+                self._remember_crowd(key, (float(x), float(y)))
         return obs
 
     # -- steps ---------------------------------------------------------------------------------
@@ -197,10 +196,11 @@ class Engine:
             beads = beads[d.min(axis=1) > r]
         return beads
 
-    def _remember_crowd(self, key, p) -> None:
-        """A crowd track's position this step (measured: its neighbours' next moves start here)."""
-        if p is not None:
-            self._crowd_at[key] = (p.match.x, p.match.y)
+    def _remember_crowd(self, key, xy) -> None:
+        """A crowd track's position this step, measured or placed (its neighbours' next moves start
+        here); None: missed."""
+        if xy is not None:
+            self._crowd_at[key] = xy
             self._crowd_carried.pop(key, None)
         else:
             self._crowd_at.pop(key, None)

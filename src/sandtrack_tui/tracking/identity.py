@@ -46,7 +46,7 @@ def match_proposals(proposals: pd.DataFrame, known: pd.DataFrame, motion_px_per_
     """Assign proposals (auto-seed rows: marker = proposal id, camera, x_px, y_px, w, h) to known
     markers (`known_positions`). Returns {proposal id: (marker id, distance px)} for the matched
     proposals; the distance is the mean over the cameras both have. A proposal of one camera only that
-is left over takes a marker whose place in that camera no matched proposal holds, if one is there.
+    is left over takes a marker whose place in that camera no matched proposal holds, if one is there.
 
     A proposal and a marker can match when, in every camera both have a position in, the blob lies
     within max(half its diameter, 2 px) + motion_px_per_frame x the marker's gap in frames there
