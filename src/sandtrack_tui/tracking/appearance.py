@@ -47,6 +47,10 @@ PART_OF_MARKER = 0.5
 CENTRE_RING_SHARE = 0.75  # share of a circle of half its radius around a seed box's centre that is marker
 FOLLOW_RANGE = (0.5, 1.5)  # a dark model's contrast follows its marker within these multiples of the seed's ...
 FOLLOW_DEADBAND = 0.1  # ... once its middle's score has changed by more than this share
+# A window whose sand level (the marker removed) spans this much, in marker-contrast units, is crossed by
+# a shadow's edge: each pixel is read against the sand on its own side of it.
+SHADOW_STEP = 0.3
+_DISCS: dict = {}  # diameter -> the opening's disc
 
 
 @dataclass
@@ -85,18 +89,44 @@ class AppearanceModel:
         """A brightness model's score window as the matcher reads it. Brightness depends on the light:
         in a shadow (the tool's, a furrow's) the sand and the marker are darker by the same factor k.
         The window's median (its sand, unless markers fill most of it) gives k, and the score is that
-        of the window's brightness divided by k: shadows do not look like a dark
-        marker, and a marker in a shadow still scores 1. Then small gaps inside the marker are filled
-        (morphological closing): the specular highlight of a dark bead, the dark pole of a bright one
-        are marker too. Colour and texture scores are returned as they are."""
+        of the window's brightness divided by k: shadows do not look like a dark marker, and a
+        marker in a shadow still scores 1. Where a shadow's edge crosses a dark marker's window, k is
+        that of the sand on each pixel's side of the edge (_shadow_edge). Then small gaps inside the
+        marker are filled (morphological closing): the specular highlight of a dark bead, the dark
+        pole of a bright one are marker too. Colour and texture scores are returned as they are."""
         if self.kind not in (DARK, BRIGHT) or min(score.shape) < 3:
             return score
         b0 = float(np.median(score))
-        if abs(b0) > 0.05 and b0 < MARKER_MEDIAN:
-            level_d, level_s = self.levels
+        sand = self._shadow_edge(score) if self.kind == DARK and not self.crowd else None
+        level_d, level_s = self.levels
+        if sand is not None:  # the sand level on each pixel's own side of the edge
+            k = np.clip(1.0 + sand * np.float32((level_d - level_s) / level_s), 0.25, 2.0)
+            score = (score - sand) / k
+        elif abs(b0) > 0.05 and b0 < MARKER_MEDIAN:
             k = min(max(1.0 + b0 * (level_d - level_s) / level_s, 0.25), 2.0)
             score = (score - np.float32(b0)) * np.float32(1.0 / k)
         return np.maximum(score, cv2.morphologyEx(score, cv2.MORPH_CLOSE, _CLOSE))
+
+    def _shadow_edge(self, score: np.ndarray) -> np.ndarray | None:
+        """The sand level under each pixel of a window crossed by a shadow's edge (the tool's, a
+        furrow's), or None when the window's sand is lit alike. (For a dark marker: a shadow's sand
+        is as dark as the marker in the light and would be taken for it; a bright marker's surround
+        may be a pattern, such as a board's, that no level per pixel describes.) A grey opening with a disc wider than
+        the marker removes the marker and keeps whatever is larger than it: the sand on either side of
+        the edge, even where the shadow fills most of the window and its sand is as dark as the marker
+        in the light (then smoothed, and raised by the median of what it removed, since an opening of
+        sand grains sits below their median)."""
+        d = 2 * int(np.ceil(self.radius)) + 3
+        if min(score.shape) <= d:
+            return None
+        disc = _DISCS.get(d)
+        if disc is None:
+            disc = _DISCS[d] = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (d, d))
+        sand = cv2.blur(cv2.morphologyEx(score, cv2.MORPH_OPEN, disc, borderType=cv2.BORDER_REPLICATE), (d, d),
+                        borderType=cv2.BORDER_REPLICATE)
+        if float(sand.max() - sand.min()) < SHADOW_STEP:
+            return None
+        return sand + np.float32(np.median(score - sand))
 
     def score_window(self, frame, x0: int, y0: int, x1: int, y1: int) -> np.ndarray:
         """score() of the window [y0:y1, x0:x1] of a frame (inside it), also of a frame still in its
