@@ -50,7 +50,7 @@ FOLLOW_DEADBAND = 0.1  # ... once its middle's score has changed by more than th
 # A window whose sand level (the marker removed) spans this much, in marker-contrast units, is crossed by
 # a shadow's edge: each pixel is read against the sand on its own side of it.
 SHADOW_STEP = 0.3
-_DISCS: dict = {}  # diameter -> the opening's disc
+_SQUARES: dict = {}  # side -> the opening's structuring element
 
 
 @dataclass
@@ -111,7 +111,7 @@ class AppearanceModel:
         """The sand level under each pixel of a window crossed by a shadow's edge (the tool's, a
         furrow's), or None when the window's sand is lit alike. (For a dark marker: a shadow's sand
         is as dark as the marker in the light and would be taken for it; a bright marker's surround
-        may be a pattern, such as a board's, that no level per pixel describes.) A grey opening with a disc wider than
+        may be a pattern, such as a board's, that no level per pixel describes.) A grey opening with a square wider than
         the marker removes the marker and keeps whatever is larger than it: the sand on either side of
         the edge, even where the shadow fills most of the window and its sand is as dark as the marker
         in the light (then smoothed, and raised by the median of what it removed, since an opening of
@@ -119,10 +119,10 @@ class AppearanceModel:
         d = 2 * int(np.ceil(self.radius)) + 3
         if min(score.shape) <= d:
             return None
-        disc = _DISCS.get(d)
-        if disc is None:
-            disc = _DISCS[d] = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (d, d))
-        sand = cv2.blur(cv2.morphologyEx(score, cv2.MORPH_OPEN, disc, borderType=cv2.BORDER_REPLICATE), (d, d),
+        square = _SQUARES.get(d)
+        if square is None:  # (a square: separable, a few times faster than a disc, and no marker holds it)
+            square = _SQUARES[d] = np.ones((d, d), np.uint8)
+        sand = cv2.blur(cv2.morphologyEx(score, cv2.MORPH_OPEN, square, borderType=cv2.BORDER_REPLICATE), (d, d),
                         borderType=cv2.BORDER_REPLICATE)
         if float(sand.max() - sand.min()) < SHADOW_STEP:
             return None

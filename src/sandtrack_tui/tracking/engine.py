@@ -23,7 +23,7 @@ from .globalmotion import image_shift
 from .matcher import Match
 from .reacquire import find_blobs, search_window, unexplained
 from .stereo import StereoCheck
-from .tracker import SHORT_MISS, MarkerTrack, Observation
+from .tracker import LOST, SHORT_MISS, MarkerTrack, Observation
 
 JUMP_FRAMES = 2  # frames after a miss during which a track is searched a largest move per frame unseen
 
@@ -378,6 +378,7 @@ class Engine:
         cands: dict[tuple, list] = {}  # track key -> [(d2, blob id, blob)]
         jumpers: set = set()  # tracks searched a largest move per frame beyond their gate (a streak)
         far: set = set()  # tracks searched beyond their gate (any rival is then ambiguous)
+        unanchored: set = set()  # lost tracks the other view does not pin to a line: any lost marker may be theirs
         windows: dict = {}  # track key -> (x, y, hx, hy) searched
         seen: list = []  # one blob seen through several tracks' windows is one blob
         for t in tracks:
@@ -436,12 +437,14 @@ class Engine:
                 keep = d2 <= t.params.gate_d2
             if jump or carried:
                 far.add(key)
+            if t.status == LOST and band_from is None:
+                unanchored.add(key)
             if jump:
                 jumpers.add(key)
             cands[key] = [(float(d), self._blob_id(seen, b, t.model.radius), b)
                           for d, b, k in zip(d2, blobs, keep, strict=True) if k]
         n = 0
-        for key, blob in self._assign(cam, int(frames[cam][0]), cands, far, windows).items():
+        for key, blob in self._assign(cam, int(frames[cam][0]), cands, far, windows, unanchored).items():
             m = self.tracks[key].verify_at(img, blob.x, blob.y, int(frames[cam][0]) if key in jumpers else None)
             if m is not None:
                 props[key] = _Proposal(m, reattach=True, jump=key in jumpers)
@@ -482,14 +485,16 @@ class Engine:
         seen.append((b.x, b.y))
         return len(seen) - 1
 
-    def _assign(self, cam, frame, cands: dict, far=frozenset(), windows=None) -> dict:
+    def _assign(self, cam, frame, cands: dict, far=frozenset(), windows=None, unanchored=frozenset()) -> dict:
         """Tracks to blobs, most likely pair first; a pair is taken only if neither the track nor the
         blob has a rival nearly as likely (likelihood ratio > e^3 ≈ 20): ambiguity is left alone.
         Blobs inside a track's gate go first: a blob only a track searched beyond its gate (`far`)
         could reach is left to the tracks whose gate holds it. Then a far track takes a blob outside
         its gate only when neither the track nor the blob has any rival, and the blob lies in no
         other still searching track's window (`windows`: that track may be the blob's marker even if
-        it did not see the blob there)."""
+        it did not see the blob there). A lost track with no other view to pin it (`unanchored`) is
+        nowhere in particular: a blob in its gate lying in another searching track's window may be
+        that track's marker just as well (ambiguous)."""
         gated, beyond = {}, {}
         for k, lst in cands.items():
             if k not in far:
@@ -499,7 +504,7 @@ class Engine:
             gated[k] = [c for c in lst if c[0] <= gate]
             beyond[k] = [c for c in lst if c[0] > gate]
         blocked_tracks, blocked_blobs = set(), set()
-        out = self._assign_pass(cam, frame, gated, blocked_tracks, blocked_blobs, None)
+        out = self._assign_pass(cam, frame, gated, blocked_tracks, blocked_blobs, None, unanchored, windows)
         if any(beyond.values()):
             taken = set(out)
             searching = {k: w for k, w in (windows or {}).items() if k not in taken}
@@ -507,8 +512,11 @@ class Engine:
             out.update(self._assign_pass(cam, frame, beyond, blocked_tracks, blocked_blobs, searching))
         return out
 
-    def _assign_pass(self, cam, frame, cands: dict, blocked_tracks: set, blocked_blobs: set, windows) -> dict:
-        """One greedy pass of _assign; `windows` given: the candidates lie beyond their tracks' gates."""
+    def _assign_pass(self, cam, frame, cands: dict, blocked_tracks: set, blocked_blobs: set, windows,
+                     unanchored=frozenset(), all_windows=None) -> dict:
+        """One greedy pass of _assign; `windows` given: the candidates lie beyond their tracks' gates.
+        A track of `unanchored` has as rivals the other tracks of `all_windows` not yet given a blob
+        whose window holds its blob."""
         out = {}
         cands = {k: sorted(v, key=lambda c: c[0]) for k, v in cands.items() if v}
         while True:
@@ -533,6 +541,9 @@ class Engine:
             if far:
                 near += [d2 for k, (wx, wy, hx, hy) in windows.items()
                          if k != key and abs(blob.x - wx) <= hx and abs(blob.y - wy) <= hy]
+            elif key in unanchored and all_windows:
+                near += [d2 for k, (wx, wy, hx, hy) in all_windows.items()
+                         if k != key and k not in out and abs(blob.x - wx) <= hx and abs(blob.y - wy) <= hy]
             blocked_tracks.add(key)
             blocked_blobs.add(bid)
             if near:

@@ -95,15 +95,23 @@ def _split(model: AppearanceModel, score: np.ndarray, on: np.ndarray, area: floa
 def _blobs_in_score(model: AppearanceModel, score: np.ndarray, x0: int, y0: int, cx: float, cy: float,
                     hx: float, hy: float, min_frac: float, max_frac: float, threshold: float | None) -> list[Blob]:
     """find_blobs on a prepared score window (brightness models: the sand level is the window's)."""
-    mask = (score >= (model.threshold if threshold is None else threshold)).astype(np.uint8)
-    n, labels = cv2.connectedComponents(mask, connectivity=8)
+    t = model.threshold if threshold is None else threshold
+    mask = (score >= t).astype(np.uint8)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     if n <= 1:
         return []
     floor = model.weight_floor
     weights = np.clip((score - floor) / (1.0 - floor), 0.0, 1.0)
+    # Most components of a brightness window are sand grains past the threshold: a bound on each
+    # one's soft area (its own weights, plus its box's rim at most as heavy as a pixel just below the
+    # threshold) leaves only those that may be a marker to look at one by one.
+    own = np.bincount(labels.ravel(), weights=weights.ravel(), minlength=n)
+    rim = (stats[:, cv2.CC_STAT_WIDTH] + 2) * (stats[:, cv2.CC_STAT_HEIGHT] + 2) - stats[:, cv2.CC_STAT_AREA]
+    may = (stats[:, cv2.CC_STAT_AREA] >= 2) & (own + rim * min(max((t - floor) / (1.0 - floor), 0.0), 1.0)
+                                               >= min_frac * model.disc_area)
     out = []
     for k, sl in enumerate(find_objects(labels), start=1):
-        if sl is None:
+        if sl is None or not may[k]:
             continue
         ya, yb = max(sl[0].start - 1, 0), min(sl[0].stop + 1, mask.shape[0])
         xa, xb = max(sl[1].start - 1, 0), min(sl[1].stop + 1, mask.shape[1])
