@@ -14,6 +14,7 @@ from sandtrack_tui.errors import SandtrackError
 from sandtrack_tui.tracking import synthetic
 from sandtrack_tui.tracking.appearance import learn
 from sandtrack_tui.tracking.engine import Engine
+from sandtrack_tui.tracking.matcher import TemplateMatcher
 from sandtrack_tui.tracking.seeding import detect_markers, marker_box, snap_to_marker
 from sandtrack_tui.tracking.tracker import MarkerTrack
 from sandtrack_tui.video import FrameSource, to_bgr8
@@ -71,6 +72,23 @@ def test_a_glossy_bead_in_a_box_of_its_size_is_one_marker():
         img[38:40, 40:42] = 235
         m = learn(img, 41.8, 38.6, 2 * r + 3, 2 * r + 3)
         assert m.kind == "dark" and not m.crowd and abs(m.radius - r) < 0.35
+
+
+@pytest.mark.parametrize("shade", [0.45, 0.6])
+def test_a_dark_bead_crossed_by_a_shadows_edge_is_one_marker_centred(shade):
+    # The tool's shadow: its sand as dark as the bead in the light (0.45) or lighter (0.6), its edge
+    # above the bead, across its top, through its middle, across its bottom. Each pixel is read
+    # against the sand on its side of the edge: the bead covers its own disc (not the shadow as well:
+    # that is two beads merged) and its centre does not move.
+    cx, cy, r = 40.3, 39.6, 5.0
+    lit = _scene(SMOKED_GLASS, synthetic.SAND_BGR, r=r)
+    matcher = TemplateMatcher(learn(lit, cx + 1.5, cy - 1.0, 2 * r + 3, 2 * r + 3), lit, cx, cy)
+    for edge in (-9, -3, 0, 3):
+        img = lit.astype(np.float32)
+        img[int(cy) + edge:] *= shade
+        m = matcher.match(img.astype(np.uint8), cx, cy, 4, 4)
+        assert m is not None and m.score > 0.8 and 0.8 < m.colour_frac < 1.2
+        assert np.hypot(m.x - cx, m.y - cy) < 0.1
 
 
 def _clip(marker, sand, n=40, seed=4, **kw):

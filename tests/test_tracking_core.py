@@ -272,3 +272,21 @@ def test_missed_crowd_markers_are_carried_by_neighbours_and_given_back_only_when
     assert crowd.assign(np.array([[0.0, 0.0]]), np.array([[3.5, 0.0]]), 0.5 * r, 0.5 * r) == ({}, [])
     pairs, ambiguous = crowd.assign(np.array([[0.0, 0.0]]), np.array([[1.0, 0.0], [-2.0, 0.0]]), 0.5 * r, 0.5 * r)
     assert pairs == {} and ambiguous == [0]
+
+
+def test_a_lost_marker_no_other_view_pins_does_not_take_a_bead_another_lost_marker_may_own():
+    from sandtrack_tui.tracking.reacquire import Blob
+
+    # Two markers lost in one camera, the other view not tracking them: a bead turns up 25 px from
+    # where the first was last seen, inside its widened gate and inside the second's search window
+    # (not its gate). It may be either marker's: flagged, not given to the first.
+    bead = Blob(276.8, 165.8, 90.0)
+    cands = {(6, "front"): [(1.97, 0, bead)], (3, "front"): []}
+    windows = {(6, "front"): (288.9, 187.7, 54.0, 54.0), (3, "front"): (241.0, 126.5, 80.0, 80.0)}
+    eng = Engine()
+    assert eng._assign("front", 336, cands, windows=windows, unanchored={(6, "front")}) == {}
+    assert eng.ambiguous and eng.ambiguous[0]["marker"] == 6
+    # Pinned by the other view (its band holds the bead), or with no other marker searching there: taken.
+    assert eng._assign("front", 336, cands, windows=windows) == {(6, "front"): bead}
+    alone = {(6, "front"): windows[(6, "front")]}
+    assert Engine()._assign("front", 336, cands, windows=alone, unanchored={(6, "front")}) == {(6, "front"): bead}
