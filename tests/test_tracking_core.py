@@ -274,7 +274,7 @@ def test_missed_crowd_markers_are_carried_by_neighbours_and_given_back_only_when
     assert pairs == {} and ambiguous == [0]
 
 
-def test_a_lost_marker_no_other_view_pins_does_not_take_a_bead_another_lost_marker_may_own():
+def test_a_coasting_marker_does_not_take_a_bead_another_searching_marker_may_own():
     from sandtrack_tui.tracking.reacquire import Blob
 
     # Two markers lost in one camera, the other view not tracking them: a bead turns up 25 px from
@@ -288,5 +288,9 @@ def test_a_lost_marker_no_other_view_pins_does_not_take_a_bead_another_lost_mark
     assert eng.ambiguous and eng.ambiguous[0]["marker"] == 6
     # Pinned by the other view (its band holds the bead), or with no other marker searching there: taken.
     assert eng._assign("front", 336, cands, windows=windows) == {(6, "front"): bead}
+    # A coasting marker whose prediction is nearer the bead than the taker's (it did not see it beside
+    # the tool): whose bead it is, is not known.
+    near = {**windows, (3, "front"): (279.0, 163.0, 20.0, 20.0)}
+    assert Engine()._assign("front", 336, cands, windows=near) == {}
     alone = {(6, "front"): windows[(6, "front")]}
     assert Engine()._assign("front", 336, cands, windows=alone, unanchored={(6, "front")}) == {(6, "front"): bead}

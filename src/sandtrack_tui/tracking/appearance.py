@@ -85,22 +85,20 @@ class AppearanceModel:
             return np.zeros(bgr.shape[:2], dtype=np.float32)
         return kernels.colour_score(bgr, *self._score_coeffs)
 
-    def prepared(self, score: np.ndarray, shadow: bool = True) -> np.ndarray:
+    def prepared(self, score: np.ndarray) -> np.ndarray:
         """A brightness model's score window as the matcher reads it. Brightness depends on the light:
         in a shadow (the tool's, a furrow's) the sand and the marker are darker by the same factor k.
         The window's median (its sand, unless markers fill most of it) gives k, and the score is that
         of the window's brightness divided by k: shadows do not look like a dark marker, and a
         marker in a shadow still scores 1. Where a shadow's edge crosses a dark marker's window, k is
-        that of the sand on each pixel's side of the edge (_shadow_edge; `shadow`: only in a window
-        around where the marker is expected; a wide search may hold the tool itself, an opaque body
-        larger than a marker that the edge's reading would take for shadowed sand, making any bead
-        beside it a candidate). Then small gaps inside the marker are filled (morphological closing):
+        that of the sand on each pixel's side of the edge (_shadow_edge). Then small gaps inside the
+        marker are filled (morphological closing):
         the specular highlight of a dark bead, the dark pole of a bright one are marker too. Colour
         and texture scores are returned as they are."""
         if self.kind not in (DARK, BRIGHT) or min(score.shape) < 3:
             return score
         b0 = float(np.median(score))
-        sand = self._shadow_edge(score) if self.kind == DARK and not self.crowd and shadow else None
+        sand = self._shadow_edge(score) if self.kind == DARK and not self.crowd else None
         level_d, level_s = self.levels
         if sand is not None:  # the sand level on each pixel's own side of the edge
             k = np.clip(1.0 + sand * np.float32((level_d - level_s) / level_s), 0.25, 2.0)

@@ -492,9 +492,11 @@ class Engine:
         could reach is left to the tracks whose gate holds it. Then a far track takes a blob outside
         its gate only when neither the track nor the blob has any rival, and the blob lies in no
         other still searching track's window (`windows`: that track may be the blob's marker even if
-        it did not see the blob there). A lost track with no other view to pin it (`unanchored`) is
-        nowhere in particular: a blob in its gate lying in another searching track's window may be
-        that track's marker just as well (ambiguous)."""
+        it did not see the blob there). Inside the gates too, a blob in another still searching
+        track's window and nearer that track's prediction than this one's may be that track's marker
+        (which did not see it: half hidden still, or beside the tool), and a lost track no other view
+        pins (`unanchored`) is nowhere in particular: any searching track's window holding its blob is
+        a rival. Both are ambiguous."""
         gated, beyond = {}, {}
         for k, lst in cands.items():
             if k not in far:
@@ -515,8 +517,9 @@ class Engine:
     def _assign_pass(self, cam, frame, cands: dict, blocked_tracks: set, blocked_blobs: set, windows,
                      unanchored=frozenset(), all_windows=None) -> dict:
         """One greedy pass of _assign; `windows` given: the candidates lie beyond their tracks' gates.
-        A track of `unanchored` has as rivals the other tracks of `all_windows` not yet given a blob
-        whose window holds its blob."""
+        Inside the gates, the other tracks of `all_windows` not yet given a blob whose window holds a
+        track's blob are its rivals when their prediction is nearer it, or always for a track of
+        `unanchored`."""
         out = {}
         cands = {k: sorted(v, key=lambda c: c[0]) for k, v in cands.items() if v}
         while True:
@@ -541,9 +544,12 @@ class Engine:
             if far:
                 near += [d2 for k, (wx, wy, hx, hy) in windows.items()
                          if k != key and abs(blob.x - wx) <= hx and abs(blob.y - wy) <= hy]
-            elif key in unanchored and all_windows:
+            elif all_windows:
+                ox, oy = all_windows[key][:2]
+                own = math.hypot(blob.x - ox, blob.y - oy)
                 near += [d2 for k, (wx, wy, hx, hy) in all_windows.items()
-                         if k != key and k not in out and abs(blob.x - wx) <= hx and abs(blob.y - wy) <= hy]
+                         if k != key and k not in out and abs(blob.x - wx) <= hx and abs(blob.y - wy) <= hy
+                         and (key in unanchored or math.hypot(blob.x - wx, blob.y - wy) < own)]
             blocked_tracks.add(key)
             blocked_blobs.add(bid)
             if near:

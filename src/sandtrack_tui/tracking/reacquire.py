@@ -38,7 +38,7 @@ def find_blobs(frame_bgr: np.ndarray, model: AppearanceModel, cx: float, cy: flo
     if x1 - x0 < 3 or y1 - y0 < 3:
         return []
     if model.kind in (DARK, BRIGHT):
-        score = model.prepared(model.score_window(frame_bgr, x0, y0, x1, y1), shadow=False)
+        score = model.prepared(model.score_window(frame_bgr, x0, y0, x1, y1))
         return _blobs_in_score(model, score, x0, y0, cx, cy, hx, hy, min_frac, max_frac, threshold)
     mask, found, bx0, by0, bx1, by1 = model.mask_box(frame_bgr, x0, y0, x1, y1, threshold)
     if not found:  # most searches of a hidden marker: nothing of its colour in sight
