@@ -186,25 +186,32 @@ def _robust_circle(x, y, rounds, outward):
         r = r2 ** 0.5
         if k == rounds - 1:
             break
-        res = np.empty(m)
-        for i in range(m):
-            res[i] = np.hypot(x[i] - a1, y[i] - a2) - r
-        scale = 1.4826 * np.sort(np.abs(res))[m // 2] + 0.05
-        for i in range(m):
-            q = max(res[i], 0.0) / scale if outward else res[i] / (2 * scale)
-            w[i] = 1.0 / (1.0 + q * q)
+        _cauchy_weights(x, y, a1, a2, r, outward, w)
     return True, a1, a2, r
+
+
+@_jit
+def _cauchy_weights(x, y, cx, cy, r, outward, w):
+    """Weights (into `w`) of the points (x, y) by their distance from the circle (cx, cy, r), on the
+    scale of the median distance (Cauchy); `outward`: points inside the circle keep weight 1."""
+    m = x.shape[0]
+    res = np.empty(m)
+    for i in range(m):
+        res[i] = np.hypot(x[i] - cx, y[i] - cy) - r
+    scale = 1.4826 * np.sort(np.abs(res))[m // 2] + 0.05
+    for i in range(m):
+        q = max(res[i], 0.0) / scale if outward else res[i] / (2 * scale)
+        w[i] = 1.0 / (1.0 + q * q)
 
 
 @_jit
 def _robust_centre(x, y, radius, rounds, outward):
     """The centre of a circle of the given radius through the points (x, y) (Gauss-Newton on the
     distances, from the origin), with the Cauchy re-weighting of _robust_circle: (ok, cx, cy, radius).
-    Beads of one size touching each other: a free radius grows over the neighbours' outlines, a known
-    one leaves those points outside the circle, where they are suspects."""
+    Beads of one size touching each other: a free circle is drawn off by the outlines of the neighbours
+    pressed against a bead, a circle of its known radius leaves them outside, where they are suspects."""
     m = x.shape[0]
     w = np.ones(m)
-    res = np.empty(m)
     a1 = a2 = 0.0
     for k in range(rounds):
         for _ in range(8):
@@ -230,12 +237,7 @@ def _robust_centre(x, y, radius, rounds, outward):
                 break
         if k == rounds - 1:
             break
-        for i in range(m):
-            res[i] = np.hypot(x[i] - a1, y[i] - a2) - radius
-        scale = 1.4826 * np.sort(np.abs(res))[m // 2] + 0.05
-        for i in range(m):
-            q = max(res[i], 0.0) / scale if outward else res[i] / (2 * scale)
-            w[i] = 1.0 / (1.0 + q * q)
+        _cauchy_weights(x, y, a1, a2, radius, outward, w)
     return True, a1, a2, radius
 
 
