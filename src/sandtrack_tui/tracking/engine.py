@@ -95,7 +95,7 @@ class Engine:
                 lv.append(t)
             crowd = self._neighbours(live[cam])
             for t in live[cam]:
-                if t.coasting:
+                if t.coasting and not t.awaiting_outline:
                     continue
                 m = t.propose(img, j)
                 if m is not None and self._crowded_reject(t, m, crowd.get(id(t), ())):

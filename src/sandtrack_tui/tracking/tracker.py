@@ -132,6 +132,14 @@ class MarkerTrack:
         """Not followed: unseen (a held track is followed, though flagged)."""
         return self.status in (OCCLUDED, LOST) and not self.held
 
+    @property
+    def awaiting_outline(self) -> bool:
+        """A seed among touching lookalikes that no frame has confirmed yet (its outline was not found
+        all round it): still searched where it was seeded until it is declared lost, as its match is
+        taken only with its outline. (A seed is where the operator or auto-seed saw the bead: it has not
+        gone anywhere a coasting track's prediction would have to guess.)"""
+        return self.model.crowd and self.status == OCCLUDED and self.counts[TRACKED] == 0
+
     def predict(self) -> None:
         self.kf.advance()
 
