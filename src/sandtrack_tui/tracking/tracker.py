@@ -135,10 +135,11 @@ class MarkerTrack:
     @property
     def awaiting_outline(self) -> bool:
         """A seed among touching lookalikes that no frame has confirmed yet (its outline was not found
-        all round it): still searched where it was seeded until it is declared lost, as its match is
-        taken only with its outline. (A seed is where the operator or auto-seed saw the bead: it has not
-        gone anywhere a coasting track's prediction would have to guess.)"""
-        return self.model.crowd and self.status == OCCLUDED and self.counts[TRACKED] == 0
+        all round it), missed for at most SHORT_MISS frames: still searched where it was seeded, as its
+        match is taken only with its outline. (Where the bead was seen a few frames ago it most likely
+        still is; later it may have been carried anywhere.)"""
+        return self.model.crowd and self.status == OCCLUDED and self.counts[TRACKED] == 0 \
+            and self.misses <= SHORT_MISS
 
     def predict(self) -> None:
         self.kf.advance()
