@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pandas as pd
 import pytest
@@ -272,3 +273,20 @@ def test_missed_crowd_markers_are_carried_by_neighbours_and_given_back_only_when
     assert crowd.assign(np.array([[0.0, 0.0]]), np.array([[3.5, 0.0]]), 0.5 * r, 0.5 * r) == ({}, [])
     pairs, ambiguous = crowd.assign(np.array([[0.0, 0.0]]), np.array([[1.0, 0.0], [-2.0, 0.0]]), 0.5 * r, 0.5 * r)
     assert pairs == {} and ambiguous == [0]
+
+
+def test_missed_crowd_markers_are_carried_by_the_image_motion_around_them_where_it_is_clear():
+    from sandtrack_tui.tracking import crowd
+
+    rng = np.random.default_rng(2)
+    grain = cv2.GaussianBlur(rng.uniform(0, 255, (120, 160)).astype(np.float32), (0, 0), 1.5)
+    grain = cv2.normalize(grain, None, 20, 235, cv2.NORM_MINMAX)
+    grain[:, 100:] = 128.0  # a featureless strip: no motion can be measured there
+    move = (1.7, -2.3)
+    prev = cv2.cvtColor(grain.astype(np.uint8), cv2.COLOR_GRAY2BGR)
+    cur = cv2.warpAffine(prev, np.float32([[1, 0, move[0]], [0, 1, move[1]]]), (160, 120), flags=cv2.INTER_CUBIC,
+                         borderMode=cv2.BORDER_REFLECT)
+    points = np.array([[40.0, 50.0], [70.0, 60.0], [130.0, 60.0], [np.nan, np.nan]])
+    where = crowd.flowed(prev, cur, points, 5.0)
+    assert np.abs(where[:2] - points[:2] - move).max() < 0.1
+    assert np.isnan(where[2:]).all()

@@ -16,10 +16,49 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 MIN_NEIGHBOURS = 2  # measured neighbours a missed marker's carried position needs
+FLOW_BACK_PX = 0.3  # a bead's image motion is trusted when tracking it back lands within this of its start
+FLOW_LEVELS = 2  # pyramid levels of the image motion (a layer moves a few px per frame, a bead is ~15 px)
+
+
+def flowed(prev_bgr: np.ndarray, cur_bgr: np.ndarray, points: np.ndarray, radius: float) -> np.ndarray:
+    """Positions (n, 2) of `points` of the previous frame moved by the image motion around them
+    (pyramidal Lucas-Kanade on the brightness in a window of a bead's size: the shading and highlight
+    of a bead move with it even where its outline is pressed against its neighbours'); NaN where the
+    motion is not clear (too little texture, or tracking the point back does not land on its start)."""
+    pts = np.asarray(points, float).reshape(-1, 2)
+    out = np.full_like(pts, np.nan)
+    ok = np.isfinite(pts).all(axis=1)
+    if not ok.any() or prev_bgr.shape != cur_bgr.shape:
+        return out
+    H, W = cur_bgr.shape[:2]
+    pad = int(4 * radius) + 8
+    x0, y0 = max(int(pts[ok, 0].min()) - pad, 0), max(int(pts[ok, 1].min()) - pad, 0)
+    x1, y1 = min(int(pts[ok, 0].max()) + pad + 1, W), min(int(pts[ok, 1].max()) + pad + 1, H)
+    if x1 - x0 < 8 or y1 - y0 < 8:
+        return out
+    a, b = _grey(prev_bgr[y0:y1, x0:x1]), _grey(cur_bgr[y0:y1, x0:x1])
+    p0 = (pts[ok] - (x0, y0)).astype(np.float32).reshape(-1, 1, 2)
+    win = max(2 * int(round(radius)) + 1, 9)
+    kw = dict(winSize=(win, win), maxLevel=FLOW_LEVELS,
+              criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
+    p1, st1, _ = cv2.calcOpticalFlowPyrLK(a, b, p0, None, **kw)
+    back, st2, _ = cv2.calcOpticalFlowPyrLK(b, a, p1, None, **kw)
+    good = (st1.ravel() == 1) & (st2.ravel() == 1) & \
+        (np.hypot(*(back - p0).reshape(-1, 2).T) <= FLOW_BACK_PX)
+    moved = p1.reshape(-1, 2).astype(float) + (x0, y0)
+    moved[~good] = np.nan
+    out[ok] = moved
+    return out
+
+
+def _grey(bgr: np.ndarray) -> np.ndarray:
+    img = np.ascontiguousarray(bgr)
+    return cv2.cvtColor(img, cv2.COLOR_BGR2GRAY) if img.ndim == 3 else img
 
 
 def carried(missed: np.ndarray, measured_from: np.ndarray, measured_to: np.ndarray, reach: float,

@@ -34,6 +34,8 @@ DEFAULT_BOX_PX = 16
 TOUCHING_RELAX = 0.85
 MERGED_COVERAGE = 1.4  # marker coverage (in seed discs) above which a blob is two markers merged
 HELD_MEAS_PX = 1.0  # measurement noise of a held marker's template peak (no outline), px
+CARRIED_AGREE_PX = 1.0  # a carried crowd marker's outline centre this near its carried position re-confirms it
+CARRIED_MIN_SCORE = 0.5
 SHORT_MISS = 3  # frames unseen up to which a returning marker's match is judged leniently (verify_at)
 
 
@@ -124,6 +126,7 @@ class MarkerTrack:
         self._rest: RestReference | None = None
         self.rest_frames = 0
         self.held = False
+        self.carried = False  # missed among touching lookalikes, moved with the layer (engine.py): not lost
         self._last_measured: tuple | None = (frame_index, x, y)  # (frame, x, y) of the last match or point
 
     # -- per frame -----------------------------------------------------------------------------
@@ -260,6 +263,21 @@ class MarkerTrack:
         m.d2 = self.kf.d2(m.x, m.y)
         return m
 
+    def confirm_carried(self, frame_bgr: np.ndarray, x: float, y: float) -> Match | None:
+        """A crowd marker carried by the layer's motion to (x, y) (engine.py), measured again: its
+        template found there as on any return (verify_at) and its outline, a circle of its radius seen on
+        at least three sides, centred within CARRIED_AGREE_PX of (x, y). Two independent estimates of
+        where the bead is agree; else None (it stays flagged)."""
+        m = self.matcher.match(frame_bgr, x, y, 2.0, 2.0)
+        if m is None or m.score < CARRIED_MIN_SCORE or self._cut_by_border(frame_bgr, m):
+            return None
+        c = self.matcher.outline_near(frame_bgr, x, y, 3)
+        if c is None or math.hypot(c[0] - x, c[1] - y) > CARRIED_AGREE_PX:
+            return None
+        m.x, m.y, m.outline, m.used_centroid = c[0], c[1], True, True
+        m.d2 = self.kf.d2(m.x, m.y)
+        return m
+
     def apply(self, frame_index: int, frame_bgr: np.ndarray | None, m: Match | None,
               reattach: bool = False, jump: bool = False) -> Observation:
         """Commit this frame's outcome and return its observation. `jump`: re-attached beyond the
@@ -309,7 +327,7 @@ class MarkerTrack:
             self._rest = None
             self.kf.coast()
             self.misses += 1
-            if self.misses > p.lost_after:
+            if self.misses > p.lost_after and not self.carried:
                 self.status = LOST
                 obs = Observation(frame_index, self.camera, self.marker, float("nan"), float("nan"), LOST)
             else:
