@@ -290,3 +290,12 @@ def test_missed_crowd_markers_are_carried_by_the_image_motion_around_them_where_
     where = crowd.flowed(prev, cur, points, 5.0)
     assert np.abs(where[:2] - points[:2] - move).max() < 0.1
     assert np.isnan(where[2:]).all()
+    # A bead's highlight (the light's reflection, a fixed offset from its centre) is found to a tenth of a
+    # pixel; a bead with none shows its brightest point on the search's edge: no highlight.
+    yy, xx = np.mgrid[0:60, 0:60].astype(float)
+    cx, cy, r = 30.2, 29.7, 7.0
+    bead = np.where(np.hypot(xx - cx, yy - cy) <= r, 25.0, 170.0)
+    shine = bead + 60.0 * np.exp(-((xx - cx - 0.6) ** 2 + (yy - cy + 0.9) ** 2) / (2 * 1.2**2))
+    hx, hy = crowd.highlight(cv2.cvtColor(shine.astype(np.uint8), cv2.COLOR_GRAY2BGR), cx, cy, 0.5 * r)
+    assert abs(hx - cx - 0.6) < 0.1 and abs(hy - cy + 0.9) < 0.1
+    assert crowd.highlight(cv2.cvtColor(bead.astype(np.uint8), cv2.COLOR_GRAY2BGR), cx, cy, 0.5 * r) is None

@@ -25,6 +25,7 @@ from .reacquire import find_blobs, search_window, unexplained
 from .stereo import StereoCheck
 from .tracker import SHORT_MISS, MarkerTrack, Observation
 
+FLOW_AGREE_PX = 1.5  # a crowd marker's match this far from where the image motion took it is not its own
 JUMP_FRAMES = 2  # frames after a miss during which a track is searched a largest move per frame unseen
 
 
@@ -107,6 +108,7 @@ class Engine:
                 self._follow_view(cam, j, img, live[cam], props)
             self._resolve_conflicts(live[cam], props, forced)
             self._crowd_coherence(live[cam], props, crowd)
+            self._crowd_flow_check(cam, img, live[cam], props)
         if self.stereo is not None:
             self._stereo_check(frames, props, forced, only_reattached=False)
         reattached = 0
@@ -296,6 +298,32 @@ class Engine:
                 drop.append((t.marker, t.camera))
         for key in drop:
             del props[key]
+
+    def _crowd_flow_check(self, cam, img, tracks, props) -> None:
+        """A crowd marker's new match must lie where the image motion around it since the last step
+        took it (crowd.flowed, from where it was measured then), within FLOW_AGREE_PX: one that does not
+        has jumped to a neighbour's outline or a gap, and coasts instead (flagged). Where the motion is
+        not clear the match stands."""
+        prev = self._crowd_prev.get(cam)
+        if prev is None:
+            return
+        keys, start, found = [], [], []
+        for t in tracks:
+            key = (t.marker, cam)
+            p, last = props.get(key), self._crowd_at.get(key)
+            if p is None or last is None or not t.model.crowd or p.match.rest:
+                continue
+            keys.append(key)
+            start.append(last)
+            found.append((p.match.x, p.match.y))
+        if not keys:
+            return
+        r = max(self.tracks[k].model.radius for k in keys)
+        where = crowd_rules.flowed(prev, img, np.array(start), r)
+        off = np.hypot(*(where - np.array(found)).T)
+        for key, d in zip(keys, off, strict=True):
+            if d > FLOW_AGREE_PX:  # (NaN: the motion is not clear, the match stands)
+                del props[key]
 
     def _neighbours(self, tracks) -> dict:
         """For each track, the other tracks whose predictions touch it: id(track) -> [(track, xy)]."""

@@ -20,6 +20,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..errors import SandtrackError
+from . import crowd as crowd_rules
 from .appearance import COLOUR, DARK, AppearanceModel, learn
 from .kalman import GATE_D2, ConstantVelocityKF
 from .luma import edge_centre
@@ -36,6 +37,7 @@ MERGED_COVERAGE = 1.4  # marker coverage (in seed discs) above which a blob is t
 HELD_MEAS_PX = 1.0  # measurement noise of a held marker's template peak (no outline), px
 CARRIED_AGREE_PX = 1.0  # a carried crowd marker's outline centre this near its carried position re-confirms it
 CARRIED_MIN_SCORE = 0.5
+HIGHLIGHT_ALPHA = 0.2  # share of a new measurement in a crowd bead's highlight offset
 SHORT_MISS = 3  # frames unseen up to which a returning marker's match is judged leniently (verify_at)
 
 
@@ -126,6 +128,7 @@ class MarkerTrack:
         self._rest: RestReference | None = None
         self.rest_frames = 0
         self.held = False
+        self.highlight_offset: tuple | None = None  # a crowd bead's highlight - its centre, px
         self.carried = False  # missed among touching lookalikes, moved with the layer (engine.py): not lost
         self._last_measured: tuple | None = (frame_index, x, y)  # (frame, x, y) of the last match or point
 
@@ -265,18 +268,38 @@ class MarkerTrack:
 
     def confirm_carried(self, frame_bgr: np.ndarray, x: float, y: float) -> Match | None:
         """A crowd marker carried by the layer's motion to (x, y) (engine.py), measured again: its
-        template found there as on any return (verify_at) and its outline, a circle of its radius seen on
-        at least three sides, centred within CARRIED_AGREE_PX of (x, y). Two independent estimates of
-        where the bead is agree; else None (it stays flagged)."""
+        template found there, and its highlight (crowd.highlight) found where this bead's own highlight
+        sits from its centre (learned while its outline was seen all round it), giving a centre within
+        CARRIED_AGREE_PX of (x, y): two independent estimates of where the bead is agree. Else None
+        (it stays flagged)."""
+        off = self.highlight_offset
+        if off is None:
+            return None
         m = self.matcher.match(frame_bgr, x, y, 2.0, 2.0)
-        if m is None or m.score < CARRIED_MIN_SCORE or self._cut_by_border(frame_bgr, m):
+        if m is None or self._cut_by_border(frame_bgr, m):
             return None
-        c = self.matcher.outline_near(frame_bgr, x, y, 3)
-        if c is None or math.hypot(c[0] - x, c[1] - y) > CARRIED_AGREE_PX:
+        h = crowd_rules.highlight(frame_bgr, x + off[0], y + off[1], 0.5 * self.model.radius)
+        if h is None:
             return None
-        m.x, m.y, m.outline, m.used_centroid = c[0], c[1], True, True
+        cx, cy = h[0] - off[0], h[1] - off[1]
+        if math.hypot(cx - x, cy - y) > CARRIED_AGREE_PX:
+            return None
+        m.x, m.y, m.outline, m.used_centroid = cx, cy, True, True
         m.d2 = self.kf.d2(m.x, m.y)
         return m
+
+    def _learn_highlight(self, frame_bgr, m: Match) -> None:
+        """Where this crowd bead's highlight sits from its centre, from a frame that measured its outline
+        all round it (a running mean)."""
+        off = self.highlight_offset
+        r = self.model.radius
+        h = crowd_rules.highlight(frame_bgr, m.x + (off[0] if off else 0.0), m.y + (off[1] if off else 0.0),
+                                  0.5 * r if off else 0.7 * r)
+        if h is None:
+            return
+        d = (h[0] - m.x, h[1] - m.y)
+        self.highlight_offset = d if off is None else (off[0] + HIGHLIGHT_ALPHA * (d[0] - off[0]),
+                                                       off[1] + HIGHLIGHT_ALPHA * (d[1] - off[1]))
 
     def apply(self, frame_index: int, frame_bgr: np.ndarray | None, m: Match | None,
               reattach: bool = False, jump: bool = False) -> Observation:
@@ -308,6 +331,8 @@ class MarkerTrack:
             if frame_bgr is not None and self.model.kind == DARK and not self.model.crowd \
                     and m.score >= p.confident_score and m.used_centroid:
                 self.model.follow_level(self.matcher.middle_score(frame_bgr, m.x, m.y), p.level_alpha)
+            if self.model.crowd and frame_bgr is not None and not reattach and not m.rest:
+                self._learn_highlight(frame_bgr, m)
             if m.rest:
                 self.rest_frames += 1
             else:
