@@ -1,15 +1,19 @@
-"""Missed markers among touching lookalikes (a dense layer): carried by their neighbours, given back
-by one assignment of all of them to the layer's beads.
+"""Missed markers among touching lookalikes (a dense layer): carried with the layer, given back by
+one assignment of all of them to the layer's beads, or measured again at their highlight.
 
 Identical touching beads cannot be told apart by how they look, only by where they are. The sand
-carries a layer's beads together, so a bead the tracker missed is where its neighbours' motion took
-it: each frame it moves by the median move of the measured markers near it (with fewer than two of
-them, where it went is not known any more: it stays flagged until the operator places it). The beads detected in
-the frame (detection.py: every bead like the marker, touching ones split) that no tracked marker
-explains are then assigned to the missed markers at once (Hungarian method on the distance). A pair
-counts only when it is unambiguous: the bead within `gate` of where the marker was carried, and no
-other bead near that place nor other missed marker near that bead within `margin` more than the
-pair's own distance. Anything else stays flagged for the operator.
+carries a layer's beads together a few px per frame, and a bead's shading and highlight move with it
+even where its outline is pressed against its neighbours': a bead the tracker missed is moved each
+frame by the image motion around it (`flowed`: pyramidal Lucas-Kanade, checked by tracking back, at
+most a radius per frame), else by the median move of the measured markers near it (`carried`; with
+fewer than two of them, where it went is not known any more: it stays flagged until the operator
+places it). The beads detected in the frame (detection.py: every bead like the marker, touching ones
+split) that no tracked marker explains are then assigned to the missed markers at once (Hungarian
+method on the distance). A pair counts only when it is unambiguous: the bead within `gate` of where
+the marker was carried, and no other bead near that place nor other missed marker near that bead
+within `margin` more than the pair's own distance. A carried marker no bead gave back is measured
+again where its `highlight` gives a centre agreeing with its carried position (tracker.py).
+Anything else stays flagged for the operator.
 """
 
 from __future__ import annotations

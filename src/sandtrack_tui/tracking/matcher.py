@@ -156,19 +156,6 @@ class TemplateMatcher:
             return None if strict else (x, y)
         return e[0], e[1]
 
-    def outline_near(self, frame_bgr, x: float, y: float, quadrants: int) -> tuple[float, float] | None:
-        """A crowd marker's centre on a circle of its own radius fitted from (x, y) whose outline is
-        found in at least `quadrants` of the four quadrants around it (a bead pressed against or partly
-        behind a neighbour shows no outline on that side: the others fix the centre); None if not."""
-        if self.model.kind not in (BRIGHT, DARK):
-            return None
-        dark = self.model.kind == DARK
-        e = edge_circle(frame_bgr, x, y, self.model.radius, iterations=5, polarity=1.0 if dark else -1.0,
-                        outward=dark, known_radius=True)
-        if e is None or e[3] < quadrants:
-            return None
-        return e[0], e[1]
-
     def middle_score(self, frame_bgr, x: float, y: float) -> float:
         """The score of the marker's middle (the median within half its radius of (x, y)), relative to its
         window's sand (the median beyond 1.8 radii) and to the light on it (as prepared() scales it);

@@ -36,7 +36,6 @@ TOUCHING_RELAX = 0.85
 MERGED_COVERAGE = 1.4  # marker coverage (in seed discs) above which a blob is two markers merged
 HELD_MEAS_PX = 1.0  # measurement noise of a held marker's template peak (no outline), px
 CARRIED_AGREE_PX = 1.0  # a carried crowd marker's outline centre this near its carried position re-confirms it
-CARRIED_MIN_SCORE = 0.5
 HIGHLIGHT_ALPHA = 0.2  # share of a new measurement in a crowd bead's highlight offset
 SHORT_MISS = 3  # frames unseen up to which a returning marker's match is judged leniently (verify_at)
 
