@@ -248,6 +248,23 @@ def test_a_carried_layer_of_touching_identical_beads_keeps_every_identity():
             learn(img, x + 0.3, y - 0.2, 13, 13)
 
 
+def test_a_crowd_seed_whose_outline_is_hidden_at_first_is_confirmed_when_it_shows():
+    r = 4.5
+    lattice = [(60 + 2.02 * r * (c + 0.5 * (k % 2)), 60 + 1.75 * r * k) for k in range(4) for c in range(4)]
+    paths = [synthetic.MarkerPath(k + 1, np.array([c] * 6), radius=r) for k, c in enumerate(lattice)]
+    frames = list(synthetic.render(paths, 6, (160, 200), seed=4, marker_bgr=BLACK).frames)
+    x, y = lattice[0]
+    frames[1] = frames[1].copy()
+    cv2.circle(frames[1], (round(x), round(y)), int(2 * r), (30, 30, 30), -1)  # its outline lost in a dark mass
+    t = MarkerTrack(1, "cam", frames[0], 0, x + 0.3, y - 0.2, 15, 15)  # the only bead seeded: no neighbour vouches
+    assert t.model.crowd
+    eng = Engine()
+    eng.add(t, 0)
+    obs = [o for f, img in enumerate(frames) for o in eng.step({"cam": (f, img, 0.0)})]
+    assert [o.status for o in obs[1:3]] == ["occluded", "tracked"]  # waited at its seed, then measured
+    assert all(o.status == "tracked" and np.hypot(o.x_px - x, o.y_px - y) < 0.5 for o in obs[2:])
+
+
 def test_a_coloured_sphere_lit_from_one_side_is_centred_on_its_outline():
     # A lit sphere is paler on its lit side (the light adds the colours it lacks): its body's
     # colour fades towards the light, its outline stays round. The centre is the outline's, not

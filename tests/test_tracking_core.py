@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pandas as pd
 import pytest
@@ -294,3 +295,29 @@ def test_a_coasting_marker_does_not_take_a_bead_another_searching_marker_may_own
     assert Engine()._assign("front", 336, cands, windows=near) == {}
     alone = {(6, "front"): windows[(6, "front")]}
     assert Engine()._assign("front", 336, cands, windows=alone, unanchored={(6, "front")}) == {(6, "front"): bead}
+
+
+def test_missed_crowd_markers_are_carried_by_the_image_motion_around_them_where_it_is_clear():
+    from sandtrack_tui.tracking import crowd
+
+    rng = np.random.default_rng(2)
+    grain = cv2.GaussianBlur(rng.uniform(0, 255, (120, 160)).astype(np.float32), (0, 0), 1.5)
+    grain = cv2.normalize(grain, None, 20, 235, cv2.NORM_MINMAX)
+    grain[:, 100:] = 128.0  # a featureless strip: no motion can be measured there
+    move = (1.7, -2.3)
+    prev = cv2.cvtColor(grain.astype(np.uint8), cv2.COLOR_GRAY2BGR)
+    cur = cv2.warpAffine(prev, np.float32([[1, 0, move[0]], [0, 1, move[1]]]), (160, 120), flags=cv2.INTER_CUBIC,
+                         borderMode=cv2.BORDER_REFLECT)
+    points = np.array([[40.0, 50.0], [70.0, 60.0], [130.0, 60.0], [np.nan, np.nan]])
+    where = crowd.flowed(prev, cur, points, 5.0)
+    assert np.abs(where[:2] - points[:2] - move).max() < 0.1
+    assert np.isnan(where[2:]).all()
+    # A bead's highlight (the light's reflection, a fixed offset from its centre) is found to a tenth of a
+    # pixel; a bead with none shows its brightest point on the search's edge: no highlight.
+    yy, xx = np.mgrid[0:60, 0:60].astype(float)
+    cx, cy, r = 30.2, 29.7, 7.0
+    bead = np.where(np.hypot(xx - cx, yy - cy) <= r, 25.0, 170.0)
+    shine = bead + 60.0 * np.exp(-((xx - cx - 0.6) ** 2 + (yy - cy + 0.9) ** 2) / (2 * 1.2**2))
+    hx, hy = crowd.highlight(cv2.cvtColor(shine.astype(np.uint8), cv2.COLOR_GRAY2BGR), cx, cy, 0.5 * r)
+    assert abs(hx - cx - 0.6) < 0.1 and abs(hy - cy + 0.9) < 0.1
+    assert crowd.highlight(cv2.cvtColor(bead.astype(np.uint8), cv2.COLOR_GRAY2BGR), cx, cy, 0.5 * r) is None

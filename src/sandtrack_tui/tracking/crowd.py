@@ -1,25 +1,98 @@
-"""Missed markers among touching lookalikes (a dense layer): carried by their neighbours, given back
-by one assignment of all of them to the layer's beads.
+"""Missed markers among touching lookalikes (a dense layer): carried with the layer, given back by
+one assignment of all of them to the layer's beads, or measured again at their highlight.
 
 Identical touching beads cannot be told apart by how they look, only by where they are. The sand
-carries a layer's beads together, so a bead the tracker missed is where its neighbours' motion took
-it: each frame it moves by the median move of the measured markers near it (with fewer than two of
-them, where it went is not known any more: it stays flagged until the operator places it). The beads detected in
-the frame (detection.py: every bead like the marker, touching ones split) that no tracked marker
-explains are then assigned to the missed markers at once (Hungarian method on the distance). A pair
-counts only when it is unambiguous: the bead within `gate` of where the marker was carried, and no
-other bead near that place nor other missed marker near that bead within `margin` more than the
-pair's own distance. Anything else stays flagged for the operator.
+carries a layer's beads together a few px per frame, and a bead's shading and highlight move with it
+even where its outline is pressed against its neighbours': a bead the tracker missed is moved each
+frame by the image motion around it (`flowed`: pyramidal Lucas-Kanade, checked by tracking back, at
+most a radius per frame), else by the median move of the measured markers near it (`carried`; with
+fewer than two of them, where it went is not known any more: it stays flagged until the operator
+places it). The beads detected in the frame (detection.py: every bead like the marker, touching ones
+split) that no tracked marker explains are then assigned to the missed markers at once (Hungarian
+method on the distance). A pair counts only when it is unambiguous: the bead within `gate` of where
+the marker was carried, and no other bead near that place nor other missed marker near that bead
+within `margin` more than the pair's own distance. A carried marker no bead gave back is measured
+again where its `highlight` gives a centre agreeing with its carried position (tracker.py).
+Anything else stays flagged for the operator.
 """
 
 from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 MIN_NEIGHBOURS = 2  # measured neighbours a missed marker's carried position needs
+FLOW_BACK_PX = 0.3  # a bead's image motion is trusted when tracking it back lands within this of its start
+FLOW_MAX_MOVE = 1.0  # a bead's move per frame, in radii, beyond which the image motion is not the layer's
+FLOW_LEVELS = 2  # pyramid levels of the image motion (a layer moves a few px per frame, a bead is ~15 px)
+
+
+def flowed(prev_bgr: np.ndarray, cur_bgr: np.ndarray, points: np.ndarray, radius: float) -> np.ndarray:
+    """Positions (n, 2) of `points` of the previous frame moved by the image motion around them
+    (pyramidal Lucas-Kanade on the brightness in a window of a bead's size: the shading and highlight
+    of a bead move with it even where its outline is pressed against its neighbours'); NaN where the
+    motion is not clear (too little texture, tracking the point back does not land on its start, or a
+    move of more than FLOW_MAX_MOVE radii)."""
+    pts = np.asarray(points, float).reshape(-1, 2)
+    out = np.full_like(pts, np.nan)
+    ok = np.isfinite(pts).all(axis=1)
+    if not ok.any() or prev_bgr.shape != cur_bgr.shape:
+        return out
+    H, W = cur_bgr.shape[:2]
+    pad = int(4 * radius) + 8
+    x0, y0 = max(int(pts[ok, 0].min()) - pad, 0), max(int(pts[ok, 1].min()) - pad, 0)
+    x1, y1 = min(int(pts[ok, 0].max()) + pad + 1, W), min(int(pts[ok, 1].max()) + pad + 1, H)
+    if x1 - x0 < 8 or y1 - y0 < 8:
+        return out
+    a, b = _grey(prev_bgr[y0:y1, x0:x1]), _grey(cur_bgr[y0:y1, x0:x1])
+    p0 = (pts[ok] - (x0, y0)).astype(np.float32).reshape(-1, 1, 2)
+    win = max(2 * int(round(radius)) + 1, 9)
+    kw = dict(winSize=(win, win), maxLevel=FLOW_LEVELS,
+              criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
+    p1, st1, _ = cv2.calcOpticalFlowPyrLK(a, b, p0, None, **kw)
+    back, st2, _ = cv2.calcOpticalFlowPyrLK(b, a, p1, None, **kw)
+    good = (st1.ravel() == 1) & (st2.ravel() == 1) & \
+        (np.hypot(*(back - p0).reshape(-1, 2).T) <= FLOW_BACK_PX)
+    moved = p1.reshape(-1, 2).astype(float) + (x0, y0)
+    # (the layer moves a few px per frame; what moves faster is something else: the tool over a bead)
+    good &= np.hypot(*(moved - pts[ok]).T) <= FLOW_MAX_MOVE * radius
+    moved[~good] = np.nan
+    out[ok] = moved
+    return out
+
+
+def highlight(frame_bgr: np.ndarray, x: float, y: float, reach: float) -> tuple[float, float] | None:
+    """Sub-pixel position of the brightest point (brightness smoothed over a pixel) within `reach` px of
+    (x, y): a bead's highlight, the reflection of the light on a smooth sphere, sits at a fixed offset
+    from its centre (the light and the view do not change), also where the bead's outline is pressed
+    against its neighbours' or partly behind them. None when the brightest point lies on the edge of the
+    search (no highlight of its own there) or near the image's edge."""
+    R = int(math.ceil(reach)) + 1
+    m = R + 3
+    H, W = frame_bgr.shape[:2]
+    ix, iy = int(round(x)), int(round(y))
+    if ix - m < 0 or iy - m < 0 or ix + m + 1 > W or iy + m + 1 > H:
+        return None
+    g = cv2.GaussianBlur(_grey(frame_bgr[iy - m:iy + m + 1, ix - m:ix + m + 1]).astype(np.float32), (0, 0), 1.0)
+    yy, xx = np.mgrid[-m:m + 1, -m:m + 1]
+    inside = np.hypot(xx + ix - x, yy + iy - y) <= reach
+    k = int(np.argmax(np.where(inside, g, -np.inf)))
+    py, px = divmod(k, g.shape[1])
+    edge = np.hypot(px - m + ix - x, py - m + iy - y) > reach - 1.0
+    c, l, r_, u, d = g[py, px], g[py, px - 1], g[py, px + 1], g[py - 1, px], g[py + 1, px]
+    if edge or c <= max(l, r_, u, d) - 1e-6:
+        return None
+    dx = 0.5 * (l - r_) / (l - 2 * c + r_) if l - 2 * c + r_ < 0 else 0.0
+    dy = 0.5 * (u - d) / (u - 2 * c + d) if u - 2 * c + d < 0 else 0.0
+    return ix - m + px + float(dx), iy - m + py + float(dy)
+
+
+def _grey(bgr: np.ndarray) -> np.ndarray:
+    img = np.ascontiguousarray(bgr)
+    return cv2.cvtColor(img, cv2.COLOR_BGR2GRAY) if img.ndim == 3 else img
 
 
 def carried(missed: np.ndarray, measured_from: np.ndarray, measured_to: np.ndarray, reach: float,

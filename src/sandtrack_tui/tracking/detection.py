@@ -138,8 +138,8 @@ def _detect_crowd(frame_bgr, model) -> pd.DataFrame:
     (normalised cross-correlation of at least CROWD_MATCH, local peaks a radius apart); each is then
     centred on its outline where it borders the gaps (luma.edge_circle; the contacts with its
     neighbours show none) and kept when that outline has the marker's radius and is seen all around
-    it (a bead half hidden behind another is not centred across that side). Peaks that end on the
-    same marker are one."""
+    it, both as a free circle and as one of the marker's own radius (a bead half hidden behind another
+    is not centred across that side). Peaks that end on the same marker are one."""
     from .luma import edge_circle
 
     r = model.radius
@@ -161,6 +161,12 @@ def _detect_crowd(frame_bgr, model) -> pd.DataFrame:
         x, y = float(xs[i] + half), float(ys[i] + half)
         c = edge_circle(frame_bgr, x, y, r, iterations=5, polarity=polarity, outward=model.kind == DARK)
         if c is None or abs(c[2] - r) > 0.3 * r or np.hypot(c[0] - x, c[1] - y) > 0.6 * r or c[3] < 4:
+            continue
+        # (a bead half hidden behind another may show an outline all round it of about its radius, drawn
+        # over the other's: a circle of its own radius leaves a quadrant with no outline on it)
+        known = edge_circle(frame_bgr, x, y, r, iterations=5, polarity=polarity, outward=model.kind == DARK,
+                            known_radius=True)
+        if known is None or known[3] < 4:
             continue
         if not (r + 1 <= c[0] <= W - 2 - r and r + 1 <= c[1] <= H - 2 - r):
             continue  # (cut by the image's edge)

@@ -25,6 +25,7 @@ from .reacquire import find_blobs, search_window, unexplained
 from .stereo import StereoCheck
 from .tracker import LOST, SHORT_MISS, MarkerTrack, Observation
 
+FLOW_AGREE_PX = 1.5  # a crowd marker's match this far from where the image motion took it is not its own
 JUMP_FRAMES = 2  # frames after a miss during which a track is searched a largest move per frame unseen
 
 
@@ -55,7 +56,8 @@ class Engine:
     _both_cache: tuple | None = None
     _by_camera: dict | None = None  # camera -> [(key, track, start frame)], in the order of `tracks`
     _crowd_at: dict = field(default_factory=dict)  # crowd track key -> (x, y) measured at the last step
-    _crowd_carried: dict = field(default_factory=dict)  # missed crowd track key -> (x, y) carried by neighbours
+    _crowd_carried: dict = field(default_factory=dict)  # missed crowd track key -> (x, y) carried by the layer
+    _crowd_prev: dict = field(default_factory=dict)  # camera -> its frame of the previous step (the layer's motion)
 
     def add(self, track: MarkerTrack, start_frame: int) -> None:
         self.tracks[(track.marker, track.camera)] = track
@@ -95,7 +97,7 @@ class Engine:
                 lv.append(t)
             crowd = self._neighbours(live[cam])
             for t in live[cam]:
-                if t.coasting:
+                if t.coasting and not t.awaiting_outline:
                     continue
                 m = t.propose(img, j)
                 if m is not None and self._crowded_reject(t, m, crowd.get(id(t), ())):
@@ -106,6 +108,7 @@ class Engine:
                 self._follow_view(cam, j, img, live[cam], props)
             self._resolve_conflicts(live[cam], props, forced)
             self._crowd_coherence(live[cam], props, crowd)
+            self._crowd_flow_check(cam, img, live[cam], props)
         if self.stereo is not None:
             self._stereo_check(frames, props, forced, only_reattached=False)
         reattached = 0
@@ -117,6 +120,7 @@ class Engine:
         for cam, (j, img, _rem) in frames.items():
             if self._crowd_return(cam, img, int(j), live[cam], props, forced):
                 reattached += 1
+            self._crowd_prev[cam] = img
         if self.stereo is not None and reattached:
             self._stereo_check(frames, props, forced, only_reattached=True)
         for cam, (j, img, _rem) in frames.items():
@@ -135,10 +139,14 @@ class Engine:
 
     # -- steps ---------------------------------------------------------------------------------
     def _crowd_return(self, cam, img, j: int, tracks, props, forced) -> int:
-        """Missed markers among touching lookalikes, carried by their measured neighbours, assigned at
-        once to the beads no track explains (crowd.py); returns how many came back."""
+        """Missed markers among touching lookalikes, carried by the layer's motion (crowd.py: the image
+        motion around each, else the median move of its measured neighbours), assigned at once to the
+        beads no track explains; returns how many came back. A carried marker stays flagged, at its
+        carried position."""
         members = [t for t in tracks if t.model.crowd]
         missed = [t for t in members if (t.marker, cam) not in props and (t.marker, cam) not in forced]
+        for t in members:
+            t.carried = False
         if not missed:
             return 0
         src, dst = [], []
@@ -149,20 +157,28 @@ class Engine:
                 src.append(last)
                 dst.append((p.match.x, p.match.y))
         r = max(t.model.radius for t in missed)
-        start = [self._crowd_carried.get((t.marker, cam)) or self._crowd_at.get((t.marker, cam)) or t.kf.xy
-                 for t in missed]
-        where = crowd_rules.carried(np.array(start), src, dst, 4.0 * r)
+        start = np.array([self._crowd_carried.get((t.marker, cam)) or self._crowd_at.get((t.marker, cam)) or t.kf.xy
+                          for t in missed], float)
+        where = np.full_like(start, np.nan)
+        prev = self._crowd_prev.get(cam)
+        if prev is not None:
+            where = crowd_rules.flowed(prev, img, start, r)
+        lacking = ~np.isfinite(where[:, 0])
+        if lacking.any():
+            where[lacking] = crowd_rules.carried(start[lacking], src, dst, 4.0 * r)
         for t, xy in zip(missed, where, strict=True):
             self._crowd_carried[(t.marker, cam)] = (float(xy[0]), float(xy[1]))
+            if np.isfinite(xy[0]):
+                kx, ky = t.kf.xy
+                t.kf.translate(xy[0] - kx, xy[1] - ky)
+                t.carried = True
         known = np.isfinite(where[:, 0])
         if not known.any():
             return 0
         missed = [t for t, k in zip(missed, known, strict=True) if k]
         where = where[known]
         beads = self._unexplained_beads(cam, img, missed[0].model, where, props, forced)
-        if not len(beads):
-            return 0
-        pairs, ambiguous = crowd_rules.assign(where, beads, 0.5 * r, 0.5 * r)
+        pairs, ambiguous = crowd_rules.assign(where, beads, 0.5 * r, 0.5 * r) if len(beads) else ({}, [])
         for i in ambiguous:
             self._note_ambiguous(missed[i].marker, cam, j, 2)
         n = 0
@@ -172,6 +188,24 @@ class Engine:
             if m is not None and math.hypot(m.x - beads[b, 0], m.y - beads[b, 1]) <= 0.5 * t.model.radius:
                 props[(t.marker, cam)] = _Proposal(m, reattach=True)
                 n += 1
+        return n + self._crowd_confirm(cam, img, missed, where, props, forced)
+
+    def _crowd_confirm(self, cam, img, missed, where, props, forced) -> int:
+        """Carried crowd markers no detected bead gave back, measured where they were carried
+        (MarkerTrack.confirm_carried), unless another marker of this camera is measured within a radius
+        of there; returns how many came back."""
+        taken = [(p.match.x, p.match.y) for k, p in props.items() if k[1] == cam]
+        taken += [xy for k, xy in forced.items() if k[1] == cam]
+        n = 0
+        for t, (x, y) in zip(missed, where, strict=True):
+            if (t.marker, cam) in props or not t.carried:
+                continue
+            m = t.confirm_carried(img, float(x), float(y))
+            if m is None or any(math.hypot(m.x - a, m.y - b) < t.model.radius for a, b in taken):
+                continue
+            props[(t.marker, cam)] = _Proposal(m, reattach=True)
+            taken.append((m.x, m.y))
+            n += 1
         return n
 
     def _unexplained_beads(self, cam, img, model, near: np.ndarray, props, forced) -> np.ndarray:
@@ -264,6 +298,32 @@ class Engine:
                 drop.append((t.marker, t.camera))
         for key in drop:
             del props[key]
+
+    def _crowd_flow_check(self, cam, img, tracks, props) -> None:
+        """A crowd marker's new match must lie where the image motion around it since the last step
+        took it (crowd.flowed, from where it was measured then), within FLOW_AGREE_PX: one that does not
+        has jumped to a neighbour's outline or a gap, and coasts instead (flagged). Where the motion is
+        not clear the match stands."""
+        prev = self._crowd_prev.get(cam)
+        if prev is None:
+            return
+        keys, start, found = [], [], []
+        for t in tracks:
+            key = (t.marker, cam)
+            p, last = props.get(key), self._crowd_at.get(key)
+            if p is None or last is None or not t.model.crowd or p.match.rest:
+                continue
+            keys.append(key)
+            start.append(last)
+            found.append((p.match.x, p.match.y))
+        if not keys:
+            return
+        r = max(self.tracks[k].model.radius for k in keys)
+        where = crowd_rules.flowed(prev, img, np.array(start), r)
+        off = np.hypot(*(where - np.array(found)).T)
+        for key, d in zip(keys, off, strict=True):
+            if d > FLOW_AGREE_PX:  # (NaN: the motion is not clear, the match stands)
+                del props[key]
 
     def _neighbours(self, tracks) -> dict:
         """For each track, the other tracks whose predictions touch it: id(track) -> [(track, xy)]."""

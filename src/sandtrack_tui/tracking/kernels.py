@@ -186,21 +186,68 @@ def _robust_circle(x, y, rounds, outward):
         r = r2 ** 0.5
         if k == rounds - 1:
             break
-        res = np.empty(m)
-        for i in range(m):
-            res[i] = np.hypot(x[i] - a1, y[i] - a2) - r
-        scale = 1.4826 * np.sort(np.abs(res))[m // 2] + 0.05
-        for i in range(m):
-            q = max(res[i], 0.0) / scale if outward else res[i] / (2 * scale)
-            w[i] = 1.0 / (1.0 + q * q)
+        _cauchy_weights(x, y, a1, a2, r, outward, w)
     return True, a1, a2, r
 
 
 @_jit
-def edge_centre(win, cx, cy, radius, steps, cos, sin, min_rise, step_px, iterations, settle_px, sign, outward):
+def _cauchy_weights(x, y, cx, cy, r, outward, w):
+    """Weights (into `w`) of the points (x, y) by their distance from the circle (cx, cy, r), on the
+    scale of the median distance (Cauchy); `outward`: points inside the circle keep weight 1."""
+    m = x.shape[0]
+    res = np.empty(m)
+    for i in range(m):
+        res[i] = np.hypot(x[i] - cx, y[i] - cy) - r
+    scale = 1.4826 * np.sort(np.abs(res))[m // 2] + 0.05
+    for i in range(m):
+        q = max(res[i], 0.0) / scale if outward else res[i] / (2 * scale)
+        w[i] = 1.0 / (1.0 + q * q)
+
+
+@_jit
+def _robust_centre(x, y, radius, rounds, outward):
+    """The centre of a circle of the given radius through the points (x, y) (Gauss-Newton on the
+    distances, from the origin), with the Cauchy re-weighting of _robust_circle: (ok, cx, cy, radius).
+    Beads of one size touching each other: a free circle is drawn off by the outlines of the neighbours
+    pressed against a bead, a circle of its known radius leaves them outside, where they are suspects."""
+    m = x.shape[0]
+    w = np.ones(m)
+    a1 = a2 = 0.0
+    for k in range(rounds):
+        for _ in range(8):
+            j00 = j01 = j11 = g0 = g1 = 0.0
+            for i in range(m):
+                dx, dy = x[i] - a1, y[i] - a2
+                d = max(np.hypot(dx, dy), 1e-6)
+                ux, uy = -dx / d, -dy / d  # derivative of the distance by the centre
+                e = d - radius
+                j00 += w[i] * ux * ux
+                j01 += w[i] * ux * uy
+                j11 += w[i] * uy * uy
+                g0 += w[i] * ux * e
+                g1 += w[i] * uy * e
+            det = j00 * j11 - j01 * j01
+            if abs(det) < 1e-9:
+                return False, 0.0, 0.0, 0.0
+            s0 = -(j11 * g0 - j01 * g1) / det
+            s1 = -(j00 * g1 - j01 * g0) / det
+            a1 += s0
+            a2 += s1
+            if s0 * s0 + s1 * s1 < 1e-6:
+                break
+        if k == rounds - 1:
+            break
+        _cauchy_weights(x, y, a1, a2, radius, outward, w)
+    return True, a1, a2, radius
+
+
+@_jit
+def edge_centre(win, cx, cy, radius, steps, cos, sin, min_rise, step_px, iterations, settle_px, sign, outward,
+                known_radius=False):
     """(ok, x, y, r, quadrants): centre and radius of the marker's dark silhouette (sign 1; a bright one:
     sign -1) near (cx, cy) in the BGR window `win`, in the window's coordinates, and how many of the
-    four quadrants around it hold the outline (see luma.edge_centre; `outward`: _robust_circle)."""
+    four quadrants around it hold the outline (see luma.edge_centre; `outward`: _robust_circle;
+    `known_radius`: the circle keeps `radius`, only its centre is fitted: _robust_centre)."""
     luma = luma_window(win)
     n = steps.shape[0]
     n_rays = cos.shape[0]
@@ -236,7 +283,10 @@ def edge_centre(win, cx, cy, radius, steps, cos, sin, min_rise, step_px, iterati
             good += 1
         if good < n_rays // 2:
             return False, cx, cy, 0.0, 0
-        ok, ox, oy, r = _robust_circle(ex[:good], ey[:good], 6 if outward else 2, outward)
+        if known_radius:
+            ok, ox, oy, r = _robust_centre(ex[:good], ey[:good], radius, 6 if outward else 2, outward)
+        else:
+            ok, ox, oy, r = _robust_circle(ex[:good], ey[:good], 6 if outward else 2, outward)
         if not ok or ox * ox + oy * oy > 4.0 or abs(r - radius) > 0.5 * radius + 1:
             return False, cx, cy, 0.0, 0
         cx, cy = cx + ox, cy + oy
@@ -547,9 +597,9 @@ def rest_shift_yuv(yp, up, vp, t, x0, y0, ref, gx, gy, ginv, max_shift_px, max_r
 
 @_jit
 def edge_centre_yuv(yp, up, vp, t, x0, y0, n, cx, cy, radius, steps, cos, sin, min_rise, step_px, iterations,
-                    settle_px, sign, outward):
+                    settle_px, sign, outward, known_radius=False):
     return edge_centre(_bgr(yp, up, vp, t, x0, y0, x0 + n, y0 + n), cx, cy, radius, steps, cos, sin, min_rise,
-                       step_px, iterations, settle_px, sign, outward)
+                       step_px, iterations, settle_px, sign, outward, known_radius)
 
 
 @_jit

@@ -40,19 +40,20 @@ def edge_centre(frame_bgr, x: float, y: float, radius: float, iterations: int = 
 
 
 def edge_circle(frame_bgr, x: float, y: float, radius: float, iterations: int = 3, settle_px: float = 0.35,
-                polarity: float = 1.0, outward: bool = False):
+                polarity: float = 1.0, outward: bool = False, known_radius: bool = False):
     """(x, y, r, quadrants): the circle of the marker's silhouette near (x, y), of about `radius`, in
     frame coordinates, and how many of the four quadrants around it hold its outline; or None.
     Along N_RAYS rays, cubic brightness profiles at `STEP` px from 0.4 to 1.7 radii; each ray's
     steepest outward rise (parabola vertex, at least MIN_RISE) is an edge point; a robust circle
-    through them moves the estimate; up to `iterations` rounds, until it moves < settle_px."""
+    through them moves the estimate; up to `iterations` rounds, until it moves < settle_px.
+    `known_radius`: the circle keeps `radius` (markers of one size touching each other), only its centre moves."""
     H, W = frame_bgr.shape[:2]
     R = int(np.ceil(1.8 * radius + 3))
     x0, y0 = int(round(x)) - R, int(round(y)) - R
     if x0 < 0 or y0 < 0 or x0 + 2 * R + 1 > W or y0 + 2 * R + 1 > H:
         return None
     args = (float(x - x0), float(y - y0), float(radius), _steps(radius), _COS, _SIN, MIN_RISE, STEP, iterations,
-            settle_px, float(polarity), bool(outward))
+            settle_px, float(polarity), bool(outward), bool(known_radius))
     yuv = getattr(frame_bgr, "yuv", None)  # a frame still in its 4:2:0 planes (yuv.py)
     if yuv is not None:
         ok, cx, cy, r, quadrants = kernels.edge_centre_yuv(*yuv, x0, y0, 2 * R + 1, *args)

@@ -139,16 +139,18 @@ class TemplateMatcher:
         weights: a bright marker's lit side is brighter than its shaded side, and a dark marker's
         contact shadow is dark too; either pulls a weighted centroid by a few tenths of a pixel,
         while where the outline lies depends on neither. A dark marker's outline can only be pushed
-        outward (by its shadow), so only edge points outside the circle are suspects. Colour and
-        texture models, or no clear outline within a pixel: (x, y) as it is (`strict`: None when no
-        outline of the marker's radius is found all around it)."""
+        outward (by its shadow), so only edge points outside the circle are suspects. Among touching
+        lookalikes (a crowd model) the circle keeps the marker's radius: the beads are of one size, and
+        a free radius would be drawn off by the outlines of the neighbours pressed against it. Colour
+        and texture models, or no clear outline within a pixel: (x, y) as it is (`strict`: None when
+        no outline of the marker's radius is found all around it)."""
         if self.model.kind not in (BRIGHT, DARK):
             return None if strict else (x, y)
         dark = self.model.kind == DARK
         # (among touching markers the estimate may start a little off: the neighbours pull centroids)
         reach = 0.5 * self.model.radius if self.model.crowd else 1.0
         e = edge_circle(frame_bgr, x, y, self.model.radius, iterations=5 if self.model.crowd else 3,
-                        polarity=1.0 if dark else -1.0, outward=dark)
+                        polarity=1.0 if dark else -1.0, outward=dark, known_radius=self.model.crowd)
         if e is None or (e[0] - x) ** 2 + (e[1] - y) ** 2 > reach**2 or \
                 (strict and (abs(e[2] - self.model.radius) > 0.3 * self.model.radius or e[3] < 4)):
             return None if strict else (x, y)

@@ -20,6 +20,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..errors import SandtrackError
+from . import crowd as crowd_rules
 from .appearance import COLOUR, DARK, AppearanceModel, learn
 from .kalman import GATE_D2, ConstantVelocityKF
 from .luma import edge_centre
@@ -34,6 +35,8 @@ DEFAULT_BOX_PX = 16
 TOUCHING_RELAX = 0.85
 MERGED_COVERAGE = 1.4  # marker coverage (in seed discs) above which a blob is two markers merged
 HELD_MEAS_PX = 1.0  # measurement noise of a held marker's template peak (no outline), px
+CARRIED_AGREE_PX = 1.0  # a carried crowd marker's outline centre this near its carried position re-confirms it
+HIGHLIGHT_ALPHA = 0.2  # share of a new measurement in a crowd bead's highlight offset
 SHORT_MISS = 3  # frames unseen up to which a returning marker's match is judged leniently (verify_at)
 
 
@@ -124,6 +127,8 @@ class MarkerTrack:
         self._rest: RestReference | None = None
         self.rest_frames = 0
         self.held = False
+        self.highlight_offset: tuple | None = None  # a crowd bead's highlight - its centre, px
+        self.carried = False  # missed among touching lookalikes, moved with the layer (engine.py): not lost
         self._last_measured: tuple | None = (frame_index, x, y)  # (frame, x, y) of the last match or point
 
     # -- per frame -----------------------------------------------------------------------------
@@ -131,6 +136,15 @@ class MarkerTrack:
     def coasting(self) -> bool:
         """Not followed: unseen (a held track is followed, though flagged)."""
         return self.status in (OCCLUDED, LOST) and not self.held
+
+    @property
+    def awaiting_outline(self) -> bool:
+        """A seed among touching lookalikes that no frame has confirmed yet (its outline was not found
+        all round it), missed for at most SHORT_MISS frames: still searched where it was seeded, as its
+        match is taken only with its outline. (Where the bead was seen a few frames ago it most likely
+        still is; later it may have been carried anywhere.)"""
+        return self.model.crowd and self.status == OCCLUDED and self.counts[TRACKED] == 0 \
+            and self.misses <= SHORT_MISS
 
     def predict(self) -> None:
         self.kf.advance()
@@ -251,6 +265,41 @@ class MarkerTrack:
         m.d2 = self.kf.d2(m.x, m.y)
         return m
 
+    def confirm_carried(self, frame_bgr: np.ndarray, x: float, y: float) -> Match | None:
+        """A crowd marker carried by the layer's motion to (x, y) (engine.py), measured again: its
+        template found there, and its highlight (crowd.highlight) found where this bead's own highlight
+        sits from its centre (learned while its outline was seen all round it), giving a centre within
+        CARRIED_AGREE_PX of (x, y): two independent estimates of where the bead is agree. Else None
+        (it stays flagged)."""
+        off = self.highlight_offset
+        if off is None:
+            return None
+        m = self.matcher.match(frame_bgr, x, y, 2.0, 2.0)
+        if m is None or self._cut_by_border(frame_bgr, m):
+            return None
+        h = crowd_rules.highlight(frame_bgr, x + off[0], y + off[1], 0.5 * self.model.radius)
+        if h is None:
+            return None
+        cx, cy = h[0] - off[0], h[1] - off[1]
+        if math.hypot(cx - x, cy - y) > CARRIED_AGREE_PX:
+            return None
+        m.x, m.y, m.outline, m.used_centroid = cx, cy, True, True
+        m.d2 = self.kf.d2(m.x, m.y)
+        return m
+
+    def _learn_highlight(self, frame_bgr, m: Match) -> None:
+        """Where this crowd bead's highlight sits from its centre, from a frame that measured its outline
+        all round it (a running mean)."""
+        off = self.highlight_offset
+        r = self.model.radius
+        h = crowd_rules.highlight(frame_bgr, m.x + (off[0] if off else 0.0), m.y + (off[1] if off else 0.0),
+                                  0.5 * r if off else 0.7 * r)
+        if h is None:
+            return
+        d = (h[0] - m.x, h[1] - m.y)
+        self.highlight_offset = d if off is None else (off[0] + HIGHLIGHT_ALPHA * (d[0] - off[0]),
+                                                       off[1] + HIGHLIGHT_ALPHA * (d[1] - off[1]))
+
     def apply(self, frame_index: int, frame_bgr: np.ndarray | None, m: Match | None,
               reattach: bool = False, jump: bool = False) -> Observation:
         """Commit this frame's outcome and return its observation. `jump`: re-attached beyond the
@@ -281,6 +330,8 @@ class MarkerTrack:
             if frame_bgr is not None and self.model.kind == DARK and not self.model.crowd \
                     and m.score >= p.confident_score and m.used_centroid:
                 self.model.follow_level(self.matcher.middle_score(frame_bgr, m.x, m.y), p.level_alpha)
+            if self.model.crowd and frame_bgr is not None and not reattach and not m.rest:
+                self._learn_highlight(frame_bgr, m)
             if m.rest:
                 self.rest_frames += 1
             else:
@@ -300,7 +351,7 @@ class MarkerTrack:
             self._rest = None
             self.kf.coast()
             self.misses += 1
-            if self.misses > p.lost_after:
+            if self.misses > p.lost_after and not self.carried:
                 self.status = LOST
                 obs = Observation(frame_index, self.camera, self.marker, float("nan"), float("nan"), LOST)
             else:
