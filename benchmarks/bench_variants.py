@@ -206,11 +206,11 @@ def explain(points: pd.DataFrame, truth: dict, ids: dict, verdicts: dict) -> lis
         p = p.assign(true_marker=p.marker.map(ids))
         m = p.merge(t, left_on=["frame", "true_marker"], right_on=["frame", "marker"], suffixes=("", "_t"))
         m = m.sort_values(["true_marker", "frame"])
-        err = np.hypot(m.x_px - m.x_px_t, m.y_px - m.y_px_t)
-        for r, e in zip(m[m.status.isin(["tracked", "manual"]) & (err > 3)].itertuples(), err[err > 3], strict=False):
+        m = m.assign(err=np.hypot(m.x_px - m.x_px_t, m.y_px - m.y_px_t))
+        for r in m[m.status.isin(["tracked", "manual"]) & (m.err > 3)].itertuples():
             rec = verdicts.get((cam, back[r.true_marker], int(r.frame)))
-            lines.append(f"false lock   {cam:>5} marker {r.true_marker} frame {r.frame}: {e:.1f} px off, truth visible "
-                         f"{r.visible_fraction:.2f}; {_verdict_text(rec, r.x_px_t, r.y_px_t, params)}")
+            lines.append(f"false lock   {cam:>5} marker {r.true_marker} frame {r.frame}: {r.err:.1f} px off, "
+                         f"truth visible {r.visible_fraction:.2f}; {_verdict_text(rec, r.x_px_t, r.y_px_t, params)}")
         bad = m[m.status.isin(["occluded", "lost"]) & m.visible.astype(bool)]
         for tm, g in bad.groupby("true_marker"):
             frames = g.frame.to_numpy()

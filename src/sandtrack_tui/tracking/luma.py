@@ -16,13 +16,21 @@ shadow sliding over the sand, which shifts the luma edge sideways, from moving t
 The luma centre is a circle fitted to the marker's silhouette edge: along rays from the estimate,
 the strongest rise of brightness from the (darker) marker to the sand, located to sub-pixel, then
 an algebraic circle fit with robust weights (rays through a shadow or a neighbour count less).
+A marker with no dark silhouette (a white one on beige sand: its lit side brighter than the sand,
+its shaded side as bright) has no such edge; its shading pattern, though, moves with it (the light
+does not turn with the marker): `LumaPattern` registers the brightness of its disc at the intra
+frame in the frames after it.
 """
 
 from __future__ import annotations
 
+import math
+
+import cv2
 import numpy as np
 
 from . import kernels
+from .chroma import LUMA_BGR
 
 N_RAYS = 32
 _ANG = np.linspace(0, 2 * np.pi, N_RAYS, endpoint=False)
@@ -59,6 +67,73 @@ def edge_circle(frame_bgr, x: float, y: float, radius: float, iterations: int = 
     else:
         ok, cx, cy, r, quadrants = kernels.edge_centre(frame_bgr[y0:y0 + 2 * R + 1, x0:x0 + 2 * R + 1], *args)
     return (cx + x0, cy + y0, r, int(quadrants)) if ok else None
+
+
+class LumaPattern:
+    """The brightness of a marker's disc around (x, y) in one frame, found again in later frames: the
+    translation that best fits the pattern (weights: the disc of `radius`, so the sand, which stays
+    where it is, hardly counts; brightness offsets are not motion), by Gauss-Newton. `ok` is False
+    near the image's edge or when the disc holds no structure to register."""
+
+    ITERATIONS = 6
+    MIN_NCC = 0.9  # a registered disc must look like the pattern this much, or nothing is reported
+    SETTLED_PX = 0.01
+
+    def __init__(self, frame, x: float, y: float, radius: float):
+        self.x, self.y = float(x), float(y)
+        self.half = h = int(math.ceil(radius)) + 2
+        self.ok = False
+        t = self._sample(frame, x, y)
+        if t is None:
+            return
+        yy, xx = np.mgrid[-h:h + 1, -h:h + 1]
+        self.w = np.clip(radius + 0.5 - np.hypot(xx, yy), 0.0, 1.0).astype(np.float32)
+        self.t = t - self._mean(t)
+        gx = cv2.Sobel(t, cv2.CV_32F, 1, 0, ksize=3) / 8
+        gy = cv2.Sobel(t, cv2.CV_32F, 0, 1, ksize=3) / 8
+        self.gx, self.gy = gx - self._mean(gx), gy - self._mean(gy)
+        w = self.w
+        hess = np.array([[(w * self.gx * self.gx).sum(), (w * self.gx * self.gy).sum()],
+                         [(w * self.gx * self.gy).sum(), (w * self.gy * self.gy).sum()]], np.float64)
+        if np.linalg.det(hess) <= 1e-6 * max(np.trace(hess), 1e-12) ** 2:
+            return
+        self.hess_inv = np.linalg.inv(hess)
+        self.tt = float((w * self.t * self.t).sum())
+        self.ok = True
+
+    def _mean(self, a: np.ndarray) -> float:
+        return float((self.w * a).sum() / self.w.sum())
+
+    def _sample(self, frame, x: float, y: float) -> np.ndarray | None:
+        """The (2 half + 1)² luma window centred at (x, y), sub-pixel, float32; None near the edge."""
+        h = self.half
+        size = 2 * h + 1
+        x0, y0 = int(math.floor(x)) - h - 2, int(math.floor(y)) - h - 2
+        H, W = frame.shape[:2]
+        if x0 < 0 or y0 < 0 or x0 + size + 4 > W or y0 + size + 4 > H:
+            return None
+        win = np.asarray(frame[y0:y0 + size + 4, x0:x0 + size + 4], dtype=np.float32)
+        luma = win @ LUMA_BGR if win.ndim == 3 else win
+        return cv2.getRectSubPix(np.ascontiguousarray(luma), (size, size), (x - x0, y - y0))
+
+    def find(self, frame, x: float, y: float) -> tuple[float, float] | None:
+        """Where the pattern lies in `frame`, searched from (x, y); None when it does not fit."""
+        if not self.ok:
+            return None
+        dx, dy = x - self.x, y - self.y
+        s = None
+        for _ in range(self.ITERATIONS):
+            s = self._sample(frame, self.x + dx, self.y + dy)
+            if s is None:
+                return None
+            s -= self._mean(s)
+            e = self.w * (s - self.t)
+            step = self.hess_inv @ np.array([(e * self.gx).sum(), (e * self.gy).sum()])
+            dx, dy = dx - float(step[0]), dy - float(step[1])
+            if abs(step[0]) + abs(step[1]) < self.SETTLED_PX:
+                break
+        ncc = float((self.w * s * self.t).sum()) / math.sqrt(float((self.w * s * s).sum()) * self.tt + 1e-12)
+        return (self.x + dx, self.y + dy) if ncc >= self.MIN_NCC else None
 
 
 _STEPS: dict = {}

@@ -22,7 +22,7 @@ import numpy as np
 from ..errors import SandtrackError
 from .appearance import COLOUR, DARK, AppearanceModel, learn
 from .kalman import GATE_D2, ConstantVelocityKF
-from .luma import edge_centre
+from .luma import LumaPattern, edge_centre
 from .matcher import Match, TemplateMatcher
 from .rest import RestReference
 
@@ -121,6 +121,7 @@ class MarkerTrack:
         self.intra = None  # per frame of this camera: intra-coded (set by the caller)
         self._offset: tuple | None = None  # colour centre - luma centre at the last intra frame
         self._anchor_luma: tuple | None = None
+        self._pattern: LumaPattern | None = None  # the marker's brightness at the last intra frame (no silhouette)
         self._rest: RestReference | None = None
         self.rest_frames = 0
         self.held = False
@@ -186,6 +187,9 @@ class MarkerTrack:
         intra = self._is_intra(frame_index)
         if not intra and self._offset is None:
             return  # nothing to carry until the next intra frame
+        if not self.model.luma_follows:
+            self._carry_pattern(frame_bgr, m, intra)
+            return
         sx, sy = m.x, m.y
         if self._offset is not None:  # start from where the edge centre is expected: fewer fit rounds
             sx, sy = sx - self._offset[0], sy - self._offset[1]
@@ -204,6 +208,23 @@ class MarkerTrack:
             along = min(max(along, 0.0), dist)
             m.x, m.y = m.x + along * ux, m.y + along * uy
 
+    def _carry_pattern(self, frame_bgr, m: Match, intra: bool) -> None:
+        """_carry for a marker with no dark silhouette (its brightness does not set it apart from the
+        sand: a white marker on beige sand): its disc's brightness pattern at the intra frame
+        (luma.LumaPattern), found again in the frames after it, moved as far as the marker, which
+        is then there: the pattern is the marker's own (not an edge that shading or a shadow may
+        shift), so the stale colour is not trusted in any direction."""
+        if intra:
+            self._pattern = LumaPattern(frame_bgr, m.x, m.y, self.model.radius)
+            m.luma = (m.x, m.y) if self._pattern.ok else None
+            return
+        m.luma = None if self._pattern is None else self._pattern.find(frame_bgr, m.x, m.y)
+        if m.luma is None:
+            return
+        lx, ly = m.luma
+        if math.hypot(lx - self._anchor_luma[0], ly - self._anchor_luma[1]) <= self.params.luma_carry_max_px:
+            m.x, m.y = lx + self._offset[0], ly + self._offset[1]
+
     def _update_offset(self, frame_index: int, m: Match | None, reattach: bool) -> None:
         if m is not None and m.luma is not None and self._is_intra(frame_index):
             self._offset = (m.x - m.luma[0], m.y - m.luma[1])
@@ -211,7 +232,7 @@ class MarkerTrack:
         elif m is None or m.luma is None or reattach or self._anchor_luma is None or \
                 math.hypot(m.luma[0] - self._anchor_luma[0], m.luma[1] - self._anchor_luma[1]) \
                 > self.params.luma_carry_max_px:
-            self._offset = self._anchor_luma = None  # the chain from the intra frame is broken
+            self._offset = self._anchor_luma = self._pattern = None  # the chain from the intra frame is broken
 
     def _cut_by_border(self, frame_bgr, m: Match) -> bool:
         """The marker's disc reaches the image's edge: part of it is outside the picture, and the
@@ -312,7 +333,7 @@ class MarkerTrack:
 
     def set_manual(self, frame_index: int, frame_bgr: np.ndarray | None, x: float, y: float) -> Observation:
         """An operator's point met along the way: trust it, keep tracking from it."""
-        self._offset = self._anchor_luma = None
+        self._offset = self._anchor_luma = self._pattern = None
         self._rest = None
         self.held = False
         if self.misses > 2:
