@@ -99,6 +99,7 @@ class LumaPattern:
             return
         self.hess_inv = np.linalg.inv(hess)
         self.tt = float((w * self.t * self.t).sum())
+        self.fit = float("nan")  # normalised correlation of the last find with the pattern
         self.ok = True
 
     def _mean(self, a: np.ndarray) -> float:
@@ -132,8 +133,8 @@ class LumaPattern:
             dx, dy = dx - float(step[0]), dy - float(step[1])
             if abs(step[0]) + abs(step[1]) < self.SETTLED_PX:
                 break
-        ncc = float((self.w * s * self.t).sum()) / math.sqrt(float((self.w * s * s).sum()) * self.tt + 1e-12)
-        return (self.x + dx, self.y + dy) if ncc >= self.MIN_NCC else None
+        self.fit = float((self.w * s * self.t).sum()) / math.sqrt(float((self.w * s * s).sum()) * self.tt + 1e-12)
+        return (self.x + dx, self.y + dy) if self.fit >= self.MIN_NCC else None
 
 
 _STEPS: dict = {}

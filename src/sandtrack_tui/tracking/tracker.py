@@ -157,14 +157,30 @@ class MarkerTrack:
         m = self.matcher.match(frame_bgr, px, py, hx, hy, self.kf.innovation_inv(), self.params.gate_d2,
                                self.kf.vxy)
         if m is None:
-            return None
+            return self._pattern_match(frame_bgr, frame_index)
         if not m.outline and self.counts[TRACKED] == 0:
             return None  # (held only once measured since its seed: a seed nothing confirmed is not followed)
         m.d2 = self.kf.d2(m.x, m.y)
         if not self.acceptable(m, TOUCHING_RELAX if m.touching else 1.0) or self._cut_by_border(frame_bgr, m):
-            return None
+            return self._pattern_match(frame_bgr, frame_index)
         self._carry(frame_bgr, m, frame_index)
         return m
+
+    def _pattern_match(self, frame_bgr, frame_index: int | None) -> Match | None:
+        """Between intra frames, a marker with no dark silhouette whose colour match failed (its colour
+        is stale there: a moving marker's is left behind, and weakens) is measured by its brightness
+        pattern (see _carry_pattern) when that is found inside the gate; else None."""
+        if self.model.luma_follows or self._pattern is None or self._offset is None or self._is_intra(frame_index):
+            return None
+        found = self._pattern.find(frame_bgr, *self.kf.xy)
+        if found is None or math.hypot(found[0] - self._anchor_luma[0], found[1] - self._anchor_luma[1]) \
+                > self.params.luma_carry_max_px:
+            return None
+        x, y = found[0] + self._offset[0], found[1] + self._offset[1]
+        d2 = self.kf.d2(x, y)
+        if d2 > self.params.gate_d2:
+            return None
+        return Match(x, y, self._pattern.fit, float("nan"), float("nan"), d2, True, found)
 
     @property
     def intra(self) -> np.ndarray | None:
@@ -225,14 +241,33 @@ class MarkerTrack:
         if math.hypot(lx - self._anchor_luma[0], ly - self._anchor_luma[1]) <= self.params.luma_carry_max_px:
             m.x, m.y = lx + self._offset[0], ly + self._offset[1]
 
-    def _update_offset(self, frame_index: int, m: Match | None, reattach: bool) -> None:
-        if m is not None and m.luma is not None and self._is_intra(frame_index):
+    def _update_offset(self, frame_index: int, m: Match | None, reattach: bool, frame_bgr=None) -> None:
+        intra = self._is_intra(frame_index)
+        if m is not None and m.luma is not None and intra:
             self._offset = (m.x - m.luma[0], m.y - m.luma[1])
             self._anchor_luma = m.luma
-        elif m is None or m.luma is None or reattach or self._anchor_luma is None or \
+            return
+        if not self.model.luma_follows and m is not None and not reattach and not intra:
+            if self._pattern is None:
+                self._restart_pattern(frame_bgr, m)
+                return
+            if m.luma is None:
+                return  # (the pattern did not fit this one frame: the marker is still where the chain says)
+        if m is None or m.luma is None or reattach or self._anchor_luma is None or \
                 math.hypot(m.luma[0] - self._anchor_luma[0], m.luma[1] - self._anchor_luma[1]) \
                 > self.params.luma_carry_max_px:
             self._offset = self._anchor_luma = self._pattern = None  # the chain from the intra frame is broken
+
+    def _restart_pattern(self, frame_bgr, m: Match) -> None:
+        """A chain broken between intra frames starts again from a whole, clearly seen colour match: its
+        brightness pattern there, followed until the next intra frame (the colour's place at this frame
+        is stale, but no staler than it is)."""
+        if frame_bgr is None or self.intra is None or not self.params.luma_carry or not m.used_centroid \
+                or not m.colour_frac >= self.params.confident_colour:
+            return
+        pattern = LumaPattern(frame_bgr, m.x, m.y, self.model.radius)
+        if pattern.ok:
+            self._pattern, self._offset, self._anchor_luma = pattern, (0.0, 0.0), (m.x, m.y)
 
     def _cut_by_border(self, frame_bgr, m: Match) -> bool:
         """The marker's disc reaches the image's edge: part of it is outside the picture, and the
@@ -278,7 +313,7 @@ class MarkerTrack:
         gate; the velocity restarts from the move since the last measurement."""
         self.frame_index = frame_index
         p = self.params
-        self._update_offset(frame_index, m, reattach)
+        self._update_offset(frame_index, m, reattach, frame_bgr)
         self.held = m is not None and not m.outline
         if self.held:
             self._rest = None
