@@ -198,9 +198,11 @@ class MarkerTrack:
     def _carry(self, frame_bgr, m: Match, frame_index: int | None) -> None:
         """Measure the luma centre of a whole, clearly seen marker; between intra frames, move the
         match to luma centre + the last intra frame's offset (see luma.py)."""
-        if self.intra is None or not self.params.luma_carry or not m.used_centroid or self.model.kind != COLOUR:
+        if self.intra is None or not self.params.luma_carry or self.model.kind != COLOUR:
             return  # (a brightness model measures the full-resolution luma itself: nothing trails)
         intra = self._is_intra(frame_index)
+        if not m.used_centroid and (intra or self.model.luma_follows):
+            return  # (a pattern is cut, and an edge measured, on a whole, clearly seen marker only)
         if not intra and self._offset is None:
             return  # nothing to carry until the next intra frame
         if not self.model.luma_follows:
@@ -259,11 +261,11 @@ class MarkerTrack:
             self._offset = self._anchor_luma = self._pattern = None  # the chain from the intra frame is broken
 
     def _restart_pattern(self, frame_bgr, m: Match) -> None:
-        """A chain broken between intra frames starts again from a whole, clearly seen colour match: its
-        brightness pattern there, followed until the next intra frame (the colour's place at this frame
-        is stale, but no staler than it is)."""
+        """A chain broken between intra frames starts again from a colour match centred on the marker's
+        coverage: its brightness pattern there, followed until the next intra frame (the colour's place
+        at this frame may be stale, but without the chain it only grows staler)."""
         if frame_bgr is None or self.intra is None or not self.params.luma_carry or not m.used_centroid \
-                or not m.colour_frac >= self.params.confident_colour:
+                or not m.colour_frac >= self.params.min_colour:
             return
         pattern = LumaPattern(frame_bgr, m.x, m.y, self.model.radius)
         if pattern.ok:
