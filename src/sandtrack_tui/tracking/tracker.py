@@ -173,8 +173,7 @@ class MarkerTrack:
         if self.model.luma_follows or self._pattern is None or self._offset is None or self._is_intra(frame_index):
             return None
         found = self._pattern.find(frame_bgr, *self.kf.xy)
-        if found is None or math.hypot(found[0] - self._anchor_luma[0], found[1] - self._anchor_luma[1]) \
-                > self.params.luma_carry_max_px:
+        if found is None:
             return None
         x, y = found[0] + self._offset[0], found[1] + self._offset[1]
         d2 = self.kf.d2(x, y)
@@ -239,9 +238,7 @@ class MarkerTrack:
         m.luma = None if self._pattern is None else self._pattern.find(frame_bgr, m.x, m.y)
         if m.luma is None:
             return
-        lx, ly = m.luma
-        if math.hypot(lx - self._anchor_luma[0], ly - self._anchor_luma[1]) <= self.params.luma_carry_max_px:
-            m.x, m.y = lx + self._offset[0], ly + self._offset[1]
+        m.x, m.y = m.luma[0] + self._offset[0], m.luma[1] + self._offset[1]
 
     def _update_offset(self, frame_index: int, m: Match | None, reattach: bool, frame_bgr=None) -> None:
         intra = self._is_intra(frame_index)
@@ -255,6 +252,10 @@ class MarkerTrack:
                 return
             if m.luma is None:
                 return  # (the pattern did not fit this one frame: the marker is still where the chain says)
+            if math.hypot(m.luma[0] - self._anchor_luma[0], m.luma[1] - self._anchor_luma[1]) \
+                    > self.params.luma_carry_max_px:
+                self._new_pattern(frame_bgr, m.x, m.y)  # (far from where it was cut: the sand, the light differ)
+            return
         if m is None or m.luma is None or reattach or self._anchor_luma is None or \
                 math.hypot(m.luma[0] - self._anchor_luma[0], m.luma[1] - self._anchor_luma[1]) \
                 > self.params.luma_carry_max_px:
@@ -267,9 +268,16 @@ class MarkerTrack:
         if frame_bgr is None or self.intra is None or not self.params.luma_carry or not m.used_centroid \
                 or not m.colour_frac >= self.params.min_colour:
             return
-        pattern = LumaPattern(frame_bgr, m.x, m.y, self.model.radius)
-        if pattern.ok:
-            self._pattern, self._offset, self._anchor_luma = pattern, (0.0, 0.0), (m.x, m.y)
+        self._new_pattern(frame_bgr, m.x, m.y)
+
+    def _new_pattern(self, frame_bgr, x: float, y: float) -> None:
+        """Follow the brightness pattern of the marker at (x, y) in this frame from now on (no chain when
+        there is none to follow)."""
+        pattern = None if frame_bgr is None else LumaPattern(frame_bgr, x, y, self.model.radius)
+        if pattern is not None and pattern.ok:
+            self._pattern, self._offset, self._anchor_luma = pattern, (0.0, 0.0), (x, y)
+        else:
+            self._pattern = self._offset = self._anchor_luma = None
 
     def _cut_by_border(self, frame_bgr, m: Match) -> bool:
         """The marker's disc reaches the image's edge: part of it is outside the picture, and the
