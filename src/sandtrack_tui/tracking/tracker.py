@@ -54,7 +54,9 @@ class TrackParams:
     max_jump_px: float = 30.0  # a marker's largest move per frame: searched this far (per frame unseen)
     max_band_search_px: float = 240.0  # ... and at most this far along the other view's epipolar band
     # Between intra-coded frames, report the luma edge centre + the colour-minus-luma offset of the
-    # last intra frame (luma.py), while the marker stays within this distance of where it was then.
+    # last intra frame (luma.py), while the marker stays within this distance of where it was then; a
+    # marker with no dark silhouette (white on beige sand) is followed by its disc's brightness pattern,
+    # cut again once it has moved this far.
     luma_carry: bool = True
     luma_carry_max_px: float = 12.0
     # A marker whose brightness window has shifted by at most rest_shift_px, and changed otherwise
