@@ -182,7 +182,7 @@ class MarkerTrack:
         pattern (see _carry_pattern) when that is found inside the gate; else None."""
         if self.model.luma_follows or self._pattern is None or self._offset is None or self._is_intra(frame_index):
             return None
-        found = self._pattern.find(frame_bgr, *self.kf.xy)
+        found = self._pattern.find(frame_bgr, *self.kf.xy, velocity=self.kf.vxy)
         if found is None:
             return None
         x, y = found[0] + self._offset[0], found[1] + self._offset[1]
@@ -245,7 +245,7 @@ class MarkerTrack:
             self._pattern = LumaPattern(frame_bgr, m.x, m.y, self.model.radius)
             m.luma = (m.x, m.y) if self._pattern.ok else None
             return
-        m.luma = None if self._pattern is None else self._pattern.find(frame_bgr, m.x, m.y)
+        m.luma = None if self._pattern is None else self._pattern.find(frame_bgr, m.x, m.y, velocity=self.kf.vxy)
         if m.luma is None:
             return
         m.x, m.y = m.luma[0] + self._offset[0], m.luma[1] + self._offset[1]
