@@ -138,7 +138,9 @@ class LumaPattern:
     def find(self, frame, x: float, y: float, velocity: tuple | None = None) -> tuple[float, float] | None:
         """Where the pattern lies in `frame`, searched from (x, y); None when it does not fit. With the
         marker's `velocity` (px per frame) at STREAK_MIN_SPEED or more, the pattern smeared along it
-        over the exposures of matcher.STREAK_EXPOSURES is fitted too, and the best fit wins."""
+        over the exposures of matcher.STREAK_EXPOSURES is fitted too, and the best fit is the pattern's
+        (a smear along the motion, even about the mid-exposure, lowers the fit, not the place where the
+        still pattern registers; the smeared pattern's sand, smeared too, would pull its own place)."""
         if not self.ok:
             return None
         best = self._register(frame, x, y, self._still)
@@ -157,7 +159,7 @@ class LumaPattern:
                     if prep is not None:
                         got = self._register(frame, x, y, prep)
                         if got is not None and (best is None or got[2] > best[2]):
-                            best = got
+                            best = got if best is None else (best[0], best[1], got[2])
         if best is None:
             return None
         self.fit = best[2]
