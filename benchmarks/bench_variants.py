@@ -12,7 +12,10 @@ hidden frames flagged, flagged frames truly hidden; plus the share of visible fr
 identity switches (a `tracked` point within 3 px of another marker's true centre) and the
 appearance models chosen, and the tracking step's CPU per marker and frame (decoding excluded).
 
-`python benchmarks/bench_variants.py [NAME ...]` runs some; figures print as a table.
+`python benchmarks/bench_variants.py [NAME ...]` runs some; figures print as a table. With `--why`,
+every false lock and every run of frames flagged while the marker was visible is listed too, with the
+tracker's own verdict at the run's first frame (its best match in the gate and the test it failed, or
+how far its prediction was from the marker against the window it searched).
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ import shutil
 import sys
 import tempfile
 import time
+from contextlib import contextmanager
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -35,8 +39,10 @@ from sandtrack_tui.camera import Calibration  # noqa: E402
 from sandtrack_tui.demo import cache_dir, renderer_version  # noqa: E402
 from sandtrack_tui.groundtruth import identity_switches, match_marker_ids, score_tracking  # noqa: E402
 from sandtrack_tui.store import Project  # noqa: E402
+from sandtrack_tui.tracking.matcher import TemplateMatcher  # noqa: E402
 from sandtrack_tui.tracking.run import accept_seeds, auto_seed, track_project  # noqa: E402
 from sandtrack_tui.tracking.seeding import marker_box, snap_to_marker  # noqa: E402
+from sandtrack_tui.tracking.tracker import MarkerTrack  # noqa: E402
 from sandtrack_tui.twin.variants import VARIANTS, render_variant  # noqa: E402
 from sandtrack_tui.video import FrameSource  # noqa: E402
 
@@ -131,6 +137,93 @@ def run_variant(name: str, seed: int = 0, keep: dict | None = None) -> dict:
     return out
 
 
+@contextmanager
+def _verdicts(out: dict):
+    """Record, per (camera, marker, frame), what the tracker saw (diagnostics for --why only): its
+    prediction and search half-size, and the best match of its own gated search (or of a
+    re-acquisition's check) with the thresholds it had to pass."""
+    match0, propose0, verify0, apply0 = (TemplateMatcher.match, MarkerTrack.propose, MarkerTrack.verify_at,
+                                         MarkerTrack.apply)
+
+    def match(self, *a, **k):
+        self._why = match0(self, *a, **k)
+        return self._why
+
+    def searched(how, orig):
+        def wrapped(self, img, *a, **k):
+            self.matcher._why = None
+            res = orig(self, img, *a, **k)
+            self._why = (how, self.matcher._why, res is not None)
+            return res
+        return wrapped
+
+    def apply(self, frame_index, *a, **k):
+        hx, hy = self.search_halfsize()
+        rec = {"pred": tuple(map(float, self.kf.xy)), "half": float(max(hx, hy)), "was": self.status}
+        how = getattr(self, "_why", None)
+        if how is not None:
+            rec.update(search=how[0], match=how[1], passed=how[2])
+        self._why = None
+        out[(self.camera, self.marker, int(frame_index))] = rec
+        return apply0(self, frame_index, *a, **k)
+
+    TemplateMatcher.match = match
+    MarkerTrack.propose, MarkerTrack.verify_at = searched("gate", propose0), searched("re-acquisition", verify0)
+    MarkerTrack.apply = apply
+    try:
+        yield out
+    finally:
+        TemplateMatcher.match, MarkerTrack.propose, MarkerTrack.verify_at, MarkerTrack.apply = (
+            match0, propose0, verify0, apply0)
+
+
+def _verdict_text(rec: dict | None, tx: float, ty: float, params) -> str:
+    if rec is None:
+        return "not searched"
+    gap = float(np.hypot(rec["pred"][0] - tx, rec["pred"][1] - ty))
+    where = f"prediction {gap:.1f} px from the marker, window ±{rec['half']:.0f} px"
+    m = rec.get("match")
+    if m is None:
+        what = f"{rec.get('search', 'no search')}: no match"
+    else:
+        tests = (("score", m.score, params.min_score), ("psr", m.psr, params.min_psr),
+                 ("coverage", m.colour_frac, params.min_colour))
+        fails = [f"{n} {v:.2f} < {t:.2f}" for n, v, t in tests if v < t]
+        what = (f"{rec['search']}: match {np.hypot(m.x - tx, m.y - ty):.1f} px from the marker, score "
+                f"{m.score:.2f}, psr {m.psr:.1f}, coverage {m.colour_frac:.2f}"
+                + (f" (failed: {', '.join(fails)})" if fails and not rec.get("passed") else ""))
+    return f"was {rec['was']}; {what}; {where}"
+
+
+def explain(points: pd.DataFrame, truth: dict, ids: dict, verdicts: dict) -> list[str]:
+    """One line per false lock (> 3 px) and per run of frames flagged while the marker was visible."""
+    from sandtrack_tui.tracking.tracker import TrackParams
+
+    params, back = TrackParams(), {v: k for k, v in ids.items()}
+    lines = []
+    for cam, t in truth.items():
+        p = points[(points.camera == cam) & points.marker.isin(list(ids))]
+        p = p.assign(true_marker=p.marker.map(ids))
+        m = p.merge(t, left_on=["frame", "true_marker"], right_on=["frame", "marker"], suffixes=("", "_t"))
+        m = m.sort_values(["true_marker", "frame"])
+        m = m.assign(err=np.hypot(m.x_px - m.x_px_t, m.y_px - m.y_px_t))
+        for r in m[m.status.isin(["tracked", "manual"]) & (m.err > 3)].itertuples():
+            rec = verdicts.get((cam, back[r.true_marker], int(r.frame)))
+            lines.append(f"false lock   {cam:>5} marker {r.true_marker} frame {r.frame}: {r.err:.1f} px off, "
+                         f"truth visible {r.visible_fraction:.2f}; {_verdict_text(rec, r.x_px_t, r.y_px_t, params)}")
+        bad = m[m.status.isin(["occluded", "lost"]) & m.visible.astype(bool)]
+        for tm, g in bad.groupby("true_marker"):
+            frames = g.frame.to_numpy()
+            for run in np.split(np.arange(len(g)), np.nonzero(np.diff(frames) > 1)[0] + 1):
+                first, last = g.iloc[run[0]], g.iloc[run[-1]]
+                rec = verdicts.get((cam, back[tm], int(first.frame)))
+                moved = float(np.hypot(last.x_px_t - first.x_px_t, last.y_px_t - first.y_px_t))
+                lines.append(f"flagged seen {cam:>5} marker {tm} frames {first.frame}-{last.frame} ({len(run)}, "
+                             f"{'/'.join(sorted(set(g.iloc[run].status)))}), moved {moved:.1f} px; "
+                             f"{_verdict_text(rec, first.x_px_t, first.y_px_t, params)}")
+    return lines
+
+
 def run(names: list[str] | None = None) -> dict:
     rows = [run_variant(n) for n in (names or list(VARIANTS))]
     out: dict = {}
@@ -153,9 +246,16 @@ def _table(rows: list[dict]) -> str:
 
 
 if __name__ == "__main__":
-    names = sys.argv[1:] or list(VARIANTS)
+    why = "--why" in sys.argv[1:]
+    names = [a for a in sys.argv[1:] if a != "--why"] or list(VARIANTS)
     rows = []
     for n in names:
-        rows.append(run_variant(n))
+        if why:
+            keep: dict = {}
+            with _verdicts({}) as verdicts:
+                rows.append(run_variant(n, keep=keep))
+            print("\n".join(explain(keep["points"], keep["truth"], keep["ids"], verdicts)))
+        else:
+            rows.append(run_variant(n))
         print(json.dumps(rows[-1]), flush=True)
     print(_table(rows))

@@ -97,9 +97,7 @@ class Engine:
                 lv.append(t)
             crowd = self._neighbours(live[cam])
             for t in live[cam]:
-                if t.coasting and not t.awaiting_outline:
-                    continue
-                m = t.propose(img, j)
+                m = t.pattern_return(img, j) if t.coasting and not t.awaiting_outline else t.propose(img, j)
                 if m is not None and self._crowded_reject(t, m, crowd.get(id(t), ())):
                     m = None
                 if m is not None:

@@ -16,13 +16,21 @@ shadow sliding over the sand, which shifts the luma edge sideways, from moving t
 The luma centre is a circle fitted to the marker's silhouette edge: along rays from the estimate,
 the strongest rise of brightness from the (darker) marker to the sand, located to sub-pixel, then
 an algebraic circle fit with robust weights (rays through a shadow or a neighbour count less).
+A marker with no dark silhouette (a white one on beige sand: its lit side brighter than the sand,
+its shaded side as bright) has no such edge; its shading pattern, though, moves with it (the light
+does not turn with the marker): `LumaPattern` registers the brightness of its disc at the intra
+frame in the frames after it.
 """
 
 from __future__ import annotations
 
+import math
+
+import cv2
 import numpy as np
 
 from . import kernels
+from .chroma import LUMA_BGR
 
 N_RAYS = 32
 _ANG = np.linspace(0, 2 * np.pi, N_RAYS, endpoint=False)
@@ -60,6 +68,122 @@ def edge_circle(frame_bgr, x: float, y: float, radius: float, iterations: int = 
     else:
         ok, cx, cy, r, quadrants = kernels.edge_centre(frame_bgr[y0:y0 + 2 * R + 1, x0:x0 + 2 * R + 1], *args)
     return (cx + x0, cy + y0, r, int(quadrants)) if ok else None
+
+
+class LumaPattern:
+    """The brightness of a marker's disc around (x, y) in one frame, found again in later frames: the
+    translation that best fits the pattern (weights: the disc of `radius`, so the sand, which stays
+    where it is, hardly counts; brightness offsets are not motion), by Gauss-Newton. A marker moving
+    fast is smeared by the exposure along its motion: then the pattern smeared the same way is fitted
+    too (see find). `ok` is False near the image's edge or when the disc holds no structure to register."""
+
+    ITERATIONS = 6
+    MIN_NCC = 0.9  # a registered disc must look like the pattern this much, or nothing is reported
+    SETTLED_PX = 0.01
+
+    def __init__(self, frame, x: float, y: float, radius: float):
+        self.x, self.y = float(x), float(y)
+        self.half = h = int(math.ceil(radius)) + 2
+        self.ok = False
+        wide = self._sample(frame, x, y, 2 * h)  # (room to smear the pattern by up to 2 half)
+        if wide is None:
+            return
+        self._wide = wide
+        yy, xx = np.mgrid[-h:h + 1, -h:h + 1]
+        self.w = np.clip(radius + 0.5 - np.hypot(xx, yy), 0.0, 1.0).astype(np.float32)
+        self._still = self._prepare(self._smeared(0.0, 0.0, 0.0))
+        if self._still is None:
+            return
+        self._smears: dict = {}
+        self.fit = float("nan")  # normalised correlation of the last find with the pattern
+        self.ok = True
+
+    def _mean(self, a: np.ndarray) -> float:
+        return float((self.w * a).sum() / self.w.sum())
+
+    def _smeared(self, ux: float, uy: float, length: float) -> np.ndarray:
+        """The pattern's window averaged over a move of `length` px along (ux, uy), centred."""
+        size = 2 * self.half + 1
+        c = 2 * self.half
+        n = max(int(math.ceil(length)) + 1, 1)
+        out = np.zeros((size, size), np.float32)
+        for s in np.linspace(-0.5 * length, 0.5 * length, n):
+            out += cv2.getRectSubPix(self._wide, (size, size), (c + s * ux, c + s * uy))
+        return out / n
+
+    def _prepare(self, t: np.ndarray) -> tuple | None:
+        """(template, gradients, inverse Hessian, energy) of a pattern window; None without structure."""
+        w = self.w
+        t = t - self._mean(t)
+        gx = cv2.Sobel(t, cv2.CV_32F, 1, 0, ksize=3) / 8
+        gy = cv2.Sobel(t, cv2.CV_32F, 0, 1, ksize=3) / 8
+        gx, gy = gx - self._mean(gx), gy - self._mean(gy)
+        hess = np.array([[(w * gx * gx).sum(), (w * gx * gy).sum()],
+                         [(w * gx * gy).sum(), (w * gy * gy).sum()]], np.float64)
+        if np.linalg.det(hess) <= 1e-6 * max(np.trace(hess), 1e-12) ** 2:
+            return None
+        return t, gx, gy, np.linalg.inv(hess), float((w * t * t).sum())
+
+    def _sample(self, frame, x: float, y: float, half: int | None = None) -> np.ndarray | None:
+        """The (2 half + 1)² luma window centred at (x, y), sub-pixel, float32; None near the edge."""
+        h = self.half if half is None else half
+        size = 2 * h + 1
+        x0, y0 = int(math.floor(x)) - h - 2, int(math.floor(y)) - h - 2
+        H, W = frame.shape[:2]
+        if x0 < 0 or y0 < 0 or x0 + size + 4 > W or y0 + size + 4 > H:
+            return None
+        win = np.asarray(frame[y0:y0 + size + 4, x0:x0 + size + 4], dtype=np.float32)
+        luma = win @ LUMA_BGR if win.ndim == 3 else win
+        return cv2.getRectSubPix(np.ascontiguousarray(luma), (size, size), (x - x0, y - y0))
+
+    def find(self, frame, x: float, y: float, velocity: tuple | None = None) -> tuple[float, float] | None:
+        """Where the pattern lies in `frame`, searched from (x, y); None when it does not fit. With the
+        marker's `velocity` (px per frame) at STREAK_MIN_SPEED or more, the pattern smeared along it
+        over the exposures of matcher.STREAK_EXPOSURES is fitted too, and the best fit is the pattern's
+        (a smear along the motion, even about the mid-exposure, lowers the fit, not the place where the
+        still pattern registers; the smeared pattern's sand, smeared too, would pull its own place)."""
+        if not self.ok:
+            return None
+        best = self._register(frame, x, y, self._still)
+        if velocity is not None:
+            from .matcher import STREAK_EXPOSURES, STREAK_MIN_SPEED  # (matcher imports this module)
+
+            speed = math.hypot(*velocity)
+            if speed >= STREAK_MIN_SPEED:
+                ux, uy = velocity[0] / speed, velocity[1] / speed
+                for e in STREAK_EXPOSURES:
+                    length = min(e * speed, 2.0 * self.half)
+                    key = (round(ux, 1), round(uy, 1), round(length))
+                    prep = self._smears.get(key)
+                    if prep is None:
+                        prep = self._smears[key] = self._prepare(self._smeared(ux, uy, length))
+                    if prep is not None:
+                        got = self._register(frame, x, y, prep)
+                        if got is not None and (best is None or got[2] > best[2]):
+                            best = got if best is None else (best[0], best[1], got[2])
+        if best is None:
+            return None
+        self.fit = best[2]
+        return (best[0], best[1]) if self.fit >= self.MIN_NCC else None
+
+    def _register(self, frame, x: float, y: float, prep: tuple) -> tuple | None:
+        """(x, y, normalised correlation) of the Gauss-Newton fit of one pattern from (x, y); None near
+        the image's edge."""
+        t, gx, gy, hess_inv, tt = prep
+        dx, dy = x - self.x, y - self.y
+        s = None
+        for _ in range(self.ITERATIONS):
+            s = self._sample(frame, self.x + dx, self.y + dy)
+            if s is None:
+                return None
+            s -= self._mean(s)
+            e = self.w * (s - t)
+            step = hess_inv @ np.array([(e * gx).sum(), (e * gy).sum()])
+            dx, dy = dx - float(step[0]), dy - float(step[1])
+            if abs(step[0]) + abs(step[1]) < self.SETTLED_PX:
+                break
+        fit = float((self.w * s * t).sum()) / math.sqrt(float((self.w * s * s).sum()) * tt + 1e-12)
+        return self.x + dx, self.y + dy, fit
 
 
 _STEPS: dict = {}

@@ -23,7 +23,7 @@ from ..errors import SandtrackError
 from . import crowd as crowd_rules
 from .appearance import COLOUR, DARK, AppearanceModel, learn
 from .kalman import GATE_D2, ConstantVelocityKF
-from .luma import edge_centre
+from .luma import LumaPattern, edge_centre
 from .matcher import Match, TemplateMatcher
 from .rest import RestReference
 
@@ -57,7 +57,9 @@ class TrackParams:
     max_jump_px: float = 30.0  # a marker's largest move per frame: searched this far (per frame unseen)
     max_band_search_px: float = 240.0  # ... and at most this far along the other view's epipolar band
     # Between intra-coded frames, report the luma edge centre + the colour-minus-luma offset of the
-    # last intra frame (luma.py), while the marker stays within this distance of where it was then.
+    # last intra frame (luma.py), while the marker stays within this distance of where it was then; a
+    # marker with no dark silhouette (white on beige sand) is followed by its disc's brightness pattern,
+    # cut again once it has moved this far.
     luma_carry: bool = True
     luma_carry_max_px: float = 12.0
     # A marker whose brightness window has shifted by at most rest_shift_px, and changed otherwise
@@ -124,6 +126,7 @@ class MarkerTrack:
         self.intra = None  # per frame of this camera: intra-coded (set by the caller)
         self._offset: tuple | None = None  # colour centre - luma centre at the last intra frame
         self._anchor_luma: tuple | None = None
+        self._pattern: LumaPattern | None = None  # the marker's brightness at the last intra frame (no silhouette)
         self._rest: RestReference | None = None
         self.rest_frames = 0
         self.held = False
@@ -170,14 +173,37 @@ class MarkerTrack:
         m = self.matcher.match(frame_bgr, px, py, hx, hy, self.kf.innovation_inv(), self.params.gate_d2,
                                self.kf.vxy)
         if m is None:
-            return None
+            return self._pattern_match(frame_bgr, frame_index)
         if not m.outline and self.counts[TRACKED] == 0:
             return None  # (held only once measured since its seed: a seed nothing confirmed is not followed)
         m.d2 = self.kf.d2(m.x, m.y)
         if not self.acceptable(m, TOUCHING_RELAX if m.touching else 1.0) or self._cut_by_border(frame_bgr, m):
-            return None
+            return self._pattern_match(frame_bgr, frame_index)
         self._carry(frame_bgr, m, frame_index)
         return m
+
+    def pattern_return(self, frame_bgr, frame_index: int | None = None) -> Match | None:
+        """A coasting marker with no dark silhouette, unseen a few frames at most, whose brightness
+        pattern is found again near its prediction (as closely as a followed marker's: see LumaPattern)
+        is back in sight: its colour, stale between intra frames, may not say so yet."""
+        if not self.coasting or self.misses > SHORT_MISS:
+            return None
+        return self._pattern_match(frame_bgr, frame_index)
+
+    def _pattern_match(self, frame_bgr, frame_index: int | None) -> Match | None:
+        """Between intra frames, a marker with no dark silhouette whose colour match failed (its colour
+        is stale there: a moving marker's is left behind, and weakens) is measured by its brightness
+        pattern (see _carry_pattern) when that is found inside the gate; else None."""
+        if self.model.luma_follows or self._pattern is None or self._offset is None or self._is_intra(frame_index):
+            return None
+        found = self._pattern.find(frame_bgr, *self.kf.xy, velocity=self.kf.vxy)
+        if found is None:
+            return None
+        x, y = found[0] + self._offset[0], found[1] + self._offset[1]
+        d2 = self.kf.d2(x, y)
+        if d2 > self.params.gate_d2:
+            return None
+        return Match(x, y, self._pattern.fit, float("nan"), float("nan"), d2, True, found)
 
     @property
     def intra(self) -> np.ndarray | None:
@@ -195,11 +221,16 @@ class MarkerTrack:
     def _carry(self, frame_bgr, m: Match, frame_index: int | None) -> None:
         """Measure the luma centre of a whole, clearly seen marker; between intra frames, move the
         match to luma centre + the last intra frame's offset (see luma.py)."""
-        if self.intra is None or not self.params.luma_carry or not m.used_centroid or self.model.kind != COLOUR:
+        if self.intra is None or not self.params.luma_carry or self.model.kind != COLOUR:
             return  # (a brightness model measures the full-resolution luma itself: nothing trails)
         intra = self._is_intra(frame_index)
+        if not m.used_centroid and (intra or self.model.luma_follows):
+            return  # (a pattern is cut, and an edge measured, on a whole, clearly seen marker only)
         if not intra and self._offset is None:
             return  # nothing to carry until the next intra frame
+        if not self.model.luma_follows:
+            self._carry_pattern(frame_bgr, m, intra)
+            return
         sx, sy = m.x, m.y
         if self._offset is not None:  # start from where the edge centre is expected: fewer fit rounds
             sx, sy = sx - self._offset[0], sy - self._offset[1]
@@ -218,14 +249,67 @@ class MarkerTrack:
             along = min(max(along, 0.0), dist)
             m.x, m.y = m.x + along * ux, m.y + along * uy
 
-    def _update_offset(self, frame_index: int, m: Match | None, reattach: bool) -> None:
-        if m is not None and m.luma is not None and self._is_intra(frame_index):
+    def _carry_pattern(self, frame_bgr, m: Match, intra: bool) -> None:
+        """_carry for a marker with no dark silhouette (its brightness does not set it apart from the
+        sand: a white marker on beige sand): its disc's brightness pattern at the intra frame
+        (luma.LumaPattern), found again in the frames after it, moved as far as the marker, which
+        is then there: the pattern is the marker's own (not an edge that shading or a shadow may
+        shift), so the stale colour is not trusted in any direction."""
+        if intra:
+            self._pattern = LumaPattern(frame_bgr, m.x, m.y, self.model.radius)
+            m.luma = (m.x, m.y) if self._pattern.ok else None
+            return
+        m.luma = None if self._pattern is None else self._pattern.find(frame_bgr, m.x, m.y, velocity=self.kf.vxy)
+        if m.luma is None:
+            return
+        m.x, m.y = m.luma[0] + self._offset[0], m.luma[1] + self._offset[1]
+
+    def _update_offset(self, frame_index: int, m: Match | None, reattach: bool, frame_bgr=None) -> None:
+        intra = self._is_intra(frame_index)
+        if m is not None and m.luma is not None and intra:
             self._offset = (m.x - m.luma[0], m.y - m.luma[1])
             self._anchor_luma = m.luma
-        elif m is None or m.luma is None or reattach or self._anchor_luma is None or \
+            return
+        if not self.model.luma_follows and m is None and not intra and self._pattern is not None \
+                and self.misses < SHORT_MISS:
+            return  # (unseen a frame or two: the chain is kept, to find the marker by its pattern: pattern_return)
+        if not self.model.luma_follows and m is not None and reattach and not intra:
+            self._offset = self._anchor_luma = self._pattern = None
+            if m.colour_frac >= self.params.confident_colour:
+                self._restart_pattern(frame_bgr, m)  # (the chain restarts where the marker was found again)
+            return
+        if not self.model.luma_follows and m is not None and not reattach and not intra:
+            if self._pattern is None:
+                self._restart_pattern(frame_bgr, m)
+                return
+            if m.luma is None:
+                return  # (the pattern did not fit this one frame: the marker is still where the chain says)
+            if math.hypot(m.luma[0] - self._anchor_luma[0], m.luma[1] - self._anchor_luma[1]) \
+                    > self.params.luma_carry_max_px:
+                self._new_pattern(frame_bgr, m.x, m.y)  # (far from where it was cut: the sand, the light differ)
+            return
+        if m is None or m.luma is None or reattach or self._anchor_luma is None or \
                 math.hypot(m.luma[0] - self._anchor_luma[0], m.luma[1] - self._anchor_luma[1]) \
                 > self.params.luma_carry_max_px:
-            self._offset = self._anchor_luma = None  # the chain from the intra frame is broken
+            self._offset = self._anchor_luma = self._pattern = None  # the chain from the intra frame is broken
+
+    def _restart_pattern(self, frame_bgr, m: Match) -> None:
+        """A chain broken between intra frames starts again from a colour match centred on the marker's
+        coverage: its brightness pattern there, followed until the next intra frame (the colour's place
+        at this frame may be stale, but without the chain it only grows staler)."""
+        if frame_bgr is None or self.intra is None or not self.params.luma_carry or not m.used_centroid \
+                or not m.colour_frac >= self.params.min_colour:
+            return
+        self._new_pattern(frame_bgr, m.x, m.y)
+
+    def _new_pattern(self, frame_bgr, x: float, y: float) -> None:
+        """Follow the brightness pattern of the marker at (x, y) in this frame from now on (no chain when
+        there is none to follow)."""
+        pattern = None if frame_bgr is None else LumaPattern(frame_bgr, x, y, self.model.radius)
+        if pattern is not None and pattern.ok:
+            self._pattern, self._offset, self._anchor_luma = pattern, (0.0, 0.0), (x, y)
+        else:
+            self._pattern = self._offset = self._anchor_luma = None
 
     def _cut_by_border(self, frame_bgr, m: Match) -> bool:
         """The marker's disc reaches the image's edge: part of it is outside the picture, and the
@@ -260,7 +344,7 @@ class MarkerTrack:
             return None
         if self.model.has_blob and m.colour_frac > MERGED_COVERAGE:
             return None  # the candidate is this marker merged with another: who is who is not clear
-        if self._cut_by_border(frame_bgr, m):
+        if self._cut_by_border(frame_bgr, m) or self._pattern_denies(frame_bgr, m, frame_index):
             return None
         m.d2 = self.kf.d2(m.x, m.y)
         return m
@@ -300,13 +384,23 @@ class MarkerTrack:
         self.highlight_offset = d if off is None else (off[0] + HIGHLIGHT_ALPHA * (d[0] - off[0]),
                                                        off[1] + HIGHLIGHT_ALPHA * (d[1] - off[1]))
 
+    def _pattern_denies(self, frame_bgr, m: Match, frame_index: int | None) -> bool:
+        """A marker with no dark silhouette, unseen a frame or two, whose colour covers less than a whole
+        disc where it would be found again: when its brightness pattern (kept from before the miss) is
+        not there, part of it is still hidden (a whole one fits its pattern to NCC >= 0.97 at 99 % of
+        frames) and its colour's centre is not its own."""
+        if self.model.luma_follows or self._pattern is None or self._offset is None \
+                or m.colour_frac >= self.params.confident_colour or self._is_intra(frame_index):
+            return False
+        return self._pattern.find(frame_bgr, m.x - self._offset[0], m.y - self._offset[1]) is None
+
     def apply(self, frame_index: int, frame_bgr: np.ndarray | None, m: Match | None,
               reattach: bool = False, jump: bool = False) -> Observation:
         """Commit this frame's outcome and return its observation. `jump`: re-attached beyond the
         gate; the velocity restarts from the move since the last measurement."""
         self.frame_index = frame_index
         p = self.params
-        self._update_offset(frame_index, m, reattach)
+        self._update_offset(frame_index, m, reattach, frame_bgr)
         self.held = m is not None and not m.outline
         if self.held:
             self._rest = None
@@ -363,7 +457,7 @@ class MarkerTrack:
 
     def set_manual(self, frame_index: int, frame_bgr: np.ndarray | None, x: float, y: float) -> Observation:
         """An operator's point met along the way: trust it, keep tracking from it."""
-        self._offset = self._anchor_luma = None
+        self._offset = self._anchor_luma = self._pattern = None
         self._rest = None
         self.held = False
         if self.misses > 2:
