@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..jit import jit as _jit
+from ..yuv import _window_bgr
 from .chroma import LUMA_BGR
 
 _LB, _LG, _LR = (np.float32(v) for v in LUMA_BGR)
@@ -216,13 +217,7 @@ def edge_centre(win, cx, cy, radius, steps, cos, sin, min_rise, step_px, iterati
     """(ok, x, y, r, quadrants): centre and radius of the marker's dark silhouette (sign 1; a bright one:
     sign -1) near (cx, cy) in the BGR window `win`, in the window's coordinates, and how many of the
     four quadrants around it hold the outline (see luma.edge_centre; `outward`: _robust_circle)."""
-    return _edge_centre_of(luma_window(win), cx, cy, radius, steps, cos, sin, min_rise, step_px, iterations, settle_px,
-                           sign, outward)
-
-
-@_jit
-def _edge_centre_of(luma, cx, cy, radius, steps, cos, sin, min_rise, step_px, iterations, settle_px, sign, outward):
-    """edge_centre of a brightness window (float32)."""
+    luma = luma_window(win)
     n = steps.shape[0]
     n_rays = cos.shape[0]
     wx = np.empty(4)
@@ -549,9 +544,14 @@ def epipolar_distances(pa, pb, cam_a, cam_b, F):
 
 
 # The same kernels on a window of a frame still in its 4:2:0 planes (yuv.Yuv420Frame.yuv: planes y, u, v
-# and the conversion tables t): each pixel is converted inside the call as the frame's slicing would
-# convert it (yuv._window_bgr), straight into the brightness or score the kernel reads, with no BGR
-# window in between (which took longer to fill than the kernels took to read it).
+# and the conversion tables t): the window is converted inside the call, as the frame's slicing would.
+# The rest test and the score window convert each pixel straight into the brightness or score they
+# read, with no BGR window in between (which took longer to fill than the kernels took to read it).
+@_jit
+def _bgr(yp, up, vp, t, x0, y0, x1, y1):
+    return _window_bgr(yp, up, vp, x0, y0, x1, y1, t[0], t[1], t[2], t[3], t[4])
+
+
 @_jit
 def _bgr_at(yp, up, vp, t, yy, xx):
     """(B, G, R) of frame pixel (yy, xx) as float32, the values yuv._window_bgr gives it."""
@@ -588,8 +588,8 @@ def rest_shift_yuv(yp, up, vp, t, x0, y0, ref, gx, gy, ginv, max_shift_px, max_r
 @_jit
 def edge_centre_yuv(yp, up, vp, t, x0, y0, n, cx, cy, radius, steps, cos, sin, min_rise, step_px, iterations,
                     settle_px, sign, outward):
-    return _edge_centre_of(_luma_window_yuv(yp, up, vp, t, x0, y0, n), cx, cy, radius, steps, cos, sin, min_rise,
-                           step_px, iterations, settle_px, sign, outward)
+    return edge_centre(_bgr(yp, up, vp, t, x0, y0, x0 + n, y0 + n), cx, cy, radius, steps, cos, sin, min_rise,
+                       step_px, iterations, settle_px, sign, outward)
 
 
 @_jit
