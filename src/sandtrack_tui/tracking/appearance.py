@@ -391,7 +391,7 @@ class SeedPatch:
         if not holes.any():
             return own
         _n, labels = cv2.connectedComponents(holes, connectivity=4)
-        gy, gx = np.mgrid[0:own.shape[0], 0:own.shape[1]]
+        gy, gx = np.ogrid[0:own.shape[0], 0:own.shape[1]]
         near = np.hypot(gx + x0 - self.cx, gy + y0 - self.cy) <= 0.25 * min(self.w, self.h)
         central = np.unique(labels[near & (labels > 0)])
         return own | np.isin(labels, central) if len(central) else own
@@ -437,7 +437,7 @@ class SeedPatch:
             px, py = int(xs[k]), int(ys[k])
             rd = _first_gap(solid, px, py)
             if rd is not None and own.sum() > 1.3 * np.pi * rd**2:
-                gy, gx = np.mgrid[0:own.shape[0], 0:own.shape[1]]
+                gy, gx = np.ogrid[0:own.shape[0], 0:own.shape[1]]
                 own &= np.hypot(gx - px, gy - py) <= rd + 0.5
                 # (its part is far more than its own disc, and holds another disc as deep: it touches others)
                 self.crowded = bool(np.any((np.hypot(xs - px, ys - py) >= 1.6 * rd) & (dt[ys, xs] >= 0.6 * dt[py, px])))

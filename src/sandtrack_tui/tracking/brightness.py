@@ -43,7 +43,7 @@ def _surround(ring: np.ndarray, centre: float, sign: float | None = None) -> np.
     sand (or gaps) between: when the ring's brightness falls into two clear groups, the sand is the
     group farther from the centre's level (the marker's polarity `sign` known: the brighter group for
     a dark marker, the darker for a bright one)."""
-    lo, hi = np.percentile(ring, 10), np.percentile(ring, 90)
+    lo, hi = np.percentile(ring, (10, 90))
     if hi - lo < 1e-6:
         return ring
     t = 0.5 * (lo + hi)
