@@ -7,7 +7,10 @@ decoder threads competing for the cores and the GIL: `step_cpu_ms_per_marker_fra
 `_median` (thread CPU inside `Engine.step`, per marker and camera frame; the first run, which loads
 the compiled kernels, is left out). One more run with a CPU timer around each stage gives each
 stage's share of the step (`share_*`, inclusive: the template matches that re-acquisition
-verifies count in both `share_match` and `share_reacquire`), and the calls (`calls_*`).
+verifies count in both `share_match` and `share_reacquire`), and the calls (`calls_*`). The main
+thread's CPU of a whole replayed run (`main_cpu_s_*`, median of the runs) is split into the steps
+(`step_cpu_s_median`), starting the tracks (`setup_cpu_s_median`: each seed's appearance model and
+templates, `MarkerTrack.__init__`) and writing the points to the project (`writes_cpu_s_median`).
 Needs ~3 GB of memory for the decoded frames; sample_data absent: skipped.
 """
 
@@ -26,7 +29,7 @@ sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parents[0] / "src"))
 
 import bench_tracking as bt  # noqa: E402
-from sandtrack_tui.store import Project  # noqa: E402
+from sandtrack_tui.store import Project, _Edit  # noqa: E402
 from sandtrack_tui.tracking import run as tracking_run  # noqa: E402
 from sandtrack_tui.tracking.engine import Engine  # noqa: E402
 from sandtrack_tui.tracking.matcher import TemplateMatcher  # noqa: E402
@@ -93,10 +96,14 @@ def run() -> dict:
         _Replay.frames = {id(s): [s.lazy_frame(j) for j in range(len(s))] for s in srcs.values()}
         real_prefetch, tracking_run.prefetch = tracking_run.prefetch, _Replay
         try:
-            step_ms, points = [], None
+            step_ms, points, split = [], None, []
             for rep in range(RUNS + 2):
                 instrumented = rep == RUNS + 1
                 cpu, calls, saved = dict.fromkeys(STAGES, 0.0), dict.fromkeys(STAGES, 0), []
+                outside = {"setup": 0.0, "writes": 0.0}
+                for name, (cls, meth) in (("setup", (MarkerTrack, "__init__")), ("writes", (_Edit, "write"))):
+                    saved.append((cls, meth, cls.__dict__[meth]))
+                    setattr(cls, meth, _timed(outside, {name: 0}, name, cls.__dict__[meth]))
                 if instrumented:
                     for name, (cls, meth) in STAGES.items():
                         saved.append((cls, meth, cls.__dict__[meth]))
@@ -105,7 +112,9 @@ def run() -> dict:
                 shutil.copyfile(seeded, run_file)
                 try:
                     with Project.open(run_file) as p:
+                        c0 = time.thread_time()
                         summary = track_project(p, sources=srcs)
+                        main_cpu = time.thread_time() - c0
                         if points is None:
                             points = p.points()
                 finally:
@@ -113,6 +122,8 @@ def run() -> dict:
                         setattr(cls, meth, fn)
                 if 0 < rep <= RUNS:
                     step_ms.append(summary["track_cpu_ms_per_marker_frame"])
+                    split.append((main_cpu, outside["setup"], outside["writes"],
+                                  summary["track_cpu_ms_per_marker_frame"] * summary["marker_frames"] / 1000))
         finally:
             tracking_run.prefetch = real_prefetch
             _Replay.frames = {}
@@ -121,6 +132,10 @@ def run() -> dict:
     out = {"data": "sample_data", "runs": RUNS, "step_cpu_ms_per_marker_frame_min": min(step_ms),
            "step_cpu_ms_per_marker_frame_median": round(float(np.median(step_ms)), 4),
            "step_cpu_ms_per_marker_frame_runs": step_ms}
+    main, setup, writes, steps = (float(np.median([s[k] for s in split])) for k in range(4))
+    out.update(main_cpu_s_median=round(main, 4), main_cpu_s_runs=[round(s[0], 4) for s in split],
+               step_cpu_s_median=round(steps, 4), setup_cpu_s_median=round(setup, 4),
+               writes_cpu_s_median=round(writes, 4))
     total = cpu["step"]
     out.update({f"share_{k}": round(v / total, 3) for k, v in cpu.items() if k != "step"})
     out.update({f"calls_{k}": v for k, v in calls.items()})

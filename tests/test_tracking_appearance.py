@@ -279,3 +279,21 @@ def test_a_coloured_sphere_lit_from_one_side_is_centred_on_its_outline():
     assert model.kind == "colour"
     x, y, _ = MarkerTrack(1, "cam", img, 0, cx + 1.0, cy - 0.8, 14, 14).matcher.refine_at(img, cx + 1.0, cy - 0.8)
     assert abs(x - cx) < 0.08 and abs(y - cy) < 0.08
+
+
+def test_learning_helpers_equal_the_library_calls_they_replace():
+    """The seed box's hole filling and per-sector medians give exactly what scipy's binary_fill_holes
+    and np.median per group give (masks of every density, groups of odd and even size, empty groups)."""
+    from scipy.ndimage import binary_fill_holes
+
+    from sandtrack_tui.tracking.appearance import _group_medians, _holes_filled
+
+    rng = np.random.default_rng(5)
+    for _ in range(300):
+        h, w = rng.integers(1, 25, 2)
+        mask = (rng.random((h, w)) < rng.random()).astype(np.uint8)
+        assert np.array_equal(_holes_filled(mask), binary_fill_holes(mask))
+        values = rng.normal(size=int(rng.integers(1, 60))).astype(np.float32)
+        groups = rng.integers(0, 8, len(values))
+        want = [np.median(values[groups == k]) for k in range(8) if np.any(groups == k)]
+        assert np.array_equal(_group_medians(values, groups, 8), want)

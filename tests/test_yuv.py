@@ -92,6 +92,37 @@ def test_linear_mask_equals_the_test_on_the_converted_window():
     assert 0 < founds < 180  # (both outcomes were tested)
 
 
+def test_kernels_read_the_planes_as_the_converted_window():
+    """The tracker's kernels on a frame in its planes (kernels.*_yuv) give what they give on the window
+    converted to BGR, to the last bit."""
+    if not SAMPLE.exists():
+        pytest.skip("sample_data is absent")
+    from sandtrack_tui.tracking import kernels, luma
+
+    with FrameSource(SAMPLE, cache_mb=0) as src:
+        frame, later = src.lazy_frame(7), src.lazy_frame(8)
+    planes, planes_later = frame.yuv, later.yuv
+    rng = np.random.default_rng(11)
+    coeffs = tuple(np.float32(c) for c in (0.9, -0.4, -0.5, 0.1, 3.0, 1.0))
+    radius = 5.5
+    args = (luma._steps(radius), luma._COS, luma._SIN, luma.MIN_RISE, luma.STEP, 3, 0.35, 1.0, True)
+    for _ in range(25):
+        y0, x0 = int(rng.integers(0, 1000)), int(rng.integers(0, 1800))
+        y1, x1 = y0 + int(rng.integers(1, 60)), x0 + int(rng.integers(1, 90))
+        assert np.array_equal(kernels.colour_score_yuv(*planes, x0, y0, x1, y1, *coeffs),
+                              kernels.colour_score(frame[y0:y1, x0:x1], *coeffs))
+        n = int(rng.integers(9, 40))
+        want = kernels.rest_reference(frame[y0:y0 + n, x0:x0 + n])
+        got = kernels.rest_reference_yuv(*planes, x0, y0, n)
+        assert got[:2] == want[:2] and all(np.array_equal(g, w) for g, w in zip(got[2:], want[2:], strict=True))
+        ref = want[2:]
+        assert kernels.rest_shift_yuv(*planes_later, x0, y0, *ref, 0.2, 3.0) == \
+            kernels.rest_shift(later[y0:y0 + n, x0:x0 + n], *ref, 0.2, 3.0)
+        c = 0.5 * n + rng.normal(0, 1, 2)
+        assert kernels.edge_centre_yuv(*planes, x0, y0, n, c[0], c[1], radius, *args) == \
+            kernels.edge_centre(frame[y0:y0 + n, x0:x0 + n], c[0], c[1], radius, *args)
+
+
 def test_window_reads_follow_numpy_slicing(tmp_path):
     clip = write_clip(tmp_path / "c.mp4", n_frames=3, width=322, height=242)
     with FrameSource(clip, cache_mb=0) as src:

@@ -30,7 +30,6 @@ from functools import cached_property
 
 import cv2
 import numpy as np
-from scipy.ndimage import binary_fill_holes
 
 from ..errors import SandtrackError
 from . import kernels
@@ -299,19 +298,41 @@ def learn(frame, cx: float, cy: float, w: float, h: float, centred: bool = True,
 def _first_gap(mask: np.ndarray, px: int, py: int, rays: int = 32) -> float | None:
     """Median over rays from (px, py) of the distance at which `mask` first ends (rays that leave the
     image without meeting a gap, through the contacts with touching markers, are left out); None
-    when too few rays meet one."""
+    when too few rays meet one. (Every ray's steps of 0.25 px at once, each rounded to its pixel.)"""
     h, w = mask.shape
-    hits = []
-    for a in np.linspace(0, 2 * np.pi, rays, endpoint=False):
-        ca, sa = np.cos(a), np.sin(a)
-        for d in np.arange(0.5, max(h, w), 0.25):
-            x, y = int(round(px + d * ca)), int(round(py + d * sa))
-            if not (0 <= x < w and 0 <= y < h):
-                break
-            if not mask[y, x]:
-                hits.append(d)
-                break
+    a = np.linspace(0, 2 * np.pi, rays, endpoint=False)
+    d = np.arange(0.5, max(h, w), 0.25)
+    x = np.rint(px + d[None, :] * np.cos(a)[:, None]).astype(np.int64)
+    y = np.rint(py + d[None, :] * np.sin(a)[:, None]).astype(np.int64)
+    inside = (x >= 0) & (x < w) & (y >= 0) & (y < h)
+    gap = inside & ~mask[np.clip(y, 0, h - 1), np.clip(x, 0, w - 1)].astype(bool)
+    stop = gap | ~inside
+    first = np.argmax(stop, axis=1)  # each ray's first step off the image or onto a gap
+    met = stop.any(axis=1) & gap[np.arange(rays), first]
+    hits = d[first[met]]
     return float(np.median(hits)) if len(hits) >= rays // 4 else None
+
+
+def _group_medians(values: np.ndarray, groups: np.ndarray, n: int) -> np.ndarray:
+    """np.median of `values` in each group 0..n-1 that has any, in group order (one sort for all)."""
+    order = np.lexsort((values, groups))
+    v = values[order]
+    counts = np.bincount(groups, minlength=n)
+    counts = counts[counts > 0]
+    start = np.cumsum(counts) - counts
+    hi = start + counts // 2
+    lo = np.where(counts % 2 == 1, hi, hi - 1)
+    return (v[lo] + v[hi]) / 2
+
+
+def _holes_filled(mask: np.ndarray) -> np.ndarray:
+    """A 0/1 uint8 mask with its holes filled (bool): the background not 4-connected to the border
+    is filled, as scipy.ndimage.binary_fill_holes does (a flood fill from a border around it)."""
+    h, w = mask.shape
+    canvas = np.zeros((h + 2, w + 2), np.uint8)
+    canvas[1:-1, 1:-1] = mask
+    cv2.floodFill(canvas, None, (0, 0), 2, flags=4)
+    return canvas[1:-1, 1:-1] != 2
 
 
 def _spread(v: np.ndarray) -> float:
@@ -364,11 +385,11 @@ class SeedPatch:
         those on a circle of half the marker's radius around it (a box centred on a blob has marker
         all around its centre; one centred on where dark and light areas meet, a corner of a
         pattern, has the blob on one side only)."""
-        d = np.hypot(self.xx - self.cx, self.yy - self.cy)
+        d = self._centre_distance
         near = d <= 1.5
         if not near.any():
             return True
-        scores = model.score(np.clip(self.bgr, 0, 255).astype(np.uint8)[None])[0]
+        scores = model.score(self._bgr8[None])[0]
         if np.median(scores[near]) < model.threshold:
             return False
         rho = 0.5 * model.radius
@@ -377,10 +398,21 @@ class SeedPatch:
             return True
         # Per eighth of the circle (a dusty marker's specks are scattered; a pattern's other half is whole
         # sectors): the share of sectors whose median scores as marker.
-        sector = (np.floor((np.arctan2(self.yy - self.cy, self.xx - self.cx)[ring] + np.pi) / (np.pi / 4))
-                  .astype(int) % 8)
-        on = [np.median(scores[ring][sector == k]) >= model.threshold for k in range(8) if np.any(sector == k)]
+        on = _group_medians(scores[ring], self._centre_sector[ring], 8) >= model.threshold
         return bool(np.mean(on) >= CENTRE_RING_SHARE)
+
+    @cached_property
+    def _centre_distance(self) -> np.ndarray:
+        return np.hypot(self.xx - self.cx, self.yy - self.cy)
+
+    @cached_property
+    def _centre_sector(self) -> np.ndarray:
+        """Each pixel's eighth of the circle around the box's centre."""
+        return np.floor((np.arctan2(self.yy - self.cy, self.xx - self.cx) + np.pi) / (np.pi / 4)).astype(int) % 8
+
+    @cached_property
+    def _bgr8(self) -> np.ndarray:
+        return np.clip(self.bgr, 0, 255).astype(np.uint8)
 
     def _central_holes_filled(self, own: np.ndarray, solid: np.ndarray, x0: int, y0: int) -> np.ndarray:
         """`own` with its holes near the box's centre filled: with sand all around the box, a hole
@@ -390,7 +422,7 @@ class SeedPatch:
         if not holes.any():
             return own
         _n, labels = cv2.connectedComponents(holes, connectivity=4)
-        gy, gx = np.mgrid[0:own.shape[0], 0:own.shape[1]]
+        gy, gx = np.ogrid[0:own.shape[0], 0:own.shape[1]]
         near = np.hypot(gx + x0 - self.cx, gy + y0 - self.cy) <= 0.25 * min(self.w, self.h)
         central = np.unique(labels[near & (labels > 0)])
         return own | np.isin(labels, central) if len(central) else own
@@ -424,24 +456,27 @@ class SeedPatch:
         # around the distance-transform peak nearest the centre, of the radius at which rays from it
         # first meet sand (the median: rays through the contacts with neighbours meet none in the box).
         # (a dusty marker's sand specks are not gaps: closed and filled first)
-        solid = binary_fill_holes(cv2.morphologyEx(own.astype(np.uint8), cv2.MORPH_CLOSE, _SQUARE3))
+        crowded = own[0].any() or own[-1].any() or own[:, 0].any() or own[:, -1].any()  # runs out of the box
+        solid = _holes_filled(cv2.morphologyEx(own.astype(np.uint8), cv2.MORPH_CLOSE, _SQUARE3)) \
+            if sand_around or crowded else None
         body = self._central_holes_filled(own, solid, x0, y0) if sand_around else own
         dt = cv2.distanceTransform(body.astype(np.uint8), cv2.DIST_L2, 5)
         peaks = (dt >= cv2.dilate(dt, np.ones((3, 3), np.uint8))) & (dt >= 0.6 * dt.max()) & body
         ys, xs = np.nonzero(peaks)
-        crowded = own[0].any() or own[-1].any() or own[:, 0].any() or own[:, -1].any()  # runs out of the box
         if len(xs) and crowded:
             k = int(np.argmin(np.hypot(xs + x0 - self.cx, ys + y0 - self.cy)))
             px, py = int(xs[k]), int(ys[k])
             rd = _first_gap(solid, px, py)
             if rd is not None and own.sum() > 1.3 * np.pi * rd**2:
-                gy, gx = np.mgrid[0:own.shape[0], 0:own.shape[1]]
+                gy, gx = np.ogrid[0:own.shape[0], 0:own.shape[1]]
                 own &= np.hypot(gx - px, gy - py) <= rd + 0.5
                 # (its part is far more than its own disc, and holds another disc as deep: it touches others)
                 self.crowded = bool(np.any((np.hypot(xs - px, ys - py) >= 1.6 * rd) & (dt[ys, xs] >= 0.6 * dt[py, px])))
         lab_own = own[yi - y0, xi - x0]
         other = (img.astype(bool) & ~own).astype(np.uint8)
-        other[~np.isin(labels, big)] = 0  # noise pixels are kept with the marker
+        is_big = np.zeros(n, bool)
+        is_big[big] = True
+        other[~is_big[labels]] = 0  # noise pixels are kept with the marker
         grown = cv2.dilate(other, np.ones((3, 3), np.uint8))[yi - y0, xi - x0] > 0
-        noise = ~np.isin(labels[yi - y0, xi - x0], big)
+        noise = ~is_big[labels[yi - y0, xi - x0]]
         return selected & (lab_own | noise), grown & ~lab_own

@@ -43,7 +43,7 @@ def _surround(ring: np.ndarray, centre: float, sign: float | None = None) -> np.
     sand (or gaps) between: when the ring's brightness falls into two clear groups, the sand is the
     group farther from the centre's level (the marker's polarity `sign` known: the brighter group for
     a dark marker, the darker for a bright one)."""
-    lo, hi = np.percentile(ring, 10), np.percentile(ring, 90)
+    lo, hi = np.percentile(ring, (10, 90))
     if hi - lo < 1e-6:
         return ring
     t = 0.5 * (lo + hi)
@@ -99,13 +99,13 @@ def learn_brightness(seed: SeedPatch, sign: float | None = None) -> tuple[Appear
     sand = sand[sign * (sand - med) <= 4 * mad]  # neighbouring markers reaching into the ring
     mu_s = float(np.median(sand))
     p_in = sign * (inside - mu_s)
-    p_sand = sign * (sand - mu_s)
-    t = 0.5 * (np.percentile(p_in, 95) + np.median(p_sand))
+    sand_mid = np.median(sign * (sand - mu_s))
+    t = 0.5 * (np.percentile(p_in, 95) + sand_mid)
     for _ in range(10):
         hi, lo = p_in[p_in >= t], p_in[p_in < t]
         if len(hi) == 0 or len(lo) == 0:
             break
-        t_new = 0.5 * (hi.mean() + 0.5 * (lo.mean() + np.median(p_sand)))
+        t_new = 0.5 * (hi.mean() + 0.5 * (lo.mean() + sand_mid))
         if abs(t_new - t) < 1e-6:
             break
         t = t_new

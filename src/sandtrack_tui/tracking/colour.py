@@ -95,12 +95,13 @@ def learn_colour(seed) -> tuple[AppearanceModel | None, float]:
     if np.linalg.norm(d0) < 1e-6 or d0 @ clean_dir <= 0:
         d0 = clean_dir
     p_in = (patch[inner] - mu_s) @ d0
-    t = 0.5 * (np.percentile(p_in, 95) + np.median((sand - mu_s) @ d0))
+    sand_mid = np.median((sand - mu_s) @ d0)
+    t = 0.5 * (np.percentile(p_in, 95) + sand_mid)
     for _ in range(10):
         hi, lo = p_in[p_in >= t], p_in[p_in < t]
         if len(hi) == 0 or len(lo) == 0:
             break
-        t_new = 0.5 * (hi.mean() + 0.5 * (lo.mean() + np.median((sand - mu_s) @ d0)))
+        t_new = 0.5 * (hi.mean() + 0.5 * (lo.mean() + sand_mid))
         if abs(t_new - t) < 1e-6:
             break
         t = t_new

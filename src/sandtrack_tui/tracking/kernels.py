@@ -34,7 +34,12 @@ def _luma(win, i, j):
 def _score(win, i, j, w0, w1, w2, b, eps, den):
     """Marker score of pixel (i, j) of a BGR window, float32: (w . bgr) / (den (B + G + R) + eps) + b
     (den 1: a colour model on chromaticity; den 0, eps 1: a brightness model, linear in B, G, R)."""
-    B, G, R = np.float32(win[i, j, 0]), np.float32(win[i, j, 1]), np.float32(win[i, j, 2])
+    return _score_of(np.float32(win[i, j, 0]), np.float32(win[i, j, 1]), np.float32(win[i, j, 2]), w0, w1, w2, b,
+                     eps, den)
+
+
+@_jit
+def _score_of(B, G, R, w0, w1, w2, b, eps, den):
     return (w0 * B + w1 * G + w2 * R) / (den * (B + G + R) + eps) + b
 
 
@@ -59,7 +64,12 @@ def luma_window(win):
 def rest_reference(win):
     """(ok, contrast, luma (n*n), gx, gy, inverse normal matrix (3,)) of a square window; gradients
     are Sobel 3 x 3 / 8 with reflected borders (as cv2.Sobel, scale 0.125)."""
-    ref = luma_window(win)
+    return _rest_reference_of(luma_window(win))
+
+
+@_jit
+def _rest_reference_of(ref):
+    """rest_reference of a square brightness window (float32)."""
     n = ref.shape[0]
     gx = np.empty((n, n), np.float32)
     gy = np.empty((n, n), np.float32)
@@ -93,12 +103,18 @@ def rest_reference(win):
 def rest_shift(win, ref, gx, gy, ginv, max_shift_px, max_residual):
     """(ok, dx, dy): the least-squares brightness shift of the window since `ref`, ok when it is at
     most max_shift_px and leaves at most max_residual rms unexplained."""
-    n = win.shape[0]
+    return _rest_shift_of(luma_window(win), ref, gx, gy, ginv, max_shift_px, max_residual)
+
+
+@_jit
+def _rest_shift_of(luma, ref, gx, gy, ginv, max_shift_px, max_residual):
+    """rest_shift of a square brightness window (float32)."""
+    n = luma.shape[0]
     bx = by = dd = 0.0
     k = 0
     for i in range(n):
         for j in range(n):
-            d = float(ref[k] - _luma(win, i, j))
+            d = float(ref[k] - luma[i, j])
             bx += float(gx[k]) * d
             by += float(gy[k]) * d
             dd += d * d
@@ -579,20 +595,44 @@ def epipolar_distances(pa, pb, cam_a, cam_b, F):
 
 # The same kernels on a window of a frame still in its 4:2:0 planes (yuv.Yuv420Frame.yuv: planes y, u, v
 # and the conversion tables t): the window is converted inside the call, as the frame's slicing would.
+# The rest test and the score window convert each pixel straight into the brightness or score they
+# read, with no BGR window in between (which took longer to fill than the kernels took to read it).
 @_jit
 def _bgr(yp, up, vp, t, x0, y0, x1, y1):
     return _window_bgr(yp, up, vp, x0, y0, x1, y1, t[0], t[1], t[2], t[3], t[4])
 
 
 @_jit
+def _bgr_at(yp, up, vp, t, yy, xx):
+    """(B, G, R) of frame pixel (yy, xx) as float32, the values yuv._window_bgr gives it."""
+    u, v = up[yy >> 1, xx >> 1], vp[yy >> 1, xx >> 1]
+    y = t[0][yp[yy, xx]]
+    b = min(max(y + t[1][u], 0), 255)
+    g = min(max(y + (t[2][u] + t[3][v]), 0), 255)
+    r = min(max(y + t[4][v], 0), 255)
+    return np.float32(b), np.float32(g), np.float32(r)
+
+
+@_jit
+def _luma_window_yuv(yp, up, vp, t, x0, y0, n):
+    """luma_window of the n x n BGR window at (x0, y0), from the planes."""
+    out = np.empty((n, n), np.float32)
+    for i in range(n):
+        for j in range(n):
+            b, g, r = _bgr_at(yp, up, vp, t, y0 + i, x0 + j)
+            out[i, j] = _LB * b + _LG * g + _LR * r
+    return out
+
+
+@_jit
 def rest_reference_yuv(yp, up, vp, t, x0, y0, n):
-    return rest_reference(_bgr(yp, up, vp, t, x0, y0, x0 + n, y0 + n))
+    return _rest_reference_of(_luma_window_yuv(yp, up, vp, t, x0, y0, n))
 
 
 @_jit
 def rest_shift_yuv(yp, up, vp, t, x0, y0, ref, gx, gy, ginv, max_shift_px, max_residual):
     n = int(np.sqrt(ref.shape[0]))
-    return rest_shift(_bgr(yp, up, vp, t, x0, y0, x0 + n, y0 + n), ref, gx, gy, ginv, max_shift_px, max_residual)
+    return _rest_shift_of(_luma_window_yuv(yp, up, vp, t, x0, y0, n), ref, gx, gy, ginv, max_shift_px, max_residual)
 
 
 @_jit
@@ -604,7 +644,13 @@ def edge_centre_yuv(yp, up, vp, t, x0, y0, n, cx, cy, radius, steps, cos, sin, m
 
 @_jit
 def colour_score_yuv(yp, up, vp, t, x0, y0, x1, y1, w0, w1, w2, b, eps, den):
-    return colour_score(_bgr(yp, up, vp, t, x0, y0, x1, y1), w0, w1, w2, b, eps, den)
+    h, w = y1 - y0, x1 - x0
+    out = np.empty((h, w), np.float32)
+    for i in range(h):
+        for j in range(w):
+            B, G, R = _bgr_at(yp, up, vp, t, y0 + i, x0 + j)
+            out[i, j] = _score_of(B, G, R, w0, w1, w2, b, eps, den)
+    return out
 
 
 def warm_up() -> None:

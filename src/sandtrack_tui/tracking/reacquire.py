@@ -49,7 +49,6 @@ def find_blobs(frame_bgr: np.ndarray, model: AppearanceModel, cx: float, cy: flo
     bx1, by1 = min(bx1 + 2, mask.shape[1]), min(by1 + 2, mask.shape[0])
     mask = np.ascontiguousarray(mask[by0:by1, bx0:bx1])
     x0, y0 = x0 + bx0, y0 + by0
-    win = frame_bgr[y0:y0 + mask.shape[0], x0:x0 + mask.shape[1]]
     # (connectedComponentsWithStats took ~5x as long as the labelling alone on these windows)
     n, labels = cv2.connectedComponents(mask, connectivity=8)
     if n <= 1:
@@ -58,14 +57,18 @@ def find_blobs(frame_bgr: np.ndarray, model: AppearanceModel, cx: float, cy: flo
     for k, sl in enumerate(find_objects(labels), start=1):
         if sl is None:
             continue
-        # Soft area and centroid over the component grown by one pixel (its anti-aliased rim).
+        # Soft area and centroid over the component grown by one pixel (its anti-aliased rim). Only the
+        # component's box is read from the frame (a frame in its 4:2:0 planes converts what is read: the
+        # marker-coloured pixels of a hidden marker's wide window may lie far apart).
         xa, ya = max(sl[1].start - 1, 0), max(sl[0].start - 1, 0)
         xb, yb = min(sl[1].stop + 1, mask.shape[1]), min(sl[0].stop + 1, mask.shape[0])
-        area, m10, m01, pixels = model.blob_moments(win, labels, k, xa, ya, xb, yb)
+        win = np.ascontiguousarray(frame_bgr[y0 + ya:y0 + yb, x0 + xa:x0 + xb])
+        area, m10, m01, pixels = model.blob_moments(win, np.ascontiguousarray(labels[ya:yb, xa:xb]), k, 0, 0,
+                                                    xb - xa, yb - ya)
         if pixels < 2 or area < min_frac * model.disc_area:
             continue
         if area >= SPLIT_FROM * model.disc_area:  # touching markers: one blob each
-            score = model.score(np.ascontiguousarray(win[ya:yb, xa:xb]))
+            score = model.score(win)
             parts = _split(model, score, labels[ya:yb, xa:xb] == k, area, xa + x0, ya + y0)
         elif area <= max_frac * model.disc_area:
             parts = [Blob(m10 / area + xa + x0, m01 / area + ya + y0, area)]

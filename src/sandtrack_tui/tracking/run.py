@@ -477,6 +477,7 @@ def track_project(project, markers=None, start: int | None = None, stop: int | N
             frames_by_camera={c: sum(c in st for st in steps) for c in cams},
             per_marker=per, stereo_flags=engine.stereo_flags, view_shifts=engine.view_shifts,
             ambiguous=engine.ambiguous, never_found=never, elapsed_s=round(elapsed, 3), track_s=round(t_track, 4),
+            marker_frames=n_obs,
             track_ms_per_marker_frame=round(1000 * t_track / max(n_obs, 1), 4),
             track_cpu_ms_per_marker_frame=round(1000 * cpu_track / max(n_obs, 1), 4),
             status="stopped" if summary["stopped"] else "done")
