@@ -163,6 +163,32 @@ def test_luma_pattern_finds_a_fast_white_marker_smeared_by_the_exposure():
     assert unseen >= 1
 
 
+def test_a_fast_white_markers_colour_left_behind_its_pattern_is_not_taken_for_it():
+    """Between intra frames, a white marker whose pattern fits too poorly to place it keeps its colour
+    match, unless it moves fast and the colour lies behind where the pattern registers, along the
+    motion, by more than STALE_BEHIND_PX (stale chroma left behind): then it is not measured."""
+    from types import SimpleNamespace
+
+    from sandtrack_tui.tracking.matcher import STREAK_MIN_SPEED, Match
+    from sandtrack_tui.tracking.tracker import STALE_BEHIND_PX, MarkerTrack
+
+    def takes(colour_xy, velocity):
+        t = MarkerTrack.__new__(MarkerTrack)
+        t._pattern = SimpleNamespace(find=lambda *a, **k: None, place=(50.0, 40.0))  # (fit under MIN_NCC)
+        t._offset, t.kf = (0.5, -0.25), SimpleNamespace(vxy=velocity)
+        m = Match(*colour_xy, 0.73, 5.0, 0.9)
+        return t._carry_pattern(None, m, intra=False), (m.x, m.y) == colour_xy
+
+    fast = (6.0, 8.0)  # 10 px per frame, along (0.6, 0.8)
+    behind = 1.5 * STALE_BEHIND_PX
+    at = (50.5, 39.75)  # the pattern's place + the offset
+    assert takes((at[0] - 0.6 * behind, at[1] - 0.8 * behind), fast) == (False, True)
+    assert takes((at[0] + 0.6 * behind, at[1] + 0.8 * behind), fast) == (True, True)  # ahead: not stale
+    assert takes((at[0] + 0.8 * behind, at[1] - 0.6 * behind), fast) == (True, True)  # aside
+    slow = tuple(0.9 * STREAK_MIN_SPEED * u for u in (0.6, 0.8))
+    assert takes((at[0] - 0.6 * behind, at[1] - 0.8 * behind), slow) == (True, True)
+
+
 def test_a_creeping_white_marker_is_carried_by_its_brightness_pattern_not_its_stale_colour(tmp_path):
     """A white marker creeping over beige sand (its colour model has a contrast of ~5 sand spreads, its
     brightness no dark edge), in H.264: between intra frames its colour stays behind; followed by its

@@ -96,6 +96,7 @@ class LumaPattern:
             return
         self._smears: dict = {}
         self.fit = float("nan")  # normalised correlation of the last find with the pattern
+        self.place: tuple | None = None  # where the last find registered it, however well it fitted
         self.ok = True
 
     def _mean(self, a: np.ndarray) -> float:
@@ -162,8 +163,9 @@ class LumaPattern:
                         if got is not None and (best is None or got[2] > best[2]):
                             best = got if best is None else (best[0], best[1], got[2])
         if best is None:
+            self.place = None
             return None
-        self.fit = best[2]
+        self.fit, self.place = best[2], (best[0], best[1])
         return (best[0], best[1]) if self.fit >= self.MIN_NCC else None
 
     def _register(self, frame, x: float, y: float, prep: tuple) -> tuple | None:

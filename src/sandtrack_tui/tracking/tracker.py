@@ -24,7 +24,7 @@ from . import crowd as crowd_rules
 from .appearance import COLOUR, DARK, AppearanceModel, learn
 from .kalman import GATE_D2, ConstantVelocityKF
 from .luma import LumaPattern, edge_centre
-from .matcher import Match, TemplateMatcher
+from .matcher import STREAK_MIN_SPEED, Match, TemplateMatcher
 from .rest import RestReference
 
 TRACKED, OCCLUDED, LOST, MANUAL, INTERPOLATED = "tracked", "occluded", "lost", "manual", "interpolated"
@@ -38,6 +38,9 @@ HELD_MEAS_PX = 1.0  # measurement noise of a held marker's template peak (no out
 CARRIED_AGREE_PX = 1.0  # a carried crowd marker's outline centre this near its carried position re-confirms it
 HIGHLIGHT_ALPHA = 0.2  # share of a new measurement in a crowd bead's highlight offset
 SHORT_MISS = 3  # frames unseen up to which a returning marker's match is judged leniently (verify_at)
+# A fast marker's colour match this far behind its brightness pattern is stale chroma: half the pitch of
+# 4:2:0 chroma samples (2 px), under which the colour's centre cannot tell where the marker is anyway.
+STALE_BEHIND_PX = 1.0
 
 
 @dataclass
@@ -177,9 +180,9 @@ class MarkerTrack:
         if not m.outline and self.counts[TRACKED] == 0:
             return None  # (held only once measured since its seed: a seed nothing confirmed is not followed)
         m.d2 = self.kf.d2(m.x, m.y)
-        if not self.acceptable(m, TOUCHING_RELAX if m.touching else 1.0) or self._cut_by_border(frame_bgr, m):
+        if not self.acceptable(m, TOUCHING_RELAX if m.touching else 1.0) or self._cut_by_border(frame_bgr, m) \
+                or not self._carry(frame_bgr, m, frame_index):
             return self._pattern_match(frame_bgr, frame_index)
-        self._carry(frame_bgr, m, frame_index)
         return m
 
     def pattern_return(self, frame_bgr, frame_index: int | None = None) -> Match | None:
@@ -218,25 +221,25 @@ class MarkerTrack:
         s = self._intra_set
         return s is not None and frame_index in s
 
-    def _carry(self, frame_bgr, m: Match, frame_index: int | None) -> None:
+    def _carry(self, frame_bgr, m: Match, frame_index: int | None) -> bool:
         """Measure the luma centre of a whole, clearly seen marker; between intra frames, move the
-        match to luma centre + the last intra frame's offset (see luma.py)."""
+        match to luma centre + the last intra frame's offset (see luma.py). False: the match is the
+        marker's stale colour, not the marker (see _carry_pattern)."""
         if self.intra is None or not self.params.luma_carry or self.model.kind != COLOUR:
-            return  # (a brightness model measures the full-resolution luma itself: nothing trails)
+            return True  # (a brightness model measures the full-resolution luma itself: nothing trails)
         intra = self._is_intra(frame_index)
         if not m.used_centroid and (intra or self.model.luma_follows):
-            return  # (a pattern is cut, and an edge measured, on a whole, clearly seen marker only)
+            return True  # (a pattern is cut, and an edge measured, on a whole, clearly seen marker only)
         if not intra and self._offset is None:
-            return  # nothing to carry until the next intra frame
+            return True  # nothing to carry until the next intra frame
         if not self.model.luma_follows:
-            self._carry_pattern(frame_bgr, m, intra)
-            return
+            return self._carry_pattern(frame_bgr, m, intra)
         sx, sy = m.x, m.y
         if self._offset is not None:  # start from where the edge centre is expected: fewer fit rounds
             sx, sy = sx - self._offset[0], sy - self._offset[1]
         m.luma = edge_centre(frame_bgr, sx, sy, self.model.radius, outward=True)
         if m.luma is None or intra:
-            return
+            return True
         lx, ly = m.luma
         ax, ay = self._anchor_luma
         dx, dy = lx - ax, ly - ay
@@ -248,21 +251,37 @@ class MarkerTrack:
             along = (lx + self._offset[0] - m.x) * ux + (ly + self._offset[1] - m.y) * uy
             along = min(max(along, 0.0), dist)
             m.x, m.y = m.x + along * ux, m.y + along * uy
+        return True
 
-    def _carry_pattern(self, frame_bgr, m: Match, intra: bool) -> None:
+    def _carry_pattern(self, frame_bgr, m: Match, intra: bool) -> bool:
         """_carry for a marker with no dark silhouette (its brightness does not set it apart from the
         sand: a white marker on beige sand): its disc's brightness pattern at the intra frame
         (luma.LumaPattern), found again in the frames after it, moved as far as the marker, which
         is then there: the pattern is the marker's own (not an edge that shading or a shadow may
-        shift), so the stale colour is not trusted in any direction."""
+        shift), so the stale colour is not trusted in any direction.
+        When the pattern fits too poorly to tell where the marker is, the colour match stands, unless
+        the marker moves fast (STREAK_MIN_SPEED or more) and the colour lies behind where the pattern
+        registers, along the motion, by more than STALE_BEHIND_PX: that colour is the chroma left
+        behind by the moving marker (stale between intra frames), and the marker is not measured
+        (False)."""
         if intra:
             self._pattern = LumaPattern(frame_bgr, m.x, m.y, self.model.radius)
             m.luma = (m.x, m.y) if self._pattern.ok else None
-            return
+            return True
         m.luma = None if self._pattern is None else self._pattern.find(frame_bgr, m.x, m.y, velocity=self.kf.vxy)
         if m.luma is None:
-            return
+            return self._pattern is None or not self._colour_left_behind(m)
         m.x, m.y = m.luma[0] + self._offset[0], m.luma[1] + self._offset[1]
+        return True
+
+    def _colour_left_behind(self, m: Match) -> bool:
+        """The fast marker's colour match m lies behind its pattern's last registration along the motion."""
+        place, (vx, vy) = self._pattern.place, self.kf.vxy
+        speed = math.hypot(vx, vy)
+        if place is None or speed < STREAK_MIN_SPEED:
+            return False
+        px, py = place[0] + self._offset[0], place[1] + self._offset[1]
+        return ((m.x - px) * vx + (m.y - py) * vy) / speed < -STALE_BEHIND_PX
 
     def _update_offset(self, frame_index: int, m: Match | None, reattach: bool, frame_bgr=None) -> None:
         intra = self._is_intra(frame_index)
@@ -388,10 +407,15 @@ class MarkerTrack:
         """A marker with no dark silhouette, unseen a frame or two, whose colour covers less than a whole
         disc where it would be found again: when its brightness pattern (kept from before the miss) is
         not there, part of it is still hidden (a whole one fits its pattern to NCC >= 0.97 at 99 % of
-        frames) and its colour's centre is not its own."""
-        if self.model.luma_follows or self._pattern is None or self._offset is None \
-                or m.colour_frac >= self.params.confident_colour or self._is_intra(frame_index):
+        frames) and its colour's centre is not its own. A whole disc of colour is refused only as stale
+        chroma left behind by a fast marker (see _carry_pattern)."""
+        if self.model.luma_follows or self._pattern is None or self._offset is None or self._is_intra(frame_index):
             return False
+        if m.colour_frac >= self.params.confident_colour:
+            if math.hypot(*self.kf.vxy) < STREAK_MIN_SPEED:
+                return False
+            found = self._pattern.find(frame_bgr, m.x - self._offset[0], m.y - self._offset[1], velocity=self.kf.vxy)
+            return found is None and self._colour_left_behind(m)
         return self._pattern.find(frame_bgr, m.x - self._offset[0], m.y - self._offset[1]) is None
 
     def apply(self, frame_index: int, frame_bgr: np.ndarray | None, m: Match | None,
