@@ -189,6 +189,24 @@ def test_a_fast_white_markers_colour_left_behind_its_pattern_is_not_taken_for_it
     assert takes((at[0] - 0.6 * behind, at[1] - 0.8 * behind), slow) == (True, True)
 
 
+def test_a_white_marker_whose_colour_match_fails_at_an_intra_frame_is_found_by_its_pattern():
+    """At an intra frame (fresh colour) a white marker whose colour match failed (smeared, say) is
+    still found by its brightness pattern, as between intra frames, and the chain is cut again there."""
+    from types import SimpleNamespace
+
+    from sandtrack_tui.tracking.tracker import MarkerTrack, TrackParams
+
+    sand = synthetic.sand_texture(80, 80, np.random.default_rng(5)).astype(float)
+    r, (ax, ay), (dx, dy) = 4.4, (38.3, 40.6), (1.6, -0.9)
+    t = MarkerTrack.__new__(MarkerTrack)
+    t.model, t.params, t.intra = SimpleNamespace(luma_follows=False, radius=r), TrackParams(), np.array([True, True])
+    t._pattern, t._offset = LumaPattern(_white_sphere_on_sand(sand, ax, ay, r), ax, ay, r), (0.3, -0.2)
+    t.kf = SimpleNamespace(xy=(ax, ay), vxy=(0.0, 0.0), d2=lambda x, y: 1.0)
+    m = t._pattern_match(_white_sphere_on_sand(sand, ax + dx, ay + dy, r), 1)
+    assert m is not None and np.hypot(m.x - 0.3 - ax - dx, m.y + 0.2 - ay - dy) < 0.15
+    assert (t._pattern.x, t._pattern.y) == m.luma
+
+
 def test_a_creeping_white_marker_is_carried_by_its_brightness_pattern_not_its_stale_colour(tmp_path):
     """A white marker creeping over beige sand (its colour model has a contrast of ~5 sand spreads, its
     brightness no dark edge), in H.264: between intra frames its colour stays behind; followed by its

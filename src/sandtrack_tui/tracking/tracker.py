@@ -194,10 +194,12 @@ class MarkerTrack:
         return self._pattern_match(frame_bgr, frame_index)
 
     def _pattern_match(self, frame_bgr, frame_index: int | None) -> Match | None:
-        """Between intra frames, a marker with no dark silhouette whose colour match failed (its colour
-        is stale there: a moving marker's is left behind, and weakens) is measured by its brightness
-        pattern (see _carry_pattern) when that is found inside the gate; else None."""
-        if self.model.luma_follows or self._pattern is None or self._offset is None or self._is_intra(frame_index):
+        """A marker with no dark silhouette whose colour match failed (between intra frames its colour is
+        stale: a moving marker's is left behind, and weakens; at an intra frame a smear or a partial
+        cover may fail it) is measured by its brightness pattern (see _carry_pattern) when that is
+        found inside the gate; else None. At an intra frame the pattern is cut again where it was found
+        (the chain goes on from there with the offset it had: no fresh colour measured it)."""
+        if self.model.luma_follows or self._pattern is None or self._offset is None:
             return None
         found = self._pattern.find(frame_bgr, *self.kf.xy, velocity=self.kf.vxy)
         if found is None:
@@ -206,7 +208,10 @@ class MarkerTrack:
         d2 = self.kf.d2(x, y)
         if d2 > self.params.gate_d2:
             return None
-        return Match(x, y, self._pattern.fit, float("nan"), float("nan"), d2, True, found)
+        fit = self._pattern.fit
+        if self._is_intra(frame_index):
+            self._pattern = LumaPattern(frame_bgr, *found, self.model.radius)
+        return Match(x, y, fit, float("nan"), float("nan"), d2, True, found)
 
     @property
     def intra(self) -> np.ndarray | None:
