@@ -192,8 +192,7 @@ class Engine:
         """Carried crowd markers no detected bead gave back, measured where they were carried
         (MarkerTrack.confirm_carried), unless another marker of this camera is measured within a radius
         of there; returns how many came back."""
-        taken = [(p.match.x, p.match.y) for k, p in props.items() if k[1] == cam]
-        taken += [xy for k, xy in forced.items() if k[1] == cam]
+        taken = self._explained(cam, props, forced)
         n = 0
         for t, (x, y) in zip(missed, where, strict=True):
             if (t.marker, cam) in props or not t.carried:
@@ -220,13 +219,18 @@ class Engine:
         if det.empty:
             return np.empty((0, 2))
         beads = det[["x_px", "y_px"]].to_numpy(float) + (x0, y0)
-        explained = [(p.match.x, p.match.y) for k, p in props.items() if k[1] == cam]
-        explained += [xy for k, xy in forced.items() if k[1] == cam]
+        explained = self._explained(cam, props, forced)
         if explained:
             e = np.array(explained, float)
             d = np.hypot(beads[:, None, 0] - e[None, :, 0], beads[:, None, 1] - e[None, :, 1])
             beads = beads[d.min(axis=1) > r]
         return beads
+
+    @staticmethod
+    def _explained(cam, props, forced) -> list:
+        """[(x, y)] of this step's proposals and operator's points in camera `cam`."""
+        return [(p.match.x, p.match.y) for k, p in props.items() if k[1] == cam] + \
+            [xy for k, xy in forced.items() if k[1] == cam]
 
     def _remember_crowd(self, key, xy) -> None:
         """A crowd track's position this step, measured or placed (its neighbours' next moves start
@@ -431,8 +435,7 @@ class Engine:
         """Re-attach coasting tracks of `cam` to unexplained blobs; returns how many were."""
         if all((t.marker, cam) in props for t in tracks):
             return 0
-        explained = [(p.match.x, p.match.y) for k, p in props.items() if k[1] == cam]
-        explained += [xy for k, xy in forced.items() if k[1] == cam]
+        explained = self._explained(cam, props, forced)
         cands: dict[tuple, list] = {}  # track key -> [(d2, blob id, blob)]
         jumpers: set = set()  # tracks searched a largest move per frame beyond their gate (a streak)
         far: set = set()  # tracks searched beyond their gate (any rival is then ambiguous)

@@ -294,28 +294,34 @@ class MarkerTrack:
             self._offset = (m.x - m.luma[0], m.y - m.luma[1])
             self._anchor_luma = m.luma
             return
-        if not self.model.luma_follows and m is None and not intra and self._pattern is not None \
-                and self.misses < SHORT_MISS:
-            return  # (unseen a frame or two: the chain is kept, to find the marker by its pattern: pattern_return)
-        if not self.model.luma_follows and m is not None and reattach and not intra:
-            self._offset = self._anchor_luma = self._pattern = None
-            if m.colour_frac >= self.params.confident_colour:
-                self._restart_pattern(frame_bgr, m)  # (the chain restarts where the marker was found again)
-            return
-        if not self.model.luma_follows and m is not None and not reattach and not intra:
-            if self._pattern is None:
-                self._restart_pattern(frame_bgr, m)
-                return
-            if m.luma is None:
-                return  # (the pattern did not fit this one frame: the marker is still where the chain says)
-            if math.hypot(m.luma[0] - self._anchor_luma[0], m.luma[1] - self._anchor_luma[1]) \
-                    > self.params.luma_carry_max_px:
-                self._new_pattern(frame_bgr, m.x, m.y)  # (far from where it was cut: the sand, the light differ)
+        if not self.model.luma_follows and not intra:
+            self._follow_pattern_chain(frame_bgr, m, reattach)
             return
         if m is None or m.luma is None or reattach or self._anchor_luma is None or \
                 math.hypot(m.luma[0] - self._anchor_luma[0], m.luma[1] - self._anchor_luma[1]) \
                 > self.params.luma_carry_max_px:
             self._offset = self._anchor_luma = self._pattern = None  # the chain from the intra frame is broken
+
+    def _follow_pattern_chain(self, frame_bgr, m: Match | None, reattach: bool) -> None:
+        """_update_offset between intra frames for a marker with no dark silhouette, followed by its
+        brightness pattern (see _carry_pattern)."""
+        if m is None:
+            if self._pattern is None or self.misses >= SHORT_MISS:
+                self._offset = self._anchor_luma = self._pattern = None  # the chain is broken
+            # (else unseen a frame or two: the chain is kept, to find the marker by its pattern: pattern_return)
+            return
+        if reattach:
+            self._offset = self._anchor_luma = self._pattern = None
+            if m.colour_frac >= self.params.confident_colour:
+                self._restart_pattern(frame_bgr, m)  # (the chain restarts where the marker was found again)
+            return
+        if self._pattern is None:
+            self._restart_pattern(frame_bgr, m)
+        elif m.luma is not None and math.hypot(m.luma[0] - self._anchor_luma[0], m.luma[1] - self._anchor_luma[1]) \
+                > self.params.luma_carry_max_px:
+            # (far from where it was cut: the sand, the light differ; no fit this one frame: the marker is
+            # still where the chain says)
+            self._new_pattern(frame_bgr, m.x, m.y)
 
     def _restart_pattern(self, frame_bgr, m: Match) -> None:
         """A chain broken between intra frames starts again from a colour match centred on the marker's
