@@ -358,6 +358,38 @@ async def test_escape_cancels_a_running_track(project, monkeypatch):
 
 
 @aio
+async def test_boost_shows_markers_like_the_seeded_one(tmp_path, frames):
+    """Blue markers: the default boost. Black markers: after a seed the boost shows markers like it,
+    and a reopened project learns that from its seeds."""
+    from sandtrack_tui.tui.frame_view import BOOST_RGB
+
+    def boosted_near(app, marker):
+        v = app.view("side")
+        u, w = (int(round(float(c))) for c in v.tf.source_to_display(*true_xy(marker, app.frame)))
+        return np.all(v.pixels[max(w - 1, 0):w + 2, max(u - 1, 0):u + 2] == BOOST_RGB, axis=2).any()
+
+    (tmp_path / "blue").mkdir()
+    blue = make_project(tmp_path / "blue", frames=frames)
+    black = make_project(tmp_path / "black", frames=make_frames(tmp_path / "black", paint=(30, 25, 25), n_frames=2))
+    for proj in (blue, black):
+        app = SandtrackApp(proj)
+        async with app.run_test(size=SIZE) as pilot:
+            await settle(pilot, app)
+            assert boosted_near(app, 2) == (proj is blue)
+            await pilot.press("1")
+            await click_source(pilot, app, "side", *true_xy(1, 0))
+            assert (app.look is None) == (proj is blue)
+            await settle(pilot, app, lambda a=app: a.view("side").pixels_key[-1] == id(a.look))
+            assert all(boosted_near(app, m) for m in (1, 2, 3))
+    app = SandtrackApp(black)
+    async with app.run_test(size=SIZE) as pilot:
+        await settle(pilot, app, lambda: app.look is not None and app.view("side").pixels_key[-1] == id(app.look))
+        assert app.look.kind == "dark" and all(boosted_near(app, m) for m in (1, 2, 3))
+    for proj in (blue, black):
+        proj.close()
+
+
+@aio
 async def test_drag_pans_a_zoomed_view_without_seeding(project):
     from textual.events import MouseDown, MouseMove, MouseUp
 

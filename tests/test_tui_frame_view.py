@@ -82,3 +82,23 @@ def test_256_colours_use_palette_greys_and_keep_markers_blue():
     for px in q[0, :3]:
         assert px[0] == px[1] == px[2] and px[0] in greys
     assert tuple(q[0, 3]) == (0, 95, 255)
+
+
+def test_boost_shows_markers_like_a_seeded_black_one_not_a_shadow():
+    from sandtrack_tui.tracking.run import marker_look
+
+    rng = np.random.default_rng(3)
+    img = np.clip(np.array([120, 170, 200]) + rng.normal(0, 20, (1080, 1920, 3)), 0, 255).astype(np.uint8)
+    img[300:800, 900:1500] = (img[300:800, 900:1500] * 0.55).astype(np.uint8)  # the tool's shadow
+    dark = [(211.3, 317.8), (640.5, 540.2), (1000.0, 400.7), (1300.2, 700.9), (1800.6, 333.3)]
+    for x, y in dark:
+        cv2.circle(img, (int(x * 16), int(y * 16)), int(4.5 * 16), (25, 25, 30), -1, cv2.LINE_AA, shift=4)
+    look = marker_look(img, *dark[0])
+    assert look is not None and look.kind == "dark"
+    tf = ViewTransform.make(1920, 1080, 100, 30)
+    boosted = np.all(render_pixels(img, tf, boost=True, look=look) == BOOST_RGB, axis=2)
+    assert not np.all(render_pixels(img, tf, boost=True) == BOOST_RGB, axis=2).any()  # (the blue default)
+    for x, y in dark:  # in the light and in the shadow
+        u, v = (int(round(float(c))) for c in tf.source_to_display(x, y))
+        assert boosted[max(v - 1, 0):v + 2, max(u - 1, 0):u + 2].any(), (x, y)
+    assert boosted.sum() <= 9 * len(dark)  # the shadow and its edges are not painted

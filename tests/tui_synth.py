@@ -57,22 +57,24 @@ def _sand(camera: str) -> np.ndarray:
     return _SAND[camera]
 
 
-def render(frame: int, camera: str) -> np.ndarray:
+BLUE = (190, 70, 20)  # BGR of the markers' paint
+
+
+def render(frame: int, camera: str, paint=BLUE) -> np.ndarray:
     img = np.roll(_sand(camera), 3 * frame, axis=1)  # the texture changes from frame to frame
     ss = 8  # draw discs supersampled so their centroid is exact to a small fraction of a pixel
     for m in MARKERS:
         x, y = true_xy(m, frame, camera)
-        cv2.circle(img, (int(round(x * ss)), int(round(y * ss))), RADIUS * ss, (190, 70, 20), -1, cv2.LINE_AA,
-                   shift=3)
+        cv2.circle(img, (int(round(x * ss)), int(round(y * ss))), RADIUS * ss, paint, -1, cv2.LINE_AA, shift=3)
     return img
 
 
-def make_frames(folder: Path, cameras=("side", "front")) -> Path:
+def make_frames(folder: Path, cameras=("side", "front"), paint=BLUE, n_frames: int = N_FRAMES) -> Path:
     for cam in cameras:
         d = folder / cam
         d.mkdir(parents=True, exist_ok=True)
-        for i in range(N_FRAMES):
-            cv2.imwrite(str(d / f"{i:04d}.bmp"), render(i, cam))
+        for i in range(n_frames):
+            cv2.imwrite(str(d / f"{i:04d}.bmp"), render(i, cam, paint))
     return folder
 
 

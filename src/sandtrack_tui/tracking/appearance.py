@@ -220,6 +220,26 @@ class AppearanceModel:
         for key in ("_score_coeffs", "_mask_coeffs"):
             self.__dict__.pop(key, None)
 
+    def display_mask(self, bgr: np.ndarray, scale: float = 1.0) -> np.ndarray | None:
+        """uint8 mask (255 = looks like this marker) of an image shown at `scale` source px per pixel,
+        for the display's marker boost; None for a texture model (nothing per pixel to find). A
+        brightness model's score is read against the sand level under each pixel, found as
+        _shadow_edge finds it (a grey opening wider than the marker keeps a shadow and drops the
+        markers), so that a shadow is not shown as marker."""
+        if self.kind == TEXTURE or not bgr.size:
+            return None
+        score = self.score(bgr)
+        if self.kind in (DARK, BRIGHT) and self.levels:
+            d = max(3, int(np.ceil((2 * self.radius + 3) / max(scale, 1e-6))) | 1)
+            square = np.ones((d, d), np.uint8)
+            sand = cv2.blur(cv2.morphologyEx(score, cv2.MORPH_OPEN, square, borderType=cv2.BORDER_REPLICATE), (d, d),
+                            borderType=cv2.BORDER_REPLICATE)
+            sand += np.float32(np.median(score[::4, ::4] - sand[::4, ::4]))
+            level_d, level_s = self.levels
+            k = np.clip(1.0 + sand * np.float32((level_d - level_s) / level_s), 0.25, 2.0)
+            score = (score - sand) / k
+        return cv2.compare(score, float(self.threshold), cv2.CMP_GE)
+
     def describe(self) -> dict:
         """What the model is and what it measured, for reports (`track --json`, the seeding list)."""
         out = {"model": self.kind, "contrast": round(float(self.contrast), 1), "radius_px": round(self.radius, 2)}

@@ -30,11 +30,11 @@ from .chroma import Chroma420Frame, block_replicated
 from .decoding import prefetch
 from .engine import Engine
 from .luma import intra_frames
-from .seeding import detect_markers, marker_box, pair_by_epipolar, snap_to_marker
+from .seeding import detect_markers, marker_box, marker_look, pair_by_epipolar, snap_to_marker
 from .stereo import StereoCheck
 from .tracker import DEFAULT_BOX_PX, LOST, MANUAL, OCCLUDED, TRACKED, MarkerTrack, TrackParams
 
-__all__ = ["auto_seed", "accept_seeds", "seed_marker", "track_project", "snap_to_marker", "SEED_COLUMNS"]
+__all__ = ["auto_seed", "accept_seeds", "seed_marker", "track_project", "snap_to_marker", "marker_look", "SEED_COLUMNS"]
 
 SEED_COLUMNS = ["marker", "camera", "frame", "x_px", "y_px", "w", "h", "epipolar_px"]
 # auto-seed matches blobs to markers known this many frames before or after the seeded frame

@@ -96,6 +96,21 @@ def snap_to_marker(frame_bgr: np.ndarray, x: float, y: float, radius: float = 12
     return _nearest_like(frame_bgr, model, x, y, radius)
 
 
+def marker_look(frame_bgr: np.ndarray, x: float, y: float, radius: float = 12) -> AppearanceModel | None:
+    """The appearance model of the marker at (x, y) (a snapped seed), for showing markers like it;
+    None when nothing there stands out as a blob."""
+    frame_bgr = _window_source(frame_bgr)
+    H, W = frame_bgr.shape[:2]
+    if not (np.isfinite(x) and np.isfinite(y)) or not (0 <= x < W and 0 <= y < H):
+        return None
+    box = 2 * float(radius) + 8
+    try:
+        model = learn(frame_bgr, x, y, box, box)
+    except SandtrackError:
+        return None
+    return model if model.has_blob else None
+
+
 def _window_source(frame):
     """A frame as the seeding functions read it: 8-bit BGR (grey and 16-bit images converted)."""
     if isinstance(frame, np.ndarray) and (frame.ndim != 3 or frame.dtype != np.uint8 or frame.shape[2] != 3):

@@ -99,6 +99,7 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, MarkersMixin, App):
         self.center: dict[str, tuple[float, float] | None] = {c: None for c in self.cameras}
         self.follow = False
         self.boost = True
+        self.look = None  # the markers' appearance model when they are not blue (from a seed), for the boost
         self.range_in: int | None = None
         self.range_out: int | None = None
         self.layout_mode = 0
@@ -167,6 +168,7 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, MarkersMixin, App):
         if self.marker_list:
             self.selected = self.marker_list[0][0]
         self.call_after_refresh(self.refresh_all)
+        self.learn_look_from_seeds()
         todo = []
         if len(self.cameras) > 1 and not self.project.sync_confirmed():
             todo.append("the cameras are not synced yet (F2)")
@@ -311,7 +313,7 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, MarkersMixin, App):
             tf = self._transform(cam)
             if tf is None:
                 continue
-            req = FrameRequest(cam, self.cam_index(cam), tf, self.boost, self.pixels.cell_px)
+            req = FrameRequest(cam, self.cam_index(cam), tf, self.boost, self.pixels.cell_px, self.look)
             self._wanted[cam] = req.key
             v = self.view(cam)
             if v.pixels_key == req.key:

@@ -26,10 +26,11 @@ class FrameRequest:
     tf: ViewTransform
     boost: bool = True
     cell_px: tuple[int, int] | None = None  # graphics: render at the terminal's pixels, not half-blocks
+    look: object | None = None  # the markers' appearance model when they are not blue (render_pixels)
 
     @property
     def key(self):
-        return (self.index, self.tf, self.boost, self.cell_px)
+        return (self.index, self.tf, self.boost, self.cell_px, id(self.look))
 
 
 @dataclass
@@ -95,9 +96,9 @@ class FrameFeeder:
             frame = self.sources[req.camera].frame(req.index)
             t1 = time.perf_counter()
             if req.cell_px is None:
-                pixels = render_pixels(frame, req.tf, boost=req.boost)
+                pixels = render_pixels(frame, req.tf, boost=req.boost, look=req.look)
             else:
-                pixels = render_view(frame, req.tf, req.cell_px, boost=req.boost)
+                pixels = render_view(frame, req.tf, req.cell_px, boost=req.boost, look=req.look)
             t2 = time.perf_counter()
             result = FrameResult(req, pixels, (t1 - t0) * 1000, (t2 - t1) * 1000)
         except Exception as exc:  # noqa: BLE001 - shown to the user, the app keeps running

@@ -3,9 +3,9 @@
 A terminal cell holds two display pixels: "▀" with the upper pixel as foreground colour and the
 lower one as background. The visible part of the frame is area-averaged down to the cell grid
 (`cv2.resize(INTER_AREA)`), so fine texture becomes its mean colour rather than aliasing. Small
-blue markers would fade to a faint tint at a 10-20x downscale, so a blue mask is computed at full
-resolution and every display pixel covering at least `BOOST_FRACTION` of marker pixels is painted
-vivid blue ("marker boost").
+markers would fade to a faint tint at a 10-20x downscale, so a marker mask is computed at half
+resolution (blue paint, or pixels that look like the seeded marker when it is not blue) and every
+display pixel covering at least `BOOST_FRACTION` of marker pixels is painted vivid blue ("marker boost").
 
 Rows become Rich segments with runs of equal colour pairs merged and `Style` objects cached by
 colour pair; in 256-colour terminals the pixels are first snapped to the xterm colour cube, which
@@ -114,8 +114,10 @@ def marker_mask(bgr: np.ndarray) -> np.ndarray:
     return cv2.inRange(cv2.cvtColor(bgr, cv2.COLOR_BGR2HSV), BLUE_LO, BLUE_HI)
 
 
-def render_pixels(frame_bgr: np.ndarray, tf: ViewTransform, boost: bool = True) -> np.ndarray:
-    """The display image (2*rows, cols, 3) RGB uint8 of the region `tf` shows; black outside the frame."""
+def render_pixels(frame_bgr: np.ndarray, tf: ViewTransform, boost: bool = True, look=None) -> np.ndarray:
+    """The display image (2*rows, cols, 3) RGB uint8 of the region `tf` shows; black outside the frame.
+    `look`: the appearance model (tracking.appearance) of the project's markers when they are not
+    blue; the boost then paints the pixels that look like them."""
     h, w = frame_bgr.shape[:2]
     out = np.zeros((2 * tf.rows, tf.cols, 3), np.uint8)
     ix0, iy0 = max(0, math.floor(tf.x0)), max(0, math.floor(tf.y0))
@@ -145,7 +147,7 @@ def render_pixels(frame_bgr: np.ndarray, tf: ViewTransform, boost: bool = True) 
         if tf.s >= 2.0:
             work = _shrink(work, 2)
             if boost:
-                frac = marker_mask(work)
+                frac = marker_mask(work) if look is None else _look_mask(look, work, tf.s)
             k = int(tf.s / 2.0)
             if k >= 2:
                 work = _shrink(work, k)
@@ -158,6 +160,18 @@ def render_pixels(frame_bgr: np.ndarray, tf: ViewTransform, boost: bool = True) 
             small[(frac >= int(255 * BOOST_FRACTION)) | peak] = BOOST_RGB[::-1]
     out[dr0:dr1, dc0:dc1] = small[:, :, ::-1]
     return out
+
+
+def _look_mask(look, half: np.ndarray, s: float) -> np.ndarray | None:
+    """Pixels of a half-resolution image that look like the markers of `look` (an appearance
+    model); found at quarter resolution when a display pixel spans 8 source px or more (a 9 px
+    marker still fills a few pixels there, at a quarter of the cost)."""
+    if s < 8.0:
+        return look.display_mask(half, 2.0)
+    mask = look.display_mask(_shrink(half, 2), 4.0)
+    if mask is None:
+        return None
+    return cv2.resize(mask, (half.shape[1], half.shape[0]), interpolation=cv2.INTER_NEAREST)
 
 
 def _shrink(img: np.ndarray, k: int) -> np.ndarray:

@@ -54,11 +54,12 @@ def pixel_transform(tf: ViewTransform, cell_w: int) -> ViewTransform:
     return ViewTransform(tf.x0, tf.y0, tf.s / cell_w, tf.cols * cell_w, tf.rows * cell_w)
 
 
-def render_view(frame_bgr: np.ndarray, tf: ViewTransform, cell_px: tuple[int, int], boost: bool = True) -> np.ndarray:
+def render_view(frame_bgr: np.ndarray, tf: ViewTransform, cell_px: tuple[int, int], boost: bool = True,
+                look=None) -> np.ndarray:
     """RGB image of the region `tf` shows, cell_w square pixels per cell across (2 * rows * cell_w
     high; `compose` fits it to the cells' true height)."""
     ptf = pixel_transform(tf, cell_px[0])
-    return render_pixels(frame_bgr, ptf, boost=boost and ptf.s >= BOOST_MIN_SCALE)
+    return render_pixels(frame_bgr, ptf, boost=boost and ptf.s >= BOOST_MIN_SCALE, look=look)
 
 
 def compose(pixels: np.ndarray, tf: ViewTransform, cell_px: tuple[int, int], overlays: Overlays,

@@ -11,7 +11,7 @@ from .. import corrections
 from ..errors import NotAvailableYet, SandtrackError
 from ..video import synced_camera
 from .core import available, core
-from .frame_view import FrameView
+from .frame_view import FrameView, marker_mask
 from .screens.prompts import SyncFirst
 from .tasks import guarded
 
@@ -90,7 +90,44 @@ class SeedingMixin:
             self.notify(str(exc), severity="error")
             return
         self.cursor[camera] = (sx, sy)
+        self.set_look(self._look_at(camera, frame, sx, sy))
         self.after_edit(f"marker {marker} placed in {camera} at ({sx:.1f}, {sy:.1f})")
+
+    def _look_at(self, camera: str, frame: int, x: float, y: float):
+        """The appearance model of the marker seeded at (x, y), or None: blue paint (what the boost
+        shows without a model) or nothing that stands out."""
+        if not available("tracking.run", "marker_look"):
+            return None
+        img = self.sources[camera].frame(frame)
+        ix, iy = int(round(x)), int(round(y))
+        centre = img[max(iy - 1, 0):iy + 2, max(ix - 1, 0):ix + 2]
+        if img.ndim == 3 and img.dtype == np.uint8 and marker_mask(centre).mean() > 127:
+            return None
+        return core("tracking.run", "marker_look").marker_look(img, x, y)
+
+    def set_look(self, look) -> None:
+        """Show markers like `look` in the boost (None: blue markers, the default)."""
+        if look is not self.look:
+            self.look = look
+            self.request_frames()
+
+    def learn_look_from_seeds(self) -> None:
+        """The boost's look from the project's last seeded point, learned off the UI thread."""
+        seeds = self.points[self.points["status"] == "manual"] if len(self.points) else self.points
+        seeds = seeds[seeds["camera"].isin(self.cameras)] if len(seeds) else seeds
+        if not len(seeds):
+            return
+        rec = seeds.iloc[-1]
+
+        def job() -> None:
+            try:  # (on failure, or when the app has closed meanwhile, the boost keeps showing blue markers)
+                look = self._look_at(str(rec.camera), int(rec.frame), float(rec.x_px), float(rec.y_px))
+                if look is not None:
+                    self.call_from_thread(self.set_look, look)
+            except Exception:  # noqa: BLE001
+                return
+
+        self.run_worker(job, thread=True, group="look", exit_on_error=False)
 
     def after_edit(self, message: str | None = None) -> None:
         self.reload_points()
