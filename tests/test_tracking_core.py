@@ -340,7 +340,8 @@ def _glass_bead(sand: np.ndarray, cx: float, cy: float, r: float, pale: bool = F
 def test_a_pale_dark_bead_on_the_other_views_line_is_measured_a_half_hidden_one_is_not():
     """A dark bead whose body turned pale (its coverage fails the tracker's test) is measured by its
     template where it lies on the other view's epipolar line, within 0.15 px; half behind the tool
-    (its template slides to the part in sight), or off the line, it is not."""
+    (its template slides to the part in sight), off the line, on a marker already measured, or nearer
+    another searching marker's prediction, it is not."""
     cal = synthetic.stereo_rig((360, 480))
     eng = Engine(stereo=StereoCheck(cal, "side", "front"))
     sand = synthetic.sand_texture(360, 480, np.random.default_rng(3))
@@ -356,6 +357,11 @@ def test_a_pale_dark_bead_on_the_other_views_line_is_measured_a_half_hidden_one_
         m = eng._on_line("side", pale, track, tuple(f), [])
         assert m is not None and np.hypot(m.x - s[0], m.y - s[1]) < 0.15
         assert eng._on_line("side", pale, track, tuple(f), [(s[0] + 3, s[1])]) is None  # another marker's
+        # another marker still searching, its prediction nearer: it may be that one
+        px, py = track.kf.xy
+        own = np.hypot(m.x - px, m.y - py)
+        assert eng._nearer_searcher((1, "side"), m, {(2, "side"): (m.x + 0.5 * own, m.y, 20, 20)}, {})
+        assert not eng._nearer_searcher((1, "side"), m, {(2, "side"): (m.x + own + 1, m.y, 20, 20)}, {})
         assert eng._on_line("side", _glass_bead(sand, *s, 6.0, tool_to_x=s[0] - 1.0), track, tuple(f), []) is None
         off = cal.cameras["front"].project(X + [dx, 2.0, 0])[0]  # 3.3 px off the line
         assert eng._on_line("side", pale, track, tuple(off), []) is None

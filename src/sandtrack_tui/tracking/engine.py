@@ -519,10 +519,20 @@ class Engine:
         for key, band_from in lines.items():
             if key not in props:
                 m = self._on_line(cam, img, self.tracks[key], band_from, self._explained(cam, props, forced))
+                if m is not None and self._nearer_searcher(key, m, windows, props):
+                    m = None
                 if m is not None:
                     props[key] = _Proposal(m, reattach=True)
                     n += 1
         return n
+
+    def _nearer_searcher(self, key, m: Match, windows: dict, props) -> bool:
+        """Another track of this camera still searching holds m in its window, its prediction nearer m
+        than this track's: the marker there may be that one (which did not see it), as in _assign."""
+        ox, oy = self.tracks[key].kf.xy
+        own = math.hypot(m.x - ox, m.y - oy)
+        return any(k != key and k not in props and abs(m.x - wx) <= hx and abs(m.y - wy) <= hy
+                   and math.hypot(m.x - wx, m.y - wy) < own for k, (wx, wy, hx, hy) in windows.items())
 
     def _on_line(self, cam, img, t: MarkerTrack, band_from, explained: list) -> Match | None:
         """A coasting marker of a brightness model that the other view measures this step: its template
