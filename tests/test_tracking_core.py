@@ -235,6 +235,14 @@ def test_compiled_epipolar_distances_equal_opencv_undistortion(distortion):
     assert np.allclose(fast.distance("front", b[0], "side", a), slow.distance("front", b[0], "side", a), atol=1e-8)
     with pytest.raises(ValueError):
         fast.distance("side", a[:3], "front", b[:4])
+    # onto_line: a point about a pixel off the line lands on it (to a tenth of its distance through the lens)
+    for p, q in zip(a[:10], b[:10], strict=True):
+        for _ in range(6):
+            q = np.array(fast.onto_line("side", p, "front", q))
+        near = q + (1.0, 0.7)
+        before = fast.distance("side", p, "front", near)[0]
+        after = fast.distance("side", p, "front", fast.onto_line("side", p, "front", near))[0]
+        assert before > 0.5 and after < 0.1 * before
 
 
 @pytest.mark.parametrize("x", [6.0, 7.0, 7.5])
