@@ -49,8 +49,8 @@ class StereoCheck:
 
     def onto_line(self, cam_from: str, p_from, cam_to: str, p_to) -> tuple[float, float]:
         """The point of p_from's epipolar line in cam_to nearest p_to (x, y), in cam_to's pixels. The
-        foot is found in undistorted pixels and the step to it applied to p_to as is (a lens bends a
-        step of a pixel by a fraction of a percent)."""
+        foot is found in undistorted pixels and the step to it applied to p_to as is: a lens bends so
+        short a step little (a strongly distorting lens, GoPro-like, leaves < 0.05 px of a 0.6 px step)."""
         a = self.calibration.cameras[cam_from].undistort(np.asarray(p_from, dtype=float).reshape(1, 2))[0]
         b = self.calibration.cameras[cam_to].undistort(np.asarray(p_to, dtype=float).reshape(1, 2))[0]
         line = self.F[(cam_from, cam_to)] @ np.array([a[0], a[1], 1.0])
