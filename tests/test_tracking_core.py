@@ -364,6 +364,8 @@ def test_a_pale_dark_bead_on_the_other_views_line_is_measured_a_half_hidden_one_
         assert not track.acceptable(track.matcher.match(pale, *s, 3, 3))  # (coverage < 0.55)
         m = eng._on_line("side", pale, track, tuple(f), [])
         assert m is not None and np.hypot(m.x - s[0], m.y - s[1]) < 0.15
+        b = eng._on_line("side", pale, track, tuple(f), [], at=(s[0] + 1.2, s[1] - 0.5))  # at a blob given it
+        assert b is not None and np.hypot(b.x - s[0], b.y - s[1]) < 0.15
         assert eng._on_line("side", pale, track, tuple(f), [(s[0] + 3, s[1])]) is None  # another marker's
         # another marker still searching, its prediction nearer: it may be that one
         px, py = track.kf.xy

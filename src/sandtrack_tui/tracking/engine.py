@@ -446,6 +446,7 @@ class Engine:
         windows: dict = {}  # track key -> (x, y, hx, hy) searched
         seen: list = []  # one blob seen through several tracks' windows is one blob
         lines: dict = {}  # track key -> the other view's point this step (its epipolar line pins the marker)
+        assigned: dict = {}  # track key -> (x, y) of the blob it was given that its match then failed
         for t in tracks:
             key = (t.marker, cam)
             if key in props:
@@ -516,9 +517,14 @@ class Engine:
             if m is not None:
                 props[key] = _Proposal(m, reattach=True, jump=key in jumpers)
                 n += 1
+            else:
+                assigned[key] = (blob.x, blob.y)
         for key, band_from in lines.items():
             if key not in props:
-                m = self._on_line(cam, img, self.tracks[key], band_from, self._explained(cam, props, forced))
+                explained_now = self._explained(cam, props, forced)
+                m = None if key not in assigned else \
+                    self._on_line(cam, img, self.tracks[key], band_from, explained_now, at=assigned[key])
+                m = m or self._on_line(cam, img, self.tracks[key], band_from, explained_now)
                 if m is not None and self._nearer_searcher(key, m, windows, props):
                     m = None
                 if m is not None:
@@ -534,24 +540,26 @@ class Engine:
         return any(k != key and k not in props and abs(m.x - wx) <= hx and abs(m.y - wy) <= hy
                    and math.hypot(m.x - wx, m.y - wy) < own for k, (wx, wy, hx, hy) in windows.items())
 
-    def _on_line(self, cam, img, t: MarkerTrack, band_from, explained: list) -> Match | None:
+    def _on_line(self, cam, img, t: MarkerTrack, band_from, explained: list, at=None) -> Match | None:
         """A coasting marker of a brightness model that the other view measures this step: its template
         found near its prediction, on the other view's epipolar line as closely as a marker measured in
         both views lies (StereoCheck.agree_px), is the marker there, moved onto the line (the line
         pins it across, the template along). Its coverage is not asked: a brightness model's coverage
         follows the light on the marker's body (a glass bead's body turns pale where the lamp's light is
         focused through it) while its template still finds it. None otherwise, or when the match lies
-        on a marker this camera already explains."""
+        on a marker this camera already explains. `at`: the blob re-acquisition gave the track (its match
+        failed there), searched instead of the prediction."""
         model, p = t.model, t.params
         if model.kind not in (DARK, BRIGHT) or model.crowd:
             return None
         other = self.stereo.other(cam)
-        x, y = self.stereo.onto_line(other, band_from, cam, t.kf.xy)
-        half = min(max(t.search_halfsize()), 2 * model.radius + 4)
+        x, y = self.stereo.onto_line(other, band_from, cam, t.kf.xy if at is None else at)
+        half = min(max(t.search_halfsize()), 2 * model.radius + 4) if at is None else 2.0
         m = t.matcher.match(img, x, y, half, half)
+        # (more than MERGED_COVERAGE discs of the marker's brightness there: merged with another dark thing)
         if m is None or m.score < p.min_score or not m.psr >= p.min_psr or m.colour_frac > MERGED_COVERAGE \
                 or t._cut_by_border(img, m):
-            return None  # (more than a disc of marker brightness there: merged with another dark thing)
+            return None
         if self.stereo.distance(other, band_from, cam, (m.x, m.y))[0] > self.stereo.agree_px:
             return None
         # A marker partly hidden (behind the tool, or sinking) shows part of its disc: the template slides
