@@ -235,6 +235,14 @@ def test_compiled_epipolar_distances_equal_opencv_undistortion(distortion):
     assert np.allclose(fast.distance("front", b[0], "side", a), slow.distance("front", b[0], "side", a), atol=1e-8)
     with pytest.raises(ValueError):
         fast.distance("side", a[:3], "front", b[:4])
+    # onto_line: a point about a pixel off the line lands on it (to a tenth of its distance through the lens)
+    for p, q in zip(a[:10], b[:10], strict=True):
+        for _ in range(6):
+            q = np.array(fast.onto_line("side", p, "front", q))
+        near = q + (1.0, 0.7)
+        before = fast.distance("side", p, "front", near)[0]
+        after = fast.distance("side", p, "front", fast.onto_line("side", p, "front", near))[0]
+        assert before > 0.5 and after < 0.1 * before
 
 
 @pytest.mark.parametrize("x", [6.0, 7.0, 7.5])
@@ -321,3 +329,49 @@ def test_missed_crowd_markers_are_carried_by_the_image_motion_around_them_where_
     hx, hy = crowd.highlight(cv2.cvtColor(shine.astype(np.uint8), cv2.COLOR_GRAY2BGR), cx, cy, 0.5 * r)
     assert abs(hx - cx - 0.6) < 0.1 and abs(hy - cy + 0.9) < 0.1
     assert crowd.highlight(cv2.cvtColor(bead.astype(np.uint8), cv2.COLOR_GRAY2BGR), cx, cy, 0.5 * r) is None
+
+
+def _glass_bead(sand: np.ndarray, cx: float, cy: float, r: float, pale: bool = False, tool_to_x=None) -> np.ndarray:
+    """A dark bead on sand; `pale`: the lamp's light focused through it, only a dark rim left round a body
+    like the sand beneath; `tool_to_x`: the tool covers the image left of that column."""
+    yy, xx = np.mgrid[0:sand.shape[0], 0:sand.shape[1]].astype(np.float32)
+    d = np.hypot(xx - cx, yy - cy)
+    a = np.clip(r + 0.5 - d, 0, 1)[..., None]
+    dark = np.array([40.0, 45.0, 50.0], np.float32)
+    k = np.clip((d - 0.55 * r) / (0.25 * r), 0, 1)[..., None] if pale else 1.0
+    out = sand * (1 - a) + (0.95 * sand * (1 - k) + dark * k) * a
+    if tool_to_x is not None:
+        out[:, :int(tool_to_x)] = synthetic.TOOL_BGR
+    return np.clip(out, 0, 255).astype(np.uint8)
+
+
+def test_a_pale_dark_bead_on_the_other_views_line_is_measured_a_half_hidden_one_is_not():
+    """A dark bead whose body turned pale (its coverage fails the tracker's test) is measured by its
+    template where it lies on the other view's epipolar line, within 0.15 px; half behind the tool
+    (its template slides to the part in sight), off the line, on a marker already measured, or nearer
+    another searching marker's prediction, it is not."""
+    cal = synthetic.stereo_rig((360, 480))
+    eng = Engine(stereo=StereoCheck(cal, "side", "front"))
+    sand = synthetic.sand_texture(360, 480, np.random.default_rng(3))
+    X = np.array([[10.0, 5.0, 420.0]])
+    s0 = cal.cameras["side"].project(X)[0]
+    track = MarkerTrack(1, "side", _glass_bead(sand, *s0, 6.0), 0, s0[0] + 1.0, s0[1] - 0.8, 24, 24, kind="dark")
+    eng.add(track, 0)
+    for dx in (0.0, 2.0):  # (moved along the line: 0 and 1.3 px)
+        s, f = cal.cameras["side"].project(X + [dx, 0, 0])[0], cal.cameras["front"].project(X + [dx, 0, 0])[0]
+        track.predict()
+        pale = _glass_bead(sand, *s, 6.0, pale=True)
+        assert not track.acceptable(track.matcher.match(pale, *s, 3, 3))  # (coverage < 0.55)
+        m = eng._on_line("side", pale, track, tuple(f), [])
+        assert m is not None and np.hypot(m.x - s[0], m.y - s[1]) < 0.15
+        b = eng._on_line("side", pale, track, tuple(f), [], at=(s[0] + 1.2, s[1] - 0.5))  # at a blob given it
+        assert b is not None and np.hypot(b.x - s[0], b.y - s[1]) < 0.15
+        assert eng._on_line("side", pale, track, tuple(f), [(s[0] + 3, s[1])]) is None  # another marker's
+        # another marker still searching, its prediction nearer: it may be that one
+        px, py = track.kf.xy
+        own = np.hypot(m.x - px, m.y - py)
+        assert eng._nearer_searcher((1, "side"), m, {(2, "side"): (m.x + 0.5 * own, m.y, 20, 20)}, {})
+        assert not eng._nearer_searcher((1, "side"), m, {(2, "side"): (m.x + own + 1, m.y, 20, 20)}, {})
+        assert eng._on_line("side", _glass_bead(sand, *s, 6.0, tool_to_x=s[0] - 1.0), track, tuple(f), []) is None
+        off = cal.cameras["front"].project(X + [dx, 2.0, 0])[0]  # 3.3 px off the line
+        assert eng._on_line("side", pale, track, tuple(off), []) is None

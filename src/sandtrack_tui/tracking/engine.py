@@ -18,14 +18,17 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import crowd as crowd_rules
+from .appearance import BRIGHT, DARK
 from .detection import detect_like
 from .globalmotion import image_shift
+from .luma import edge_circle
 from .matcher import Match
 from .reacquire import find_blobs, search_window, unexplained
 from .stereo import StereoCheck
-from .tracker import LOST, SHORT_MISS, MarkerTrack, Observation
+from .tracker import LOST, MERGED_COVERAGE, SHORT_MISS, MarkerTrack, Observation
 
 FLOW_AGREE_PX = 1.5  # a crowd marker's match this far from where the image motion took it is not its own
+ONLINE_RADIUS_TOL = 0.15  # a marker measured on the other view's line shows an outline of its radius to this share
 JUMP_FRAMES = 2  # frames after a miss during which a track is searched a largest move per frame unseen
 
 
@@ -442,6 +445,8 @@ class Engine:
         unanchored: set = set()  # lost tracks the other view does not pin to a line: any lost marker may be theirs
         windows: dict = {}  # track key -> (x, y, hx, hy) searched
         seen: list = []  # one blob seen through several tracks' windows is one blob
+        lines: dict = {}  # track key -> the other view's point this step (its epipolar line pins the marker)
+        assigned: dict = {}  # track key -> (x, y) of the blob it was given that its match then failed
         for t in tracks:
             key = (t.marker, cam)
             if key in props:
@@ -455,6 +460,8 @@ class Engine:
                 other = (t.marker, self.stereo.other(cam))
                 if other[1] in frames:
                     band_from = self._point_at(other, frames, props, forced)
+                    if band_from is not None:
+                        lines[key] = band_from
             # How far the marker may have gone since it was last seen: a frame's largest move per frame.
             # Beyond its gate (pushed hard, carried away while hidden, or the view jumped) a blob takes
             # the track only when no other candidate is in sight (any rival is ambiguous).
@@ -510,7 +517,65 @@ class Engine:
             if m is not None:
                 props[key] = _Proposal(m, reattach=True, jump=key in jumpers)
                 n += 1
+            else:
+                assigned[key] = (blob.x, blob.y)
+        for key, band_from in lines.items():
+            if key not in props:
+                explained_now = self._explained(cam, props, forced)
+                m = None if key not in assigned else \
+                    self._on_line(cam, img, self.tracks[key], band_from, explained_now, at=assigned[key])
+                m = m or self._on_line(cam, img, self.tracks[key], band_from, explained_now)
+                if m is not None and self._nearer_searcher(key, m, windows, props):
+                    m = None
+                if m is not None:
+                    props[key] = _Proposal(m, reattach=True)
+                    n += 1
         return n
+
+    def _nearer_searcher(self, key, m: Match, windows: dict, props) -> bool:
+        """Another track of this camera still searching holds m in its window, its prediction nearer m
+        than this track's: the marker there may be that one (which did not see it), as in _assign."""
+        ox, oy = self.tracks[key].kf.xy
+        own = math.hypot(m.x - ox, m.y - oy)
+        return any(k != key and k not in props and abs(m.x - wx) <= hx and abs(m.y - wy) <= hy
+                   and math.hypot(m.x - wx, m.y - wy) < own for k, (wx, wy, hx, hy) in windows.items())
+
+    def _on_line(self, cam, img, t: MarkerTrack, band_from, explained: list, at=None) -> Match | None:
+        """A coasting marker of a brightness model that the other view measures this step: its template
+        found near its prediction, on the other view's epipolar line as closely as a marker measured in
+        both views lies (StereoCheck.agree_px), is the marker there, moved onto the line (the line
+        pins it across, the template along). Its coverage is not asked: a brightness model's coverage
+        follows the light on the marker's body (a glass bead's body turns pale where the lamp's light is
+        focused through it) while its template still finds it. None otherwise, or when the match lies
+        on a marker this camera already explains. `at`: the blob re-acquisition gave the track (its match
+        failed there), searched instead of the prediction."""
+        model, p = t.model, t.params
+        if model.kind not in (DARK, BRIGHT) or model.crowd:
+            return None
+        other = self.stereo.other(cam)
+        x, y = self.stereo.onto_line(other, band_from, cam, t.kf.xy if at is None else at)
+        half = min(max(t.search_halfsize()), 2 * model.radius + 4) if at is None else 2.0
+        m = t.matcher.match(img, x, y, half, half)
+        # (more than MERGED_COVERAGE discs of the marker's brightness there: merged with another dark thing)
+        if m is None or m.score < p.min_score or not m.psr >= p.min_psr or m.colour_frac > MERGED_COVERAGE \
+                or t._cut_by_border(img, m):
+            return None
+        if self.stereo.distance(other, band_from, cam, (m.x, m.y))[0] > self.stereo.agree_px:
+            return None
+        # A marker partly hidden (behind the tool, or sinking) shows part of its disc: the template slides
+        # along the line to the part in sight, and the outline found round it is a smaller circle. The
+        # outline must be found all round, of the marker's own size (to ONLINE_RADIUS_TOL: a bead moving
+        # in depth changes its image size by about that over a box's depth).
+        e = edge_circle(img, m.x, m.y, model.radius, polarity=1.0 if model.kind == DARK else -1.0,
+                        outward=model.kind == DARK)
+        if e is None or e[3] < 4 or abs(e[2] - model.radius) > ONLINE_RADIUS_TOL * model.radius:
+            return None
+        if any(math.hypot(m.x - a, m.y - b) < 1.5 * model.radius + 1 for a, b in explained):
+            return None
+        m.x, m.y = self.stereo.onto_line(other, band_from, cam, (m.x, m.y))
+        m.used_centroid = False  # (along the line its place is the template's peak: a looser measurement)
+        m.d2 = t.kf.d2(m.x, m.y)
+        return m
 
     def _band_blobs(self, cam, img, model, band_from, px, py, inner: float, reach: float) -> list:
         """Blobs along the other view's epipolar band through `band_from`, out to `reach` px from

@@ -17,13 +17,16 @@ from . import kernels
 
 class StereoCheck:
     def __init__(self, calibration: Calibration, cam_a: str, cam_b: str, threshold_px: float = 2.0,
-                 band_px: float = 3.0):
+                 band_px: float = 3.0, agree_px: float = 0.5):
         self.calibration = calibration
         self.cams = (cam_a, cam_b)
         self.F = {(cam_a, cam_b): fundamental_matrix(calibration, cam_a, cam_b)}
         self.F[(cam_b, cam_a)] = self.F[(cam_a, cam_b)].T
         self.threshold_px = threshold_px
         self.band_px = band_px
+        # A point this near the other view's line agrees with it as closely as a marker measured in both
+        # views does (95 % of tracked pairs of the glass twin lie within 0.43 px: calibration and centring).
+        self.agree_px = agree_px
         # Pinhole cameras with at most k1 k2 p1 p2 k3: distances in one compiled call (kernels.py).
         self._params = {c: _pinhole_params(calibration.cameras[c]) for c in self.cams}
 
@@ -43,6 +46,16 @@ class StereoCheck:
         lines = np.hstack([a, np.ones((len(a), 1))]) @ self.F[(cam_from, cam_to)].T
         num = np.abs(np.sum(lines * np.hstack([b, np.ones((len(b), 1))]), axis=1))
         return num / np.maximum(np.hypot(lines[:, 0], lines[:, 1]), 1e-12)
+
+    def onto_line(self, cam_from: str, p_from, cam_to: str, p_to) -> tuple[float, float]:
+        """The point of p_from's epipolar line in cam_to nearest p_to (x, y), in cam_to's pixels. The
+        foot is found in undistorted pixels and the step to it applied to p_to as is: a lens bends so
+        short a step little (a strongly distorting lens, GoPro-like, leaves < 0.05 px of a 0.6 px step)."""
+        a = self.calibration.cameras[cam_from].undistort(np.asarray(p_from, dtype=float).reshape(1, 2))[0]
+        b = self.calibration.cameras[cam_to].undistort(np.asarray(p_to, dtype=float).reshape(1, 2))[0]
+        line = self.F[(cam_from, cam_to)] @ np.array([a[0], a[1], 1.0])
+        k = (line[0] * b[0] + line[1] * b[1] + line[2]) / max(line[0] ** 2 + line[1] ** 2, 1e-24)
+        return float(p_to[0] - k * line[0]), float(p_to[1] - k * line[1])
 
     def other(self, cam: str) -> str:
         return self.cams[1] if cam == self.cams[0] else self.cams[0]
