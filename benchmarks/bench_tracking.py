@@ -20,7 +20,10 @@ Rates count video frames of both cameras (a step of the side camera and its pair
 are two frames): `decode_and_track_vs_decode_only` = (frames decoded by track_project / its wall
 time) / (frames decoded / wall time of decode only), per pair of runs, median over the pairs (all
 pairs in `..._pairs`); `cpu_rate_ratio` = (decode-only process CPU per frame) / (decode + track
-process CPU per frame), CPU of all threads (user + sys), likewise. Decoding alone moves by up to
+process CPU per frame), CPU of all threads (user + sys), likewise. `decode_only_cores_busy` /
+`decode_and_track_cores_busy`: process CPU s / wall s of each kind of run (median over the runs), how
+many of the machine's cores the run kept busy: where decoding alone leaves a core partly idle, the
+tracker's work can overlap it, and the wall ratio exceeds the CPU ratio. Decoding alone moves by up to
 ~20 % from one run to the next on this machine, so single pairs spread by several hundredths.
 `track_ms_per_marker_frame` / `track_cpu_ms_per_marker_frame`: time inside the tracking step
 only (no decoding, no store), per marker and camera frame, median over the runs;
@@ -250,6 +253,8 @@ def run(mil_frames: int = 60) -> dict:
                    decode_and_track_cpu_ms_per_frame=round(1000 * c_trk, 2),
                    cpu_rate_ratio=round(float(np.median(pairs_cpu)), 3),
                    cpu_rate_ratio_pairs=[round(r, 3) for r in pairs_cpu],
+                   decode_only_cores_busy=round(float(np.median([d[1] / d[0] for d in dec])), 3),
+                   decode_and_track_cores_busy=round(float(np.median([t[1] / t[0] for t in trk])), 3),
                    decode_to_bgr_frames_per_s=round(decoded_only / b_wall, 2),
                    decode_to_bgr_cpu_ms_per_frame=round(1000 * b_cpu / decoded_only, 2),
                    decode_and_track_vs_decode_to_bgr=round(float(np.median(ratios_bgr)), 3),
