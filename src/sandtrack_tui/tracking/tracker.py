@@ -41,6 +41,11 @@ SHORT_MISS = 3  # frames unseen up to which a returning marker's match is judged
 # A fast marker's colour match this far behind its brightness pattern is stale chroma: half the pitch of
 # 4:2:0 chroma samples (2 px), under which the colour's centre cannot tell where the marker is anyway.
 STALE_BEHIND_PX = 1.0
+# A colour match covering less than a whole disc lying farther than this from where the marker's brightness
+# pattern registers is the uncovered part of a marker partly hidden: the pitch of 4:2:0 chroma samples, within
+# which a whole marker's colour and pattern agree.
+PARTIAL_ASTRAY_PX = 2.0
+PLACE_MIN_FIT = 0.5  # a pattern fitting worse (a quarter of its disc's brightness variance explained) has no place
 
 
 @dataclass
@@ -267,15 +272,17 @@ class MarkerTrack:
         When the pattern fits too poorly to tell where the marker is, the colour match stands, unless
         the marker moves fast (STREAK_MIN_SPEED or more) and the colour lies behind where the pattern
         registers, along the motion, by more than STALE_BEHIND_PX: that colour is the chroma left
-        behind by the moving marker (stale between intra frames), and the marker is not measured
-        (False)."""
+        behind by the moving marker (stale between intra frames); or unless the colour covers less than
+        a whole disc and lies more than PARTIAL_ASTRAY_PX from where the pattern registers (fitting at
+        least PLACE_MIN_FIT): that is the part of a marker not yet hidden. Then the marker is not
+        measured (False)."""
         if intra:
             self._pattern = LumaPattern(frame_bgr, m.x, m.y, self.model.radius)
             m.luma = (m.x, m.y) if self._pattern.ok else None
             return True
         m.luma = None if self._pattern is None else self._pattern.find(frame_bgr, m.x, m.y, velocity=self.kf.vxy)
         if m.luma is None:
-            return self._pattern is None or not self._colour_left_behind(m)
+            return self._pattern is None or not (self._colour_left_behind(m) or self._partial_colour_astray(m))
         m.x, m.y = m.luma[0] + self._offset[0], m.luma[1] + self._offset[1]
         return True
 
@@ -287,6 +294,13 @@ class MarkerTrack:
             return False
         px, py = place[0] + self._offset[0], place[1] + self._offset[1]
         return ((m.x - px) * vx + (m.y - py) * vy) / speed < -STALE_BEHIND_PX
+
+    def _partial_colour_astray(self, m: Match) -> bool:
+        """Colour match m covers less than a whole disc and lies away from its pattern's last registration."""
+        place = self._pattern.place
+        if m.colour_frac >= self.params.confident_colour or place is None or self._pattern.fit < PLACE_MIN_FIT:
+            return False
+        return math.hypot(m.x - place[0] - self._offset[0], m.y - place[1] - self._offset[1]) > PARTIAL_ASTRAY_PX
 
     def _update_offset(self, frame_index: int, m: Match | None, reattach: bool, frame_bgr=None) -> None:
         intra = self._is_intra(frame_index)
