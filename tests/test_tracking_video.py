@@ -220,6 +220,40 @@ def test_a_white_marker_whose_colour_match_fails_at_an_intra_frame_is_found_by_i
     assert (t._pattern.x, t._pattern.y) == m.luma
 
 
+def test_a_lost_white_marker_is_found_again_by_the_pattern_kept_from_before_it_was_hidden():
+    """A white marker lost (unseen longer than lost_after) is searched by the brightness pattern its chain
+    had when the miss broke it: back in sight within its radius of its prediction, it is found there
+    within 0.15 px and followed on from it; half covered, or farther than its radius, it is not."""
+    from types import SimpleNamespace
+
+    from sandtrack_tui.tracking.tracker import LOST, SHORT_MISS, MarkerTrack, TrackParams
+
+    sand = synthetic.sand_texture(80, 80, np.random.default_rng(5)).astype(float)
+    r, (ax, ay), (dx, dy), offset = 4.4, (38.3, 40.6), (1.2, -0.8), (0.3, -0.2)
+
+    def lost_track():
+        t = MarkerTrack.__new__(MarkerTrack)
+        t.model, t.params, t.intra = SimpleNamespace(luma_follows=False, radius=r), TrackParams(), np.array([False])
+        t._pattern = LumaPattern(_white_sphere_on_sand(sand, ax, ay, r), ax, ay, r)
+        t._offset, t._anchor_luma, t.status, t.held, t.misses = offset, (ax, ay), LOST, False, SHORT_MISS
+        t.kf = SimpleNamespace(xy=(ax + offset[0], ay + offset[1]), vxy=(0.0, 0.0), d2=lambda x, y: 50.0)
+        t._follow_pattern_chain(None, None, False)  # (the chain broken by the miss)
+        assert t._pattern is None
+        t.misses = 40
+        return t
+
+    back = _white_sphere_on_sand(sand, ax + dx, ay + dy, r)
+    t = lost_track()
+    m = t.pattern_return(back, 7)
+    assert m is not None and np.hypot(m.x - offset[0] - ax - dx, m.y - offset[1] - ay - dy) < 0.15
+    assert t._pattern is not None and t._kept is None  # (followed on by its pattern)
+    half = back.copy()
+    half[int(ay + dy):, :] = np.round(sand[int(ay + dy):, :]).astype(np.uint8)
+    assert lost_track().pattern_return(half, 7) is None
+    far = _white_sphere_on_sand(sand, ax + 2.5 * r, ay, r)
+    assert lost_track().pattern_return(far, 7) is None
+
+
 def test_a_creeping_white_marker_is_carried_by_its_brightness_pattern_not_its_stale_colour(tmp_path):
     """A white marker creeping over beige sand (its colour model has a contrast of ~5 sand spreads, its
     brightness no dark edge), in H.264: between intra frames its colour stays behind; followed by its

@@ -45,6 +45,7 @@ STALE_BEHIND_PX = 1.0
 # pattern registers is the uncovered part of a marker partly hidden: the pitch of 4:2:0 chroma samples, within
 # which a whole marker's colour and pattern agree.
 PARTIAL_ASTRAY_PX = 2.0
+LOST_PLACE_PX = 0.5  # a lost marker's pattern found from around its place must come back this near it
 PLACE_MIN_FIT = 0.5  # a pattern fitting worse (a quarter of its disc's brightness variance explained) has no place
 
 
@@ -135,6 +136,7 @@ class MarkerTrack:
         self._offset: tuple | None = None  # colour centre - luma centre at the last intra frame
         self._anchor_luma: tuple | None = None
         self._pattern: LumaPattern | None = None  # the marker's brightness at the last intra frame (no silhouette)
+        self._kept: tuple | None = None  # (pattern, offset, anchor) of a chain broken by a long miss
         self._rest: RestReference | None = None
         self.rest_frames = 0
         self.held = False
@@ -193,10 +195,29 @@ class MarkerTrack:
     def pattern_return(self, frame_bgr, frame_index: int | None = None) -> Match | None:
         """A coasting marker with no dark silhouette, unseen a few frames at most, whose brightness
         pattern is found again near its prediction (as closely as a followed marker's: see LumaPattern)
-        is back in sight: its colour, stale between intra frames, may not say so yet."""
-        if not self.coasting or self.misses > SHORT_MISS:
+        is back in sight: its colour, stale between intra frames, may not say so yet. So is a lost one
+        whose pattern, kept from before it was hidden (the light, not the marker, sets a matte marker's
+        shading), is found within its radius of its prediction, from there and from around it alike."""
+        if not self.coasting:
             return None
-        return self._pattern_match(frame_bgr, frame_index)
+        if self.misses <= SHORT_MISS:
+            return self._pattern_match(frame_bgr, frame_index)
+        if self.status != LOST or self._kept is None or self.model.luma_follows:
+            return None
+        pattern, offset, anchor = self._kept
+        px, py = self.kf.xy
+        r = self.model.radius
+        found = pattern.find(frame_bgr, px - offset[0], py - offset[1])
+        if found is None or math.hypot(found[0] + offset[0] - px, found[1] + offset[1] - py) > r:
+            return None
+        fit = pattern.fit
+        for dx, dy in ((r, 0.0), (-r, 0.0), (0.0, r), (0.0, -r)):  # (one place, not one of several)
+            other = pattern.find(frame_bgr, found[0] + 0.5 * dx, found[1] + 0.5 * dy)
+            if other is not None and math.hypot(other[0] - found[0], other[1] - found[1]) > LOST_PLACE_PX:
+                return None
+        self._pattern, self._offset, self._anchor_luma, self._kept = pattern, offset, anchor, None
+        x, y = found[0] + offset[0], found[1] + offset[1]
+        return Match(x, y, fit, float("nan"), float("nan"), self.kf.d2(x, y), True, found)
 
     def _pattern_match(self, frame_bgr, frame_index: int | None) -> Match | None:
         """A marker with no dark silhouette whose colour match failed (between intra frames its colour is
@@ -320,6 +341,8 @@ class MarkerTrack:
         """_update_offset between intra frames for a marker with no dark silhouette, followed by its
         brightness pattern (see _carry_pattern)."""
         if m is None:
+            if self._pattern is not None and self.misses >= SHORT_MISS:
+                self._kept = (self._pattern, self._offset, self._anchor_luma)  # (to find it again when lost)
             if self._pattern is None or self.misses >= SHORT_MISS:
                 self._offset = self._anchor_luma = self._pattern = None  # the chain is broken
             # (else unseen a frame or two: the chain is kept, to find the marker by its pattern: pattern_return)
@@ -449,6 +472,8 @@ class MarkerTrack:
         gate; the velocity restarts from the move since the last measurement."""
         self.frame_index = frame_index
         p = self.params
+        if m is not None:
+            self._kept = None
         self._update_offset(frame_index, m, reattach, frame_bgr)
         self.held = m is not None and not m.outline
         if self.held:
@@ -506,7 +531,7 @@ class MarkerTrack:
 
     def set_manual(self, frame_index: int, frame_bgr: np.ndarray | None, x: float, y: float) -> Observation:
         """An operator's point met along the way: trust it, keep tracking from it."""
-        self._offset = self._anchor_luma = self._pattern = None
+        self._offset = self._anchor_luma = self._pattern = self._kept = None
         self._rest = None
         self.held = False
         if self.misses > 2:
