@@ -163,20 +163,28 @@ def test_luma_pattern_finds_a_fast_white_marker_smeared_by_the_exposure():
     assert unseen >= 1
 
 
-def test_a_fast_white_markers_colour_left_behind_its_pattern_is_not_taken_for_it():
+def test_a_white_markers_colour_left_behind_or_partly_hidden_is_not_taken_for_it():
     """Between intra frames, a white marker whose pattern fits too poorly to place it keeps its colour
     match, unless it moves fast and the colour lies behind where the pattern registers, along the
-    motion, by more than STALE_BEHIND_PX (stale chroma left behind): then it is not measured."""
+    motion, by more than STALE_BEHIND_PX (stale chroma left behind), or the colour covers less than a
+    whole disc and lies more than PARTIAL_ASTRAY_PX from where the pattern registers with a fit of
+    PLACE_MIN_FIT or more (the uncovered part of a marker being hidden): then it is not measured."""
     from types import SimpleNamespace
 
     from sandtrack_tui.tracking.matcher import STREAK_MIN_SPEED, Match
-    from sandtrack_tui.tracking.tracker import STALE_BEHIND_PX, MarkerTrack
+    from sandtrack_tui.tracking.tracker import (
+        PARTIAL_ASTRAY_PX,
+        PLACE_MIN_FIT,
+        STALE_BEHIND_PX,
+        MarkerTrack,
+        TrackParams,
+    )
 
-    def takes(colour_xy, velocity):
+    def takes(colour_xy, velocity, coverage=0.9, fit=0.8):
         t = MarkerTrack.__new__(MarkerTrack)
-        t._pattern = SimpleNamespace(find=lambda *a, **k: None, place=(50.0, 40.0))  # (fit under MIN_NCC)
-        t._offset, t.kf = (0.5, -0.25), SimpleNamespace(vxy=velocity)
-        m = Match(*colour_xy, 0.73, 5.0, 0.9)
+        t._pattern = SimpleNamespace(find=lambda *a, **k: None, place=(50.0, 40.0), fit=fit)  # (fit under MIN_NCC)
+        t._offset, t.kf, t.params = (0.5, -0.25), SimpleNamespace(vxy=velocity), TrackParams()
+        m = Match(*colour_xy, 0.73, 5.0, coverage)
         return t._carry_pattern(None, m, intra=False), (m.x, m.y) == colour_xy
 
     fast = (6.0, 8.0)  # 10 px per frame, along (0.6, 0.8)
@@ -187,6 +195,11 @@ def test_a_fast_white_markers_colour_left_behind_its_pattern_is_not_taken_for_it
     assert takes((at[0] + 0.8 * behind, at[1] - 0.6 * behind), fast) == (True, True)  # aside
     slow = tuple(0.9 * STREAK_MIN_SPEED * u for u in (0.6, 0.8))
     assert takes((at[0] - 0.6 * behind, at[1] - 0.8 * behind), slow) == (True, True)
+    part, away, near = 0.6, 1.5 * PARTIAL_ASTRAY_PX, 0.7 * PARTIAL_ASTRAY_PX
+    assert takes((at[0] + away, at[1]), slow, coverage=part) == (False, True)  # partly hidden, astray
+    assert takes((at[0], at[1] - near), slow, coverage=part) == (True, True)  # partly hidden, in place
+    assert takes((at[0] + away, at[1]), slow) == (True, True)  # a whole disc
+    assert takes((at[0] + away, at[1]), slow, coverage=part, fit=0.8 * PLACE_MIN_FIT) == (True, True)  # no place
 
 
 def test_a_white_marker_whose_colour_match_fails_at_an_intra_frame_is_found_by_its_pattern():
@@ -205,6 +218,40 @@ def test_a_white_marker_whose_colour_match_fails_at_an_intra_frame_is_found_by_i
     m = t._pattern_match(_white_sphere_on_sand(sand, ax + dx, ay + dy, r), 1)
     assert m is not None and np.hypot(m.x - 0.3 - ax - dx, m.y + 0.2 - ay - dy) < 0.15
     assert (t._pattern.x, t._pattern.y) == m.luma
+
+
+def test_a_lost_white_marker_is_found_again_by_the_pattern_kept_from_before_it_was_hidden():
+    """A white marker lost (unseen longer than lost_after) is searched by the brightness pattern its chain
+    had when the miss broke it: back in sight within its radius of its prediction, it is found there
+    within 0.15 px and followed on from it; half covered, or farther than its radius, it is not."""
+    from types import SimpleNamespace
+
+    from sandtrack_tui.tracking.tracker import LOST, SHORT_MISS, MarkerTrack, TrackParams
+
+    sand = synthetic.sand_texture(80, 80, np.random.default_rng(5)).astype(float)
+    r, (ax, ay), (dx, dy), offset = 4.4, (38.3, 40.6), (1.2, -0.8), (0.3, -0.2)
+
+    def lost_track():
+        t = MarkerTrack.__new__(MarkerTrack)
+        t.model, t.params, t.intra = SimpleNamespace(luma_follows=False, radius=r), TrackParams(), np.array([False])
+        t._pattern = LumaPattern(_white_sphere_on_sand(sand, ax, ay, r), ax, ay, r)
+        t._offset, t._anchor_luma, t.status, t.held, t.misses = offset, (ax, ay), LOST, False, SHORT_MISS
+        t.kf = SimpleNamespace(xy=(ax + offset[0], ay + offset[1]), vxy=(0.0, 0.0), d2=lambda x, y: 50.0)
+        t._follow_pattern_chain(None, None, False)  # (the chain broken by the miss)
+        assert t._pattern is None
+        t.misses = 40
+        return t
+
+    back = _white_sphere_on_sand(sand, ax + dx, ay + dy, r)
+    t = lost_track()
+    m = t.pattern_return(back, 7)
+    assert m is not None and np.hypot(m.x - offset[0] - ax - dx, m.y - offset[1] - ay - dy) < 0.15
+    assert t._pattern is not None and t._kept is None  # (followed on by its pattern)
+    half = back.copy()
+    half[int(ay + dy):, :] = np.round(sand[int(ay + dy):, :]).astype(np.uint8)
+    assert lost_track().pattern_return(half, 7) is None
+    far = _white_sphere_on_sand(sand, ax + 2.5 * r, ay, r)
+    assert lost_track().pattern_return(far, 7) is None
 
 
 def test_a_creeping_white_marker_is_carried_by_its_brightness_pattern_not_its_stale_colour(tmp_path):

@@ -97,7 +97,7 @@ def test_kernels_read_the_planes_as_the_converted_window():
     converted to BGR, to the last bit."""
     if not SAMPLE.exists():
         pytest.skip("sample_data is absent")
-    from sandtrack_tui.tracking import kernels, luma
+    from sandtrack_tui.tracking import chroma, kernels, luma
 
     with FrameSource(SAMPLE, cache_mb=0) as src:
         frame, later = src.lazy_frame(7), src.lazy_frame(8)
@@ -106,11 +106,17 @@ def test_kernels_read_the_planes_as_the_converted_window():
     coeffs = tuple(np.float32(c) for c in (0.9, -0.4, -0.5, 0.1, 3.0, 1.0))
     radius = 5.5
     args = (luma._steps(radius), luma._COS, luma._SIN, luma.MIN_RISE, luma.STEP, 3, 0.35, 1.0, True)
+    moved = agree = 0.0
     for _ in range(25):
         y0, x0 = int(rng.integers(0, 1000)), int(rng.integers(0, 1800))
         y1, x1 = y0 + int(rng.integers(1, 60)), x0 + int(rng.integers(1, 90))
-        assert np.array_equal(kernels.colour_score_yuv(*planes, x0, y0, x1, y1, *coeffs),
-                              kernels.colour_score(frame[y0:y1, x0:x1], *coeffs))
+        held = kernels.colour_score_yuv(*planes, x0, y0, x1, y1, *coeffs)
+        assert np.array_equal(held, kernels.colour_score(frame[y0:y1, x0:x1], *coeffs))
+        # (the chroma interpolated from the planes: as chroma.reinterpolate gives it from the BGR window)
+        smooth = kernels.colour_score_yuv_interpolated(*planes, x0, y0, x1, y1, *coeffs)
+        want = kernels.colour_score(np.clip(chroma.reinterpolate(frame, x0, y0, x1, y1), 0, 255), *coeffs)
+        agree = max(agree, float(np.abs(smooth - want).max()))
+        moved = max(moved, float(np.abs(smooth - held).max()))
         n = int(rng.integers(9, 40))
         want = kernels.rest_reference(frame[y0:y0 + n, x0:x0 + n])
         got = kernels.rest_reference_yuv(*planes, x0, y0, n)
@@ -121,6 +127,7 @@ def test_kernels_read_the_planes_as_the_converted_window():
         c = 0.5 * n + rng.normal(0, 1, 2)
         assert kernels.edge_centre_yuv(*planes, x0, y0, n, c[0], c[1], radius, *args) == \
             kernels.edge_centre(frame[y0:y0 + n, x0:x0 + n], c[0], c[1], radius, *args)
+    assert agree < 0.005 and moved > 0.015  # (as reinterpolate, to rounding; not what the held chroma gives)
 
 
 def test_window_reads_follow_numpy_slicing(tmp_path):

@@ -70,6 +70,9 @@ class AppearanceModel:
     # brightness around it is its own motion (rest.py). Not so for a white marker on beige sand, whose
     # shaded half is as bright as the sand: its window's brightness is the sand's texture, which stays.
     luma_follows: bool = True
+    # A grey marker on coloured sand (white on beige): set apart by the sand's colour, which it lacks; it
+    # has no chroma of its own to spread (see interpolated_score_window).
+    grey: bool = False
     crowd: bool = False  # learned among touching markers like it (a dense layer)
     pattern: np.ndarray | None = None  # a crowd marker's brightness around it (finds the others like it)
 
@@ -135,6 +138,21 @@ class AppearanceModel:
         if yuv is not None and x1 > x0 and y1 > y0:
             return kernels.colour_score_yuv(*yuv, x0, y0, x1, y1, *self._score_coeffs)
         return self.score(frame[y0:y1, x0:x1])
+
+    def interpolated_score_window(self, frame, x0: int, y0: int, x1: int, y1: int) -> np.ndarray | None:
+        """score_window of a grey marker's colour model with the 4:2:0 chroma interpolated between its
+        samples (kernels.colour_score_yuv_interpolated) rather than held over 2 x 2 blocks, which snaps
+        the sand's colour edge around the marker to the block grid (a centre error fixed per marker and
+        position: 0.27 side / 0.35 front px at intra frames on the rendered rig). A coloured marker's
+        interpolated chroma spreads onto the darker pixels around it (its contact shadow), where it reads
+        as more saturated than the marker itself and pulls the centre towards the shadow (measured: red
+        markers 0.02-0.03 px further along their shadow's side, red on wet sand 0.29 -> 0.33 px mean); a
+        grey marker has no chroma of its own to spread. None for other models and frames not in their
+        4:2:0 planes."""
+        yuv = getattr(frame, "yuv", None)
+        if yuv is None or not self.grey or self.kind != COLOUR or x1 <= x0 or y1 <= y0:
+            return None
+        return kernels.colour_score_yuv_interpolated(*yuv, x0, y0, x1, y1, *self._score_coeffs)
 
     @cached_property
     def _score_coeffs(self) -> tuple:
@@ -303,7 +321,7 @@ def learn(frame, cx: float, cy: float, w: float, h: float, centred: bool = True,
     if texture is not None and (model is None or brightness.two_tone(seed)):
         return texture
     if model is not None:  # a grey marker on coloured sand, its shaded side as bright as the sand
-        model.luma_follows = False
+        model.luma_follows, model.grey = False, True
         return model
     lum_in, lum_ring = seed.luma[seed.inner], seed.luma[seed.ring]
     seps = ", ".join(f"{what} separation {v:.2f}" for what, v in (("colour", colour_sep), ("brightness", bright_sep))

@@ -653,6 +653,44 @@ def colour_score_yuv(yp, up, vp, t, x0, y0, x1, y1, w0, w1, w2, b, eps, den):
     return out
 
 
+@_jit
+def colour_score_yuv_interpolated(yp, up, vp, t, x0, y0, x1, y1, w0, w1, w2, b, eps, den):
+    """colour_score_yuv with the chroma interpolated bilinearly between its samples instead of held over
+    each sample's 2 x 2 block: sample (i, j) at pixel (2 j + 0.5, 2 i + 0.5), the block's middle (the
+    replicated chroma's phase too), as chroma.reinterpolate does with CENTRE_SITING. Interpolated are
+    the conversion's chroma terms, linear in U and V; the planes' edge samples are held."""
+    h, w = y1 - y0, x1 - x0
+    ch, cw = up.shape[0], up.shape[1]
+    i_lo, j_lo = max((y0 >> 1) - 1, 0), max((x0 >> 1) - 1, 0)  # the samples around the window
+    i_hi, j_hi = min(((y1 - 1) >> 1) + 1, ch - 1), min(((x1 - 1) >> 1) + 1, cw - 1)
+    terms = np.empty((3, i_hi - i_lo + 1, j_hi - j_lo + 1), np.float32)
+    for i in range(i_hi - i_lo + 1):
+        for j in range(j_hi - j_lo + 1):
+            u, v = up[i_lo + i, j_lo + j], vp[i_lo + i, j_lo + j]
+            terms[0, i, j] = t[1][u]
+            terms[1, i, j] = t[2][u] + t[3][v]
+            terms[2, i, j] = t[4][v]
+    out = np.empty((h, w), np.float32)
+    c = np.empty(3, np.float32)
+    for i in range(h):
+        sy = 0.5 * (y0 + i) - 0.25  # the pixel's place in sample units
+        ia = int(np.floor(sy))
+        fy = np.float32(sy - ia)
+        ra, rb = min(max(ia, i_lo), i_hi) - i_lo, min(max(ia + 1, i_lo), i_hi) - i_lo
+        for j in range(w):
+            sx = 0.5 * (x0 + j) - 0.25
+            ja = int(np.floor(sx))
+            fx = np.float32(sx - ja)
+            ca, cb = min(max(ja, j_lo), j_hi) - j_lo, min(max(ja + 1, j_lo), j_hi) - j_lo
+            y = np.float32(t[0][yp[y0 + i, x0 + j]])
+            for k in range(3):
+                top = terms[k, ra, ca] + fx * (terms[k, ra, cb] - terms[k, ra, ca])
+                bottom = terms[k, rb, ca] + fx * (terms[k, rb, cb] - terms[k, rb, ca])
+                c[k] = min(max(y + top + fy * (bottom - top), np.float32(0.0)), np.float32(255.0))
+            out[i, j] = _score_of(c[0], c[1], c[2], w0, w1, w2, b, eps, den)
+    return out
+
+
 def warm_up() -> None:
     """Compile (or load) every kernel for the argument types tracking uses, on a small synthetic
     frame: run once after installing, so the first tracking run does not pay the compilation."""
@@ -681,6 +719,8 @@ def warm_up() -> None:
         rest.shift(img, 0.2, 3.0)
         find_blobs(img, track.model, 40.0, 47.0, 30.0, 30.0)
         track.model.any_in(img, np.array([[20, 27, 60, 67]], np.int64))
+    if planar is not None:
+        colour_score_yuv_interpolated(*planar.yuv, 20, 27, 60, 67, *track.model._score_coeffs)
 
 
 if __name__ == "__main__":

@@ -119,6 +119,10 @@ class TemplateMatcher:
         if not found:
             return None
         self._last = (score, x0, y0)
+        if used and not touching and not streak:
+            smooth = self.model.interpolated_score_window(frame_bgr, x0, y0, x1, y1)
+            if smooth is not None:  # (a grey marker: centred on its chroma interpolated, see the model)
+                mx, my, _ = self.centroid(smooth, mx, my)
         x, y = mx + x0, my + y0
         if self.model.crowd:
             e = self.silhouette(frame_bgr, x, y, strict=True)

@@ -41,6 +41,12 @@ SHORT_MISS = 3  # frames unseen up to which a returning marker's match is judged
 # A fast marker's colour match this far behind its brightness pattern is stale chroma: half the pitch of
 # 4:2:0 chroma samples (2 px), under which the colour's centre cannot tell where the marker is anyway.
 STALE_BEHIND_PX = 1.0
+# A colour match covering less than a whole disc lying farther than this from where the marker's brightness
+# pattern registers is the uncovered part of a marker partly hidden: the pitch of 4:2:0 chroma samples, within
+# which a whole marker's colour and pattern agree.
+PARTIAL_ASTRAY_PX = 2.0
+LOST_PLACE_PX = 0.5  # a lost marker's pattern found from around its place must come back this near it
+PLACE_MIN_FIT = 0.5  # a pattern fitting worse (a quarter of its disc's brightness variance explained) has no place
 
 
 @dataclass
@@ -130,6 +136,7 @@ class MarkerTrack:
         self._offset: tuple | None = None  # colour centre - luma centre at the last intra frame
         self._anchor_luma: tuple | None = None
         self._pattern: LumaPattern | None = None  # the marker's brightness at the last intra frame (no silhouette)
+        self._kept: tuple | None = None  # (pattern, offset, anchor) of a chain broken by a long miss
         self._rest: RestReference | None = None
         self.rest_frames = 0
         self.held = False
@@ -188,10 +195,29 @@ class MarkerTrack:
     def pattern_return(self, frame_bgr, frame_index: int | None = None) -> Match | None:
         """A coasting marker with no dark silhouette, unseen a few frames at most, whose brightness
         pattern is found again near its prediction (as closely as a followed marker's: see LumaPattern)
-        is back in sight: its colour, stale between intra frames, may not say so yet."""
-        if not self.coasting or self.misses > SHORT_MISS:
+        is back in sight: its colour, stale between intra frames, may not say so yet. So is a lost one
+        whose pattern, kept from before it was hidden (the light, not the marker, sets a matte marker's
+        shading), is found within its radius of its prediction, from there and from around it alike."""
+        if not self.coasting:
             return None
-        return self._pattern_match(frame_bgr, frame_index)
+        if self.misses <= SHORT_MISS:
+            return self._pattern_match(frame_bgr, frame_index)
+        if self.status != LOST or self._kept is None or self.model.luma_follows:
+            return None
+        pattern, offset, anchor = self._kept
+        px, py = self.kf.xy
+        r = self.model.radius
+        found = pattern.find(frame_bgr, px - offset[0], py - offset[1])
+        if found is None or math.hypot(found[0] + offset[0] - px, found[1] + offset[1] - py) > r:
+            return None
+        fit = pattern.fit
+        for dx, dy in ((r, 0.0), (-r, 0.0), (0.0, r), (0.0, -r)):  # (one place, not one of several)
+            other = pattern.find(frame_bgr, found[0] + 0.5 * dx, found[1] + 0.5 * dy)
+            if other is not None and math.hypot(other[0] - found[0], other[1] - found[1]) > LOST_PLACE_PX:
+                return None
+        self._pattern, self._offset, self._anchor_luma, self._kept = pattern, offset, anchor, None
+        x, y = found[0] + offset[0], found[1] + offset[1]
+        return Match(x, y, fit, float("nan"), float("nan"), self.kf.d2(x, y), True, found)
 
     def _pattern_match(self, frame_bgr, frame_index: int | None) -> Match | None:
         """A marker with no dark silhouette whose colour match failed (between intra frames its colour is
@@ -267,15 +293,17 @@ class MarkerTrack:
         When the pattern fits too poorly to tell where the marker is, the colour match stands, unless
         the marker moves fast (STREAK_MIN_SPEED or more) and the colour lies behind where the pattern
         registers, along the motion, by more than STALE_BEHIND_PX: that colour is the chroma left
-        behind by the moving marker (stale between intra frames), and the marker is not measured
-        (False)."""
+        behind by the moving marker (stale between intra frames); or unless the colour covers less than
+        a whole disc and lies more than PARTIAL_ASTRAY_PX from where the pattern registers (fitting at
+        least PLACE_MIN_FIT): that is the part of a marker not yet hidden. Then the marker is not
+        measured (False)."""
         if intra:
             self._pattern = LumaPattern(frame_bgr, m.x, m.y, self.model.radius)
             m.luma = (m.x, m.y) if self._pattern.ok else None
             return True
         m.luma = None if self._pattern is None else self._pattern.find(frame_bgr, m.x, m.y, velocity=self.kf.vxy)
         if m.luma is None:
-            return self._pattern is None or not self._colour_left_behind(m)
+            return self._pattern is None or not (self._colour_left_behind(m) or self._partial_colour_astray(m))
         m.x, m.y = m.luma[0] + self._offset[0], m.luma[1] + self._offset[1]
         return True
 
@@ -287,6 +315,13 @@ class MarkerTrack:
             return False
         px, py = place[0] + self._offset[0], place[1] + self._offset[1]
         return ((m.x - px) * vx + (m.y - py) * vy) / speed < -STALE_BEHIND_PX
+
+    def _partial_colour_astray(self, m: Match) -> bool:
+        """Colour match m covers less than a whole disc and lies away from its pattern's last registration."""
+        place = self._pattern.place
+        if m.colour_frac >= self.params.confident_colour or place is None or self._pattern.fit < PLACE_MIN_FIT:
+            return False
+        return math.hypot(m.x - place[0] - self._offset[0], m.y - place[1] - self._offset[1]) > PARTIAL_ASTRAY_PX
 
     def _update_offset(self, frame_index: int, m: Match | None, reattach: bool, frame_bgr=None) -> None:
         intra = self._is_intra(frame_index)
@@ -306,6 +341,8 @@ class MarkerTrack:
         """_update_offset between intra frames for a marker with no dark silhouette, followed by its
         brightness pattern (see _carry_pattern)."""
         if m is None:
+            if self._pattern is not None and self.misses >= SHORT_MISS:
+                self._kept = (self._pattern, self._offset, self._anchor_luma)  # (to find it again when lost)
             if self._pattern is None or self.misses >= SHORT_MISS:
                 self._offset = self._anchor_luma = self._pattern = None  # the chain is broken
             # (else unseen a frame or two: the chain is kept, to find the marker by its pattern: pattern_return)
@@ -435,6 +472,8 @@ class MarkerTrack:
         gate; the velocity restarts from the move since the last measurement."""
         self.frame_index = frame_index
         p = self.params
+        if m is not None:
+            self._kept = None
         self._update_offset(frame_index, m, reattach, frame_bgr)
         self.held = m is not None and not m.outline
         if self.held:
@@ -492,7 +531,7 @@ class MarkerTrack:
 
     def set_manual(self, frame_index: int, frame_bgr: np.ndarray | None, x: float, y: float) -> Observation:
         """An operator's point met along the way: trust it, keep tracking from it."""
-        self._offset = self._anchor_luma = self._pattern = None
+        self._offset = self._anchor_luma = self._pattern = self._kept = None
         self._rest = None
         self.held = False
         if self.misses > 2:
