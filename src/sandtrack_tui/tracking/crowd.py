@@ -1,5 +1,6 @@
 """Missed markers among touching lookalikes (a dense layer): carried with the layer, given back by
-one assignment of all of them to the layer's beads, or measured again at their highlight.
+one assignment of all of them to the layer's beads, measured again at their highlight, or, after a
+patch of the layer was hidden a while, found again as a whole (`register`).
 
 Identical touching beads cannot be told apart by how they look, only by where they are. The sand
 carries a layer's beads together a few px per frame, and a bead's shading and highlight move with it
@@ -13,6 +14,9 @@ method on the distance). A pair counts only when it is unambiguous: the bead wit
 the marker was carried, and no other bead near that place nor other missed marker near that bead
 within `margin` more than the pair's own distance. A carried marker no bead gave back is measured
 again where its `highlight` gives a centre agreeing with its carried position (tracker.py).
+Beads hidden together (under the tool) while the layer moved on have no motion measured at all: the
+patch they formed is matched to the beads no track explains by one affine map of the patch, and
+only where the patch's outline tells the map apart from the same map shifted by a bead.
 Anything else stays flagged for the operator.
 """
 

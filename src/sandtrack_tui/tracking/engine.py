@@ -186,14 +186,20 @@ class Engine:
         pairs, ambiguous = crowd_rules.assign(where, beads, 0.5 * r, 0.5 * r) if len(beads) else ({}, [])
         for i in ambiguous:
             self._note_ambiguous(missed[i].marker, cam, j, 2)
+        n = self._give_back(cam, img, {missed[i]: beads[b] for i, b in pairs.items()}, props)
+        return n + self._crowd_confirm(cam, img, missed, where, props, forced)
+
+    @staticmethod
+    def _give_back(cam, img, found: dict, props) -> int:
+        """Crowd tracks given back at the beads assigned to them ({track: (x, y)}), each measured there
+        (verify_at) within half a radius of its bead; returns how many."""
         n = 0
-        for i, b in pairs.items():
-            t = missed[i]
-            m = t.verify_at(img, float(beads[b, 0]), float(beads[b, 1]))
-            if m is not None and math.hypot(m.x - beads[b, 0], m.y - beads[b, 1]) <= 0.5 * t.model.radius:
+        for t, (x, y) in found.items():
+            m = t.verify_at(img, float(x), float(y))
+            if m is not None and math.hypot(m.x - x, m.y - y) <= 0.5 * t.model.radius:
                 props[(t.marker, cam)] = _Proposal(m, reattach=True)
                 n += 1
-        return n + self._crowd_confirm(cam, img, missed, where, props, forced)
+        return n
 
     def _crowd_regroup(self, cam, img, j: int, tracks, props, forced) -> int:
         """Crowd markers unseen for more than SHORT_MISS frames (a patch of the layer hidden under the
@@ -243,14 +249,8 @@ class Engine:
             pairs, ambiguous = crowd_rules.assign(at, beads, 0.5 * r, 0.5 * r)
             for i in ambiguous:
                 self._note_ambiguous(group[patch[i]].marker, cam, j, 2)
-            for i, b in pairs.items():
-                if agreed.get(i) != b:
-                    continue
-                t = group[patch[i]]
-                m = t.verify_at(img, float(beads[b, 0]), float(beads[b, 1]))
-                if m is not None and math.hypot(m.x - beads[b, 0], m.y - beads[b, 1]) <= 0.5 * t.model.radius:
-                    props[(t.marker, cam)] = _Proposal(m, reattach=True)
-                    n += 1
+            n += self._give_back(cam, img, {group[patch[i]]: beads[b] for i, b in pairs.items()
+                                            if agreed.get(i) == b}, props)
         return n
 
     def _crowd_confirm(self, cam, img, missed, where, props, forced) -> int:
