@@ -34,7 +34,6 @@ FLOW_MAX_MOVE = 1.0  # a bead's move per frame, in radii, beyond which the image
 FLOW_LEVELS = 2  # pyramid levels of the image motion (a layer moves a few px per frame, a bead is ~15 px)
 MIN_GROUP = 4  # lost beads (and pairs) a registration of a hidden patch of the layer needs
 REGISTER_MARGIN = 0.85  # a registration's score must be under this share of any other pairing's
-REGISTER_ANCHORS = 6  # lost beads a registration's hypotheses start from
 # A packing of identical beads looks the same turned by 60 degrees: a hidden patch is taken as turned by
 # less than half that (the smallest turn that explains it).
 MAX_TURN_DEG = 30.0
@@ -163,22 +162,23 @@ def packed_coverage(radius: float, at_least: float, rim_px: float = 1.5, slack: 
     return max(at_least, 1.0 + 6.0 * (a + b - c) / (math.pi * radius * radius) + slack)
 
 
-def register(old: np.ndarray, beads: np.ndarray, radius: float, reach: float, margin: float = REGISTER_MARGIN,
-             anchors: int = REGISTER_ANCHORS) -> tuple[np.ndarray | None, dict]:
+def register(old: np.ndarray, beads: np.ndarray, radius: float, reach: float, margin: float = REGISTER_MARGIN
+             ) -> tuple[np.ndarray | None, dict]:
     """Where a group of lost beads went while hidden (under the tool), from where they were together
     (`old` (n, 2): their positions at one frame) and the unclaimed beads detected now (`beads`): the
     patch of layer they form was carried as a whole, stretched and sheared, so one affine map takes the
-    group onto the beads. Hypotheses from two neighbouring lost beads matched to two beads as far apart
-    (at most `reach` px from where the first was), each refined by alternating the assignment (Hungarian
-    method, distances capped at a radius) and the least-squares affine map of the pairs within a radius;
-    scored by the capped distances summed over the group; a map that mirrors the patch or turns it
-    by MAX_TURN_DEG or more is no carrying of a packing (which looks the same turned by 60 degrees). A
-    lattice of identical beads fits itself
-    shifted by a bead almost as well, only the patch's outline tells: the best map counts only when it
-    pairs at least half the group within half a radius and its score is below `margin` x that of every
-    hypothesis pairing the group otherwise (fewer than half of the same pairs); and of its pairs, only
-    those every hypothesis scoring within that margin agrees on. Returns (the group's positions under
-    the best map (n, 2), {lost bead: bead} of those pairs), or (None, {})."""
+    group onto the beads. Hypotheses from every lost bead and each of its two nearest neighbours
+    matched to two beads as far apart (at most `reach` px from where the first was; the margin below
+    means something only when no pairing was left untried), each refined by alternating the assignment
+    (Hungarian method, distances capped at a radius) and the least-squares affine map of the pairs
+    within a radius, scored by the capped distances summed over the group. A map that mirrors the
+    patch or turns it by MAX_TURN_DEG or more is no carrying of a packing (which looks the same turned
+    by 60 degrees). A lattice of identical beads fits itself shifted by a bead almost as well, only the
+    patch's outline tells: the best map counts only when it pairs at least half the group within half
+    a radius and its score is below `margin` x that of every hypothesis pairing the group otherwise
+    (fewer than half of the same pairs); and of its pairs, only those every hypothesis scoring within
+    that margin agrees on. Returns (the group's positions under the best map (n, 2), {lost bead: bead}
+    of those pairs), or (None, {})."""
     old = np.asarray(old, float).reshape(-1, 2)
     beads = np.asarray(beads, float).reshape(-1, 2)
     n = len(old)
@@ -187,11 +187,8 @@ def register(old: np.ndarray, beads: np.ndarray, radius: float, reach: float, ma
     d_old = np.hypot(*(old[:, None] - old[None]).transpose(2, 0, 1))
     d_beads = np.hypot(*(beads[:, None] - beads[None]).transpose(2, 0, 1))
     homog = np.c_[old, np.ones(n)]
-    # (anchors spread over the group: its extreme beads, then the rest in order)
-    order = list(dict.fromkeys([int(np.argmin(old[:, 0])), int(np.argmax(old[:, 0])), int(np.argmin(old[:, 1])),
-                                int(np.argmax(old[:, 1])), *range(n)]))[:anchors]
     found: dict = {}  # pairs (old, bead) within half a radius -> (cost, positions)
-    for i1 in order:
+    for i1 in range(n):
         for i2 in np.argsort(d_old[i1])[1:3]:
             span = d_old[i1, i2]
             a = complex(*(old[i2] - old[i1]))
