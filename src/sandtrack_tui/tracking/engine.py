@@ -29,7 +29,7 @@ FLOW_AGREE_PX = 1.5  # a crowd marker's match this far from where the image moti
 JUMP_FRAMES = 2  # frames after a miss during which a track is searched a largest move per frame unseen
 CROWD_MEMORY = 100  # frames of measured positions kept per crowd track (a hidden patch is registered from them)
 REGROUP_REACH = 6.0  # radii: how far a hidden patch of the layer is looked for
-REGROUP_EVERY = 5  # frames between registrations of a patch that found nothing, all else alike
+REGROUP_EVERY = 3  # frames between registrations of one patch
 
 
 @dataclass
@@ -62,7 +62,7 @@ class Engine:
     _crowd_carried: dict = field(default_factory=dict)  # missed crowd track key -> (x, y) carried by the layer
     _crowd_prev: dict = field(default_factory=dict)  # camera -> its frame of the previous step (the layer's motion)
     _crowd_seen: dict = field(default_factory=dict)  # crowd track key -> {frame: (x, y)} measured lately
-    _regroup_tried: dict = field(default_factory=dict)  # (camera, patch's markers) -> ((frame, beads), step) tried
+    _regroup_tried: dict = field(default_factory=dict)  # (camera, patch's markers, its frame) -> step last tried
 
     def add(self, track: MarkerTrack, start_frame: int) -> None:
         self.tracks[(track.marker, track.camera)] = track
@@ -234,15 +234,15 @@ class Engine:
         for patch in _patches(old, 1.5 * 2.0 * r):
             if len(patch) < crowd_rules.MIN_GROUP:
                 continue
+            # (a patch registered in vain is tried again every REGROUP_EVERY frames: more of it may show)
+            who = (cam, tuple(group[i].marker for i in patch), f0)
+            if abs(j - self._regroup_tried.get(who, j - REGROUP_EVERY)) < REGROUP_EVERY:
+                continue
+            self._regroup_tried[who] = j
             beads = self._unexplained_beads(cam, img, group[patch[0]].model, old[patch], props, explained,
                                             pad=reach + r)
-            # (a patch registered in vain is tried again when it or the number of beads around it changed,
-            # else every REGROUP_EVERY frames: the layer may have moved on)
-            who, tried = (cam, tuple(group[i].marker for i in patch)), (f0, len(beads))
-            last = self._regroup_tried.get(who)
-            if not len(beads) or (last is not None and last[0] == tried and abs(j - last[1]) < REGROUP_EVERY):
+            if not len(beads):
                 continue
-            self._regroup_tried[who] = (tried, j)
             at, agreed = crowd_rules.register(old[patch], beads, r, reach)
             if at is None:
                 continue
