@@ -15,7 +15,9 @@ appearance models chosen, and the tracking step's CPU per marker and frame (deco
 `python benchmarks/bench_variants.py [NAME ...]` runs some; figures print as a table. With `--why`,
 every false lock and every run of frames flagged while the marker was visible is listed too, with the
 tracker's own verdict at the run's first frame (its best match in the gate and the test it failed, or
-how far its prediction was from the marker against the window it searched).
+how far its prediction was from the marker against the window it searched); one line counts those
+frames: without a position, with a flagged position within 1.5 px of the truth, and with the same
+marker visible, and tracked, in another camera at that frame.
 """
 
 from __future__ import annotations
@@ -224,6 +226,34 @@ def explain(points: pd.DataFrame, truth: dict, ids: dict, verdicts: dict) -> lis
     return lines
 
 
+def flag_causes(points: pd.DataFrame, truth: dict, ids: dict) -> str:
+    """One line on the marker-frames flagged while visible: how many have no position at all, how many
+    a flagged position within 1.5 px of the truth, and how many have the same marker visible in another
+    camera at that frame, and tracked there within 3 px (the most a re-identification from the other
+    view, its position and the epipolar line, could give back)."""
+    p = points[points.marker.isin(list(ids))]
+    p = p.assign(true_marker=p.marker.map(ids))
+    merged = []
+    for cam, t in truth.items():
+        m = p[p.camera == cam].merge(t, left_on=["frame", "true_marker"], right_on=["frame", "marker"],
+                                     suffixes=("", "_t"))
+        merged.append(m.assign(err=np.hypot(m.x_px - m.x_px_t, m.y_px - m.y_px_t)))
+    m = pd.concat(merged)
+    held = m[m.status.isin(["tracked", "manual"]) & (m.err <= 3)]
+    held_at = set(zip(held.camera, held.frame, held.true_marker, strict=True))
+    seen_at = {(c, f, tm) for c, t in truth.items() for f, tm in zip(t.frame[t.visible], t.marker[t.visible],
+                                                                      strict=True)}
+    bad = m[m.status.isin(["occluded", "lost"]) & m.visible.astype(bool)]
+    keys = list(zip(bad.camera, bad.frame, bad.true_marker, strict=True))
+
+    def elsewhere(at: set) -> int:
+        return sum(any((c, f, tm) in at for c in truth if c != cam) for cam, f, tm in keys)
+
+    return (f"flagged while visible: {len(bad)} marker-frames; no position {int(bad.err.isna().sum())}, "
+            f"flagged position within 1.5 px {int((bad.err <= 1.5).sum())}; the same marker visible in another "
+            f"camera at that frame {elsewhere(seen_at)}, tracked there {elsewhere(held_at)}")
+
+
 def run(names: list[str] | None = None) -> dict:
     rows = [run_variant(n) for n in (names or list(VARIANTS))]
     out: dict = {}
@@ -255,6 +285,7 @@ if __name__ == "__main__":
             with _verdicts({}) as verdicts:
                 rows.append(run_variant(n, keep=keep))
             print("\n".join(explain(keep["points"], keep["truth"], keep["ids"], verdicts)))
+            print(flag_causes(keep["points"], keep["truth"], keep["ids"]))
         else:
             rows.append(run_variant(n))
         print(json.dumps(rows[-1]), flush=True)

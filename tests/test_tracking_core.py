@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import cv2
 import numpy as np
 import pandas as pd
@@ -281,6 +283,37 @@ def test_missed_crowd_markers_are_carried_by_neighbours_and_given_back_only_when
     assert crowd.assign(np.array([[0.0, 0.0]]), np.array([[3.5, 0.0]]), 0.5 * r, 0.5 * r) == ({}, [])
     pairs, ambiguous = crowd.assign(np.array([[0.0, 0.0]]), np.array([[1.0, 0.0], [-2.0, 0.0]]), 0.5 * r, 0.5 * r)
     assert pairs == {} and ambiguous == [0]
+
+
+def test_a_hidden_patch_of_the_layer_is_registered_as_a_whole_only_where_its_outline_tells():
+    from sandtrack_tui.tracking import crowd
+
+    r = 7.0
+
+    def packing(cols, rows, at):
+        return np.array([(at[0] + 2 * r * i + r * (j % 2), at[1] + math.sqrt(3) * r * j)
+                         for j in range(rows) for i in range(cols)])
+
+    # 22 touching beads (a ragged patch) carried while hidden: stretched 1.35 x, turned 10 degrees, moved
+    # (17, 22) px (more than a bead), each bead off the affine map by ~0.8 px. Two are still hidden; three
+    # lookalikes of another patch lie around.
+    patch = packing(4, 6, (200.0, 100.0))[[k for k in range(24) if k not in (3, 20)]]
+    th, centre = math.radians(-10.0), patch.mean(axis=0)
+    lin = np.array([[math.cos(th), -math.sin(th)], [math.sin(th), math.cos(th)]]) @ np.diag([1.0, 1.35])
+
+    def carry(p):
+        return (p - centre) @ lin.T + centre + (17.0, 22.0)
+
+    moved = carry(patch) + np.random.default_rng(1).normal(0.0, 0.8, patch.shape)
+    shown = [k for k in range(len(patch)) if k not in (0, 9)]
+    beads = np.r_[moved[shown], [[150.0, 60.0], [300.0, 220.0], [140.0, 200.0]]]
+    at, agreed = crowd.register(patch, beads, r, 6 * r)
+    assert len(agreed) >= 0.75 * len(shown)
+    assert all(b < len(shown) and shown[b] == i for i, b in agreed.items())  # every pair its own bead
+    assert np.hypot(*(at[shown] - moved[shown]).T).max() < 0.5 * r
+    # The same patch amid a packing of lookalikes carried alike: shifted by a bead it fits as well,
+    # so who is who is not known and nothing is paired.
+    assert crowd.register(patch, carry(packing(6, 9, (186.0, 100.0 - 2 * math.sqrt(3) * r))), r, 6 * r) == (None, {})
 
 
 def test_a_coasting_marker_does_not_take_a_bead_another_searching_marker_may_own():

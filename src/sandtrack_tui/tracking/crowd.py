@@ -1,5 +1,6 @@
 """Missed markers among touching lookalikes (a dense layer): carried with the layer, given back by
-one assignment of all of them to the layer's beads, or measured again at their highlight.
+one assignment of all of them to the layer's beads, measured again at their highlight, or, after a
+patch of the layer was hidden a while, found again as a whole (`register`).
 
 Identical touching beads cannot be told apart by how they look, only by where they are. The sand
 carries a layer's beads together a few px per frame, and a bead's shading and highlight move with it
@@ -13,6 +14,9 @@ method on the distance). A pair counts only when it is unambiguous: the bead wit
 the marker was carried, and no other bead near that place nor other missed marker near that bead
 within `margin` more than the pair's own distance. A carried marker no bead gave back is measured
 again where its `highlight` gives a centre agreeing with its carried position (tracker.py).
+Beads hidden together (under the tool) while the layer moved on have no motion measured at all: the
+patch they formed is matched to the beads no track explains by one affine map of the patch, and
+only where the patch's outline tells the map apart from the same map shifted by a bead.
 Anything else stays flagged for the operator.
 """
 
@@ -28,6 +32,11 @@ MIN_NEIGHBOURS = 2  # measured neighbours a missed marker's carried position nee
 FLOW_BACK_PX = 0.3  # a bead's image motion is trusted when tracking it back lands within this of its start
 FLOW_MAX_MOVE = 1.0  # a bead's move per frame, in radii, beyond which the image motion is not the layer's
 FLOW_LEVELS = 2  # pyramid levels of the image motion (a layer moves a few px per frame, a bead is ~15 px)
+MIN_GROUP = 4  # lost beads (and pairs) a registration of a hidden patch of the layer needs
+REGISTER_MARGIN = 0.85  # a registration's score must be under this share of any other pairing's
+# A packing of identical beads looks the same turned by 60 degrees: a hidden patch is taken as turned by
+# less than half that (the smallest turn that explains it).
+MAX_TURN_DEG = 30.0
 
 
 def flowed(prev_bgr: np.ndarray, cur_bgr: np.ndarray, points: np.ndarray, radius: float) -> np.ndarray:
@@ -151,3 +160,87 @@ def packed_coverage(radius: float, at_least: float, rim_px: float = 1.5, slack: 
     b = radius * radius * math.acos((d * d + radius * radius - big * big) / (2 * d * radius))
     c = 0.5 * math.sqrt(max((-d + big + radius) * (d + big - radius) * (d - big + radius) * (d + big + radius), 0.0))
     return max(at_least, 1.0 + 6.0 * (a + b - c) / (math.pi * radius * radius) + slack)
+
+
+def register(old: np.ndarray, beads: np.ndarray, radius: float, reach: float, margin: float = REGISTER_MARGIN
+             ) -> tuple[np.ndarray | None, dict]:
+    """Where a group of lost beads went while hidden (under the tool), from where they were together
+    (`old` (n, 2): their positions at one frame) and the unclaimed beads detected now (`beads`): the
+    patch of layer they form was carried as a whole, stretched and sheared, so one affine map takes the
+    group onto the beads. Hypotheses from every lost bead and each of its two nearest neighbours
+    matched to two beads as far apart (at most `reach` px from where the first was; the margin below
+    means something only when no pairing was left untried), each refined by alternating the assignment
+    (Hungarian method, distances capped at a radius) and the least-squares affine map of the pairs
+    within a radius, scored by the capped distances summed over the group. A map that mirrors the
+    patch or turns it by MAX_TURN_DEG or more is no carrying of a packing (which looks the same turned
+    by 60 degrees). A lattice of identical beads fits itself shifted by a bead almost as well, only the
+    patch's outline tells: the best map counts only when it pairs at least half the group within half
+    a radius and its score is below `margin` x that of every hypothesis pairing the group otherwise
+    (fewer than half of the same pairs); and of its pairs, only those every hypothesis scoring within
+    that margin agrees on. Returns (the group's positions under the best map (n, 2), {lost bead: bead}
+    of those pairs), or (None, {})."""
+    old = np.asarray(old, float).reshape(-1, 2)
+    beads = np.asarray(beads, float).reshape(-1, 2)
+    n = len(old)
+    if n < MIN_GROUP or len(beads) < MIN_GROUP:
+        return None, {}
+    d_old = np.hypot(*(old[:, None] - old[None]).transpose(2, 0, 1))
+    d_beads = np.hypot(*(beads[:, None] - beads[None]).transpose(2, 0, 1))
+    homog = np.c_[old, np.ones(n)]
+    found: dict = {}  # pairs (old, bead) within half a radius -> (cost, positions)
+    for i1 in range(n):
+        for i2 in np.argsort(d_old[i1])[1:3]:
+            span = d_old[i1, i2]
+            a = complex(*(old[i2] - old[i1]))
+            for j1 in np.nonzero(np.hypot(*(beads - old[i1]).T) <= reach)[0]:
+                for j2 in np.nonzero(np.abs(d_beads[j1] - span) <= 0.3 * span)[0]:
+                    if j2 == j1:
+                        continue
+                    s = complex(*(beads[j2] - beads[j1])) / a
+                    at = (old - old[i1]) @ np.array([[s.real, s.imag], [-s.imag, s.real]]) + beads[j1]
+                    cost, pairs, at = _refine(homog, at, beads, radius)
+                    if not _carried_like(homog, at):
+                        continue
+                    if pairs not in found or found[pairs][0] > cost:
+                        found[pairs] = (cost, at)
+    if not found:
+        return None, {}
+    ranked = sorted(found.items(), key=lambda kv: kv[1][0])
+    best_pairs, (best, at) = ranked[0]
+    if len(best_pairs) < max(MIN_GROUP, 0.5 * n):
+        return None, {}
+    agreed = set(best_pairs)
+    for pairs, (cost, _at) in ranked[1:]:
+        if best <= margin * cost:
+            break
+        if len(set(pairs) & set(best_pairs)) < 0.5 * len(best_pairs):
+            return None, {}
+        agreed &= set(pairs)
+    return at, dict(agreed)
+
+
+def _carried_like(homog: np.ndarray, at: np.ndarray) -> bool:
+    """The affine map taking the group (homogeneous (n, 3)) to `at` neither mirrors it nor turns it by
+    MAX_TURN_DEG or more (the rotation nearest its linear part)."""
+    m, *_r = np.linalg.lstsq(homog, at, rcond=None)
+    lin = m[:2].T
+    if np.linalg.det(lin) <= 0:
+        return False
+    u, _s, vt = np.linalg.svd(lin)
+    rot = u @ vt
+    return abs(math.degrees(math.atan2(rot[1, 0], rot[0, 0]))) < MAX_TURN_DEG
+
+
+def _refine(homog: np.ndarray, at: np.ndarray, beads: np.ndarray, radius: float, rounds: int = 3):
+    """(cost, pairs within half a radius, positions) of one registration hypothesis, refined."""
+    for _ in range(rounds + 1):
+        d = np.hypot(at[:, None, 0] - beads[None, :, 0], at[:, None, 1] - beads[None, :, 1])
+        capped = np.minimum(d, radius)
+        rows, cols = linear_sum_assignment(capped)
+        ok = d[rows, cols] < radius
+        if _ == rounds or ok.sum() < MIN_GROUP:
+            break
+        m, *_r = np.linalg.lstsq(homog[rows[ok]], beads[cols[ok]], rcond=None)
+        at = homog @ m
+    pairs = tuple((int(r), int(c)) for r, c in zip(rows, cols, strict=True) if d[r, c] < 0.5 * radius)
+    return float(capped[rows, cols].sum()), pairs, at

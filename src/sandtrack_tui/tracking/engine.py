@@ -30,6 +30,9 @@ from .tracker import LOST, MERGED_COVERAGE, SHORT_MISS, MarkerTrack, Observation
 FLOW_AGREE_PX = 1.5  # a crowd marker's match this far from where the image motion took it is not its own
 ONLINE_RADIUS_TOL = 0.15  # a marker measured on the other view's line shows an outline of its radius to this share
 JUMP_FRAMES = 2  # frames after a miss during which a track is searched a largest move per frame unseen
+CROWD_MEMORY = 100  # frames of measured positions kept per crowd track (a hidden patch is registered from them)
+REGROUP_REACH = 6.0  # radii: how far a hidden patch of the layer is looked for
+REGROUP_EVERY = 3  # frames between registrations of one patch
 
 
 @dataclass
@@ -61,6 +64,8 @@ class Engine:
     _crowd_at: dict = field(default_factory=dict)  # crowd track key -> (x, y) measured at the last step
     _crowd_carried: dict = field(default_factory=dict)  # missed crowd track key -> (x, y) carried by the layer
     _crowd_prev: dict = field(default_factory=dict)  # camera -> its frame of the previous step (the layer's motion)
+    _crowd_seen: dict = field(default_factory=dict)  # crowd track key -> {frame: (x, y)} measured lately
+    _regroup_tried: dict = field(default_factory=dict)  # (camera, patch's markers, its frame) -> step last tried
 
     def add(self, track: MarkerTrack, start_frame: int) -> None:
         self.tracks[(track.marker, track.camera)] = track
@@ -121,6 +126,8 @@ class Engine:
         for cam, (j, img, _rem) in frames.items():
             if self._crowd_return(cam, img, int(j), live[cam], props, forced):
                 reattached += 1
+            if self._crowd_regroup(cam, img, int(j), live[cam], props, forced):
+                reattached += 1
             self._crowd_prev[cam] = img
         if self.stereo is not None and reattached:
             self._stereo_check(frames, props, forced, only_reattached=True)
@@ -130,12 +137,12 @@ class Engine:
                 obs.append(t.apply(j, img, p.match if p else None, reattach=bool(p and p.reattach),
                                    jump=bool(p and p.jump)))
                 if t.model.crowd:
-                    self._remember_crowd((t.marker, cam), (p.match.x, p.match.y) if p else None)
+                    self._remember_crowd((t.marker, cam), int(j), (p.match.x, p.match.y) if p else None)
         for key, (x, y) in forced.items():
             t = self.tracks[key]
             obs.append(t.set_manual(frames[t.camera][0], None, x, y))
             if t.model.crowd:
-                self._remember_crowd(key, (float(x), float(y)))
+                self._remember_crowd(key, int(frames[t.camera][0]), (float(x), float(y)))
         return obs
 
     # -- steps ---------------------------------------------------------------------------------
@@ -182,14 +189,72 @@ class Engine:
         pairs, ambiguous = crowd_rules.assign(where, beads, 0.5 * r, 0.5 * r) if len(beads) else ({}, [])
         for i in ambiguous:
             self._note_ambiguous(missed[i].marker, cam, j, 2)
+        n = self._give_back(cam, img, {missed[i]: beads[b] for i, b in pairs.items()}, props)
+        return n + self._crowd_confirm(cam, img, missed, where, props, forced)
+
+    @staticmethod
+    def _give_back(cam, img, found: dict, props) -> int:
+        """Crowd tracks given back at the beads assigned to them ({track: (x, y)}), each measured there
+        (verify_at) within half a radius of its bead; returns how many."""
         n = 0
-        for i, b in pairs.items():
-            t = missed[i]
-            m = t.verify_at(img, float(beads[b, 0]), float(beads[b, 1]))
-            if m is not None and math.hypot(m.x - beads[b, 0], m.y - beads[b, 1]) <= 0.5 * t.model.radius:
+        for t, (x, y) in found.items():
+            m = t.verify_at(img, float(x), float(y))
+            if m is not None and math.hypot(m.x - x, m.y - y) <= 0.5 * t.model.radius:
                 props[(t.marker, cam)] = _Proposal(m, reattach=True)
                 n += 1
-        return n + self._crowd_confirm(cam, img, missed, where, props, forced)
+        return n
+
+    def _crowd_regroup(self, cam, img, j: int, tracks, props, forced) -> int:
+        """Crowd markers unseen for more than SHORT_MISS frames (a patch of the layer hidden under the
+        tool and carried on meanwhile, where nothing measured its motion), found again together: their
+        positions at the latest frame that measured most of them, split into patches of touching beads,
+        each registered onto the beads no track explains (crowd.register: one affine map, accepted only
+        with a clear margin over any other pairing), then assigned one by one with the margins of
+        crowd.assign; returns how many came back."""
+        strays = [t for t in tracks if t.model.crowd and t.misses > SHORT_MISS
+                  and (t.marker, cam) not in props and (t.marker, cam) not in forced]
+        if len(strays) < crowd_rules.MIN_GROUP:
+            return 0
+        counts: dict = {}
+        for t in strays:
+            for f in self._crowd_seen.get((t.marker, cam), ()):
+                counts[f] = counts.get(f, 0) + 1
+        if not counts:
+            return 0
+        most = max(counts.values())
+        if most < crowd_rules.MIN_GROUP:
+            return 0
+        f0 = max(f for f, c in counts.items() if c == most) if self.direction > 0 else \
+            min(f for f, c in counts.items() if c == most)
+        group = [t for t in strays if f0 in self._crowd_seen.get((t.marker, cam), ())]
+        old = np.array([self._crowd_seen[(t.marker, cam)][f0] for t in group], float)
+        r = max(t.model.radius for t in group)
+        reach = REGROUP_REACH * r
+        # (a missed marker carried by the layer still explains the bead where it was carried)
+        carried = [(t.marker, cam) for t in tracks if t.model.crowd and t.carried and t not in group]
+        explained = {**forced, **{k: self._crowd_carried[k] for k in carried if k in self._crowd_carried}}
+        n = 0
+        for patch in _patches(old, 1.5 * 2.0 * r):
+            if len(patch) < crowd_rules.MIN_GROUP:
+                continue
+            # (a patch registered in vain is tried again every REGROUP_EVERY frames: more of it may show)
+            who = (cam, tuple(group[i].marker for i in patch), f0)
+            if abs(j - self._regroup_tried.get(who, j - REGROUP_EVERY)) < REGROUP_EVERY:
+                continue
+            self._regroup_tried[who] = j
+            beads = self._unexplained_beads(cam, img, group[patch[0]].model, old[patch], props, explained,
+                                            pad=reach + r)
+            if not len(beads):
+                continue
+            at, agreed = crowd_rules.register(old[patch], beads, r, reach)
+            if at is None:
+                continue
+            pairs, ambiguous = crowd_rules.assign(at, beads, 0.5 * r, 0.5 * r)
+            for i in ambiguous:
+                self._note_ambiguous(group[patch[i]].marker, cam, j, 2)
+            n += self._give_back(cam, img, {group[patch[i]]: beads[b] for i, b in pairs.items()
+                                            if agreed.get(i) == b}, props)
+        return n
 
     def _crowd_confirm(self, cam, img, missed, where, props, forced) -> int:
         """Carried crowd markers no detected bead gave back, measured where they were carried
@@ -208,12 +273,13 @@ class Engine:
             n += 1
         return n
 
-    def _unexplained_beads(self, cam, img, model, near: np.ndarray, props, forced) -> np.ndarray:
-        """Beads like `model` (detection.py) around the points `near` that no match of this camera
-        explains: (n, 2) px."""
+    def _unexplained_beads(self, cam, img, model, near: np.ndarray, props, forced, pad: float | None = None
+                           ) -> np.ndarray:
+        """Beads like `model` (detection.py) within about `pad` px (default 3 radii) of the points `near`
+        that no match of this camera explains: (n, 2) px."""
         r = model.radius
         H, W = img.shape[:2]
-        pad = 3.0 * r + 4
+        pad = 3.0 * r + 4 if pad is None else pad
         x0, y0 = max(int(near[:, 0].min() - pad), 0), max(int(near[:, 1].min() - pad), 0)
         x1, y1 = min(int(near[:, 0].max() + pad) + 1, W), min(int(near[:, 1].max() + pad) + 1, H)
         if x1 - x0 < 3 or y1 - y0 < 3:
@@ -235,12 +301,17 @@ class Engine:
         return [(p.match.x, p.match.y) for k, p in props.items() if k[1] == cam] + \
             [xy for k, xy in forced.items() if k[1] == cam]
 
-    def _remember_crowd(self, key, xy) -> None:
+    def _remember_crowd(self, key, frame: int, xy) -> None:
         """A crowd track's position this step, measured or placed (its neighbours' next moves start
-        here); None: missed."""
+        here, and a hidden patch of the layer is registered from where its beads were together); None:
+        missed."""
         if xy is not None:
             self._crowd_at[key] = xy
             self._crowd_carried.pop(key, None)
+            seen = self._crowd_seen.setdefault(key, {})
+            seen[frame] = xy
+            if len(seen) > CROWD_MEMORY:
+                del seen[next(iter(seen))]
         else:
             self._crowd_at.pop(key, None)
 
@@ -709,6 +780,22 @@ def _alike(moves: list, min_px: float = 2.0, spread_px: float = 1.5) -> bool:
     if math.hypot(mx, my) < min_px:
         return False
     return all(math.hypot(m[0] - mx, m[1] - my) <= spread_px for m in moves)
+
+
+def _patches(points: np.ndarray, link: float) -> list[list[int]]:
+    """Indices of `points` (n, 2) in groups linked by distances of at most `link` (single linkage)."""
+    n = len(points)
+    d = np.hypot(points[:, None, 0] - points[None, :, 0], points[:, None, 1] - points[None, :, 1])
+    label = list(range(n))
+    for i in range(n):
+        for k in np.nonzero(d[i] <= link)[0]:
+            a, b = label[i], label[int(k)]
+            if a != b:
+                label = [a if x == b else x for x in label]
+    groups: dict = {}
+    for i, g in enumerate(label):
+        groups.setdefault(g, []).append(i)
+    return list(groups.values())
 
 
 def _touching_pairs(pts, limit) -> list[tuple[int, int]]:
