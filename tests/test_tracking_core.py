@@ -314,6 +314,9 @@ def test_a_hidden_patch_of_the_layer_is_registered_as_a_whole_only_where_its_out
     # The same patch amid a packing of lookalikes carried alike: shifted by a bead it fits as well,
     # so who is who is not known and nothing is paired.
     assert crowd.register(patch, carry(packing(6, 9, (186.0, 100.0 - 2 * math.sqrt(3) * r))), r, 6 * r) == (None, {})
+    # A hidden patch larger than a registration takes (its cost grows as the patch's square) stays lost.
+    big = packing(6, 6, (200.0, 100.0))
+    assert len(big) > crowd.MAX_GROUP and crowd.register(big, carry(big), r, 6 * r) == (None, {})
 
 
 def test_a_coasting_marker_does_not_take_a_bead_another_searching_marker_may_own():

@@ -33,6 +33,10 @@ FLOW_BACK_PX = 0.3  # a bead's image motion is trusted when tracking it back lan
 FLOW_MAX_MOVE = 1.0  # a bead's move per frame, in radii, beyond which the image motion is not the layer's
 FLOW_LEVELS = 2  # pyramid levels of the image motion (a layer moves a few px per frame, a bead is ~15 px)
 MIN_GROUP = 4  # lost beads (and pairs) a registration of a hidden patch of the layer needs
+# Lost beads a registration takes at most: its hypotheses grow as the patch's square and each is
+# refined by assignments of the whole patch (32 touching beads: ~1 s; 81: ~11 s). A larger hidden
+# patch stays lost (flagged) rather than stall the run.
+MAX_GROUP = 32
 REGISTER_MARGIN = 0.85  # a registration's score must be under this share of any other pairing's
 # A packing of identical beads looks the same turned by 60 degrees: a hidden patch is taken as turned by
 # less than half that (the smallest turn that explains it).
@@ -182,7 +186,7 @@ def register(old: np.ndarray, beads: np.ndarray, radius: float, reach: float, ma
     old = np.asarray(old, float).reshape(-1, 2)
     beads = np.asarray(beads, float).reshape(-1, 2)
     n = len(old)
-    if n < MIN_GROUP or len(beads) < MIN_GROUP:
+    if not MIN_GROUP <= n <= MAX_GROUP or len(beads) < MIN_GROUP:
         return None, {}
     d_old = np.hypot(*(old[:, None] - old[None]).transpose(2, 0, 1))
     d_beads = np.hypot(*(beads[:, None] - beads[None]).transpose(2, 0, 1))
