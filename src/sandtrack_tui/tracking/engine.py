@@ -629,7 +629,7 @@ class Engine:
         m = t.matcher.match(img, x, y, half, half)
         # (more than MERGED_COVERAGE discs of the marker's brightness there: merged with another dark thing)
         if m is None or m.score < p.min_score or not m.psr >= p.min_psr or m.colour_frac > MERGED_COVERAGE \
-                or t._cut_by_border(img, m):
+                or t.cut_by_border(img, m):
             return None
         if self.stereo.distance(other, band_from, cam, (m.x, m.y))[0] > self.stereo.agree_px:
             return None

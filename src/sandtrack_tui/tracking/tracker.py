@@ -187,7 +187,7 @@ class MarkerTrack:
         if not m.outline and self.counts[TRACKED] == 0:
             return None  # (held only once measured since its seed: a seed nothing confirmed is not followed)
         m.d2 = self.kf.d2(m.x, m.y)
-        if not self.acceptable(m, TOUCHING_RELAX if m.touching else 1.0) or self._cut_by_border(frame_bgr, m) \
+        if not self.acceptable(m, TOUCHING_RELAX if m.touching else 1.0) or self.cut_by_border(frame_bgr, m) \
                 or not self._carry(frame_bgr, m, frame_index):
             return self._pattern_match(frame_bgr, frame_index)
         return m
@@ -378,7 +378,7 @@ class MarkerTrack:
         else:
             self._pattern = self._offset = self._anchor_luma = None
 
-    def _cut_by_border(self, frame_bgr, m: Match) -> bool:
+    def cut_by_border(self, frame_bgr, m: Match) -> bool:
         """The marker's disc reaches the image's edge: part of it is outside the picture, and the
         centre of what is left is not the marker's."""
         if not self.model.has_blob:
@@ -411,7 +411,7 @@ class MarkerTrack:
             return None
         if self.model.has_blob and m.colour_frac > MERGED_COVERAGE:
             return None  # the candidate is this marker merged with another: who is who is not clear
-        if self._cut_by_border(frame_bgr, m) or self._pattern_denies(frame_bgr, m, frame_index):
+        if self.cut_by_border(frame_bgr, m) or self._pattern_denies(frame_bgr, m, frame_index):
             return None
         m.d2 = self.kf.d2(m.x, m.y)
         return m
@@ -426,7 +426,7 @@ class MarkerTrack:
         if off is None:
             return None
         m = self.matcher.match(frame_bgr, x, y, 2.0, 2.0)
-        if m is None or self._cut_by_border(frame_bgr, m):
+        if m is None or self.cut_by_border(frame_bgr, m):
             return None
         h = crowd_rules.highlight(frame_bgr, x + off[0], y + off[1], 0.5 * self.model.radius)
         if h is None:
