@@ -237,12 +237,12 @@ def _carried_like(homog: np.ndarray, at: np.ndarray) -> bool:
 
 def _refine(homog: np.ndarray, at: np.ndarray, beads: np.ndarray, radius: float, rounds: int = 3):
     """(cost, pairs within half a radius, positions) of one registration hypothesis, refined."""
-    for _ in range(rounds + 1):
+    for k in range(rounds + 1):
         d = np.hypot(at[:, None, 0] - beads[None, :, 0], at[:, None, 1] - beads[None, :, 1])
         capped = np.minimum(d, radius)
         rows, cols = linear_sum_assignment(capped)
         ok = d[rows, cols] < radius
-        if _ == rounds or ok.sum() < MIN_GROUP:
+        if k == rounds or ok.sum() < MIN_GROUP:
             break
         m, *_r = np.linalg.lstsq(homog[rows[ok]], beads[cols[ok]], rcond=None)
         at = homog @ m

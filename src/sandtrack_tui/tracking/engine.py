@@ -35,6 +35,12 @@ REGROUP_REACH = 6.0  # radii: how far a hidden patch of the layer is looked for
 REGROUP_EVERY = 3  # frames between registrations of one patch
 
 
+def _measurable_on_line(model) -> bool:
+    """A marker Engine._on_line may measure: of a brightness model (its coverage follows the light on its
+    body, its template does not), not among touching lookalikes (a crowd's line crosses several)."""
+    return model.kind in (DARK, BRIGHT) and not model.crowd
+
+
 @dataclass
 class _Proposal:
     match: Match
@@ -516,7 +522,7 @@ class Engine:
         unanchored: set = set()  # lost tracks the other view does not pin to a line: any lost marker may be theirs
         windows: dict = {}  # track key -> (x, y, hx, hy) searched
         seen: list = []  # one blob seen through several tracks' windows is one blob
-        lines: dict = {}  # track key -> the other view's point this step (its epipolar line pins the marker)
+        lines: dict = {}  # track key -> the other view's point this step, for _on_line (its line pins the marker)
         assigned: dict = {}  # track key -> (x, y) of the blob it was given that its match then failed
         for t in tracks:
             key = (t.marker, cam)
@@ -531,7 +537,7 @@ class Engine:
                 other = (t.marker, self.stereo.other(cam))
                 if other[1] in frames:
                     band_from = self._point_at(other, frames, props, forced)
-                    if band_from is not None:
+                    if band_from is not None and _measurable_on_line(t.model):
                         lines[key] = band_from
             # How far the marker may have gone since it was last seen: a frame's largest move per frame.
             # Beyond its gate (pushed hard, carried away while hidden, or the view jumped) a blob takes
@@ -621,7 +627,7 @@ class Engine:
         on a marker this camera already explains. `at`: the blob re-acquisition gave the track (its match
         failed there), searched instead of the prediction."""
         model, p = t.model, t.params
-        if model.kind not in (DARK, BRIGHT) or model.crowd:
+        if not _measurable_on_line(model):
             return None
         other = self.stereo.other(cam)
         x, y = self.stereo.onto_line(other, band_from, cam, t.kf.xy if at is None else at)

@@ -41,9 +41,7 @@ class StereoCheck:
             if len(a) != len(b):
                 raise ValueError(f"{len(a)} points against {len(b)}")
             return kernels.epipolar_distances(a, b, pa, pb, self.F[(cam_from, cam_to)])
-        a = self.calibration.cameras[cam_from].undistort(np.asarray(p_from, dtype=float).reshape(-1, 2))
-        b = self.calibration.cameras[cam_to].undistort(np.asarray(p_to, dtype=float).reshape(-1, 2))
-        lines = np.hstack([a, np.ones((len(a), 1))]) @ self.F[(cam_from, cam_to)].T
+        lines, b = self._undistorted_lines(cam_from, p_from, cam_to, p_to)
         num = np.abs(np.sum(lines * np.hstack([b, np.ones((len(b), 1))]), axis=1))
         return num / np.maximum(np.hypot(lines[:, 0], lines[:, 1]), 1e-12)
 
@@ -51,11 +49,16 @@ class StereoCheck:
         """The point of p_from's epipolar line in cam_to nearest p_to (x, y), in cam_to's pixels. The
         foot is found in undistorted pixels and the step to it applied to p_to as is: a lens bends so
         short a step little (a strongly distorting lens, GoPro-like, leaves < 0.05 px of a 0.6 px step)."""
-        a = self.calibration.cameras[cam_from].undistort(np.asarray(p_from, dtype=float).reshape(1, 2))[0]
-        b = self.calibration.cameras[cam_to].undistort(np.asarray(p_to, dtype=float).reshape(1, 2))[0]
-        line = self.F[(cam_from, cam_to)] @ np.array([a[0], a[1], 1.0])
+        (line,), (b,) = self._undistorted_lines(cam_from, p_from, cam_to, p_to)
         k = (line[0] * b[0] + line[1] * b[1] + line[2]) / max(line[0] ** 2 + line[1] ** 2, 1e-24)
         return float(p_to[0] - k * line[0]), float(p_to[1] - k * line[1])
+
+    def _undistorted_lines(self, cam_from: str, p_from, cam_to: str, p_to) -> tuple[np.ndarray, np.ndarray]:
+        """The epipolar lines (a, b, c) in cam_to of the points p_from, and the points p_to, (N, 2) each,
+        in undistorted pixels."""
+        a = self.calibration.cameras[cam_from].undistort(np.asarray(p_from, dtype=float).reshape(-1, 2))
+        b = self.calibration.cameras[cam_to].undistort(np.asarray(p_to, dtype=float).reshape(-1, 2))
+        return np.hstack([a, np.ones((len(a), 1))]) @ self.F[(cam_from, cam_to)].T, b
 
     def other(self, cam: str) -> str:
         return self.cams[1] if cam == self.cams[0] else self.cams[0]
