@@ -201,10 +201,11 @@ class Engine:
     @staticmethod
     def _give_back(cam, img, found: dict, props) -> int:
         """Crowd tracks given back at the beads assigned to them ({track: (x, y)}), each measured there
-        (verify_at) within half a radius of its bead; returns how many."""
+        (verify_at, else by its outline alone: verify_assigned) within half a radius of its bead; returns
+        how many."""
         n = 0
         for t, (x, y) in found.items():
-            m = t.verify_at(img, float(x), float(y))
+            m = t.verify_at(img, float(x), float(y)) or t.verify_assigned(img, float(x), float(y))
             if m is not None and math.hypot(m.x - x, m.y - y) <= 0.5 * t.model.radius:
                 props[(t.marker, cam)] = _Proposal(m, reattach=True)
                 n += 1

@@ -190,7 +190,25 @@ class MarkerTrack:
         if not self.acceptable(m, TOUCHING_RELAX if m.touching else 1.0) or self.cut_by_border(frame_bgr, m) \
                 or not self._carry(frame_bgr, m, frame_index):
             return self._pattern_match(frame_bgr, frame_index)
+        self._centre_by_highlight(frame_bgr, m)
         return m
+
+    def _centre_by_highlight(self, frame_bgr, m: Match) -> None:
+        """A crowd match whose own outline was not found (in a pressed layer the gaps between the beads
+        close) centred by its highlight instead: the brightest point within half a radius of where this
+        bead's highlight sits from its template's peak (crowd.highlight), less that offset (learned
+        while its outline was seen all round it). A smooth sphere's highlight stays at a fixed offset
+        from its centre (the light and the view do not move with it), and is its own: a neighbour's
+        lies a bead's width away. Left as it is (held) without a learned offset or a highlight there."""
+        off = self.highlight_offset
+        if m.outline or off is None:
+            return
+        h = crowd_rules.highlight(frame_bgr, m.x + off[0], m.y + off[1], 0.5 * self.model.radius)
+        if h is None:
+            return
+        m.x, m.y = h[0] - off[0], h[1] - off[1]
+        m.outline = m.used_centroid = m.lit = True
+        m.d2 = self.kf.d2(m.x, m.y)
 
     def pattern_return(self, frame_bgr, frame_index: int | None = None) -> Match | None:
         """A coasting marker with no dark silhouette, unseen a few frames at most, whose brightness
@@ -414,6 +432,21 @@ class MarkerTrack:
         if self.cut_by_border(frame_bgr, m) or self._pattern_denies(frame_bgr, m, frame_index):
             return None
         m.d2 = self.kf.d2(m.x, m.y)
+        self._centre_by_highlight(frame_bgr, m)
+        return m
+
+    def verify_assigned(self, frame_bgr: np.ndarray, x: float, y: float) -> Match | None:
+        """A crowd marker given a detected bead by assignment (engine.py: who it is comes from where the
+        layer carried it, not from how it looks), measured there by its own outline, found all round it
+        and of its own radius (as any crowd match), whatever its template's score: the template was cut
+        among the bead's old neighbours, and once the layer has deformed it fits the bead among its new
+        ones poorly (NCC 0.0-0.66 where the pairing was right). Its updated template is cut again there
+        (apply). None without that outline, or on a blob of two beads merged, or cut by the border."""
+        m = self.matcher.match(frame_bgr, x, y, 2.0, 2.0)
+        if m is None or not m.outline or m.colour_frac > MERGED_COVERAGE or self.cut_by_border(frame_bgr, m):
+            return None
+        m.assigned = True
+        m.d2 = self.kf.d2(m.x, m.y)
         return m
 
     def confirm_carried(self, frame_bgr: np.ndarray, x: float, y: float) -> Match | None:
@@ -498,8 +531,10 @@ class MarkerTrack:
             if frame_bgr is not None and self.model.kind == DARK and not self.model.crowd \
                     and m.score >= p.confident_score and m.used_centroid:
                 self.model.follow_level(self.matcher.middle_score(frame_bgr, m.x, m.y), p.level_alpha)
-            if self.model.crowd and frame_bgr is not None and not reattach and not m.rest:
+            if self.model.crowd and frame_bgr is not None and not reattach and not m.rest and not m.lit:
                 self._learn_highlight(frame_bgr, m)
+            if m.assigned and frame_bgr is not None:  # (its template no longer fits it: cut again where it is)
+                self.matcher.update_template(frame_bgr, m.x, m.y, 1.0)
             if m.rest:
                 self.rest_frames += 1
             else:
