@@ -32,6 +32,7 @@ MIN_NEIGHBOURS = 2  # measured neighbours a missed marker's carried position nee
 FLOW_BACK_PX = 0.3  # a bead's image motion is trusted when tracking it back lands within this of its start
 FLOW_MAX_MOVE = 1.0  # a bead's move per frame, in radii, beyond which the image motion is not the layer's
 FLOW_LEVELS = 2  # pyramid levels of the image motion (a layer moves a few px per frame, a bead is ~15 px)
+MIN_ANCHORS = 3  # measured beads around a lost one that carry it (an affine map of their moves)
 MIN_GROUP = 4  # lost beads (and pairs) a registration of a hidden patch of the layer needs
 # Lost beads a registration takes at most: its hypotheses grow as the patch's square and each is
 # refined by assignments of the whole patch (32 touching beads: ~1 s; 81: ~11 s). A larger hidden
@@ -151,6 +152,25 @@ def assign(markers: np.ndarray, beads: np.ndarray, gate: float, margin: float) -
         else:
             pairs[int(r)] = int(c)
     return pairs, ambiguous
+
+
+def moved_with(old: np.ndarray, anchors_old: np.ndarray, anchors_now: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """Where a bead that was at `old` (x, y) is now, from the beads around it then (`anchors_old` (k, 2))
+    and now (`anchors_now`): the sand carries close beads alike (a smooth field), so the affine map of
+    their moves (least squares) carries it too. Returns (its position, the largest distance of an anchor
+    from where the map puts it), or None with fewer than MIN_ANCHORS anchors or ones nearly on a line
+    (the map across that line is not known)."""
+    a_old = np.asarray(anchors_old, float).reshape(-1, 2)
+    a_now = np.asarray(anchors_now, float).reshape(-1, 2)
+    if len(a_old) < MIN_ANCHORS:
+        return None
+    spread = np.linalg.svd(a_old - a_old.mean(axis=0), compute_uv=False)
+    if spread[1] < 0.25 * spread[0]:
+        return None
+    homog = np.c_[a_old, np.ones(len(a_old))]
+    m, *_r = np.linalg.lstsq(homog, a_now, rcond=None)
+    residual = float(np.hypot(*(homog @ m - a_now).T).max())
+    return np.r_[np.asarray(old, float), 1.0] @ m, residual
 
 
 def packed_coverage(radius: float, at_least: float, rim_px: float = 1.5, slack: float = 0.18) -> float:

@@ -25,7 +25,7 @@ from .luma import edge_circle
 from .matcher import Match
 from .reacquire import find_blobs, search_window, unexplained
 from .stereo import StereoCheck
-from .tracker import LOST, MERGED_COVERAGE, SHORT_MISS, MarkerTrack, Observation
+from .tracker import LOST, MERGED_COVERAGE, SHORT_MISS, TRACKED, MarkerTrack, Observation
 
 FLOW_AGREE_PX = 1.5  # a crowd marker's match this far from where the image motion took it is not its own
 ONLINE_RADIUS_TOL = 0.15  # a marker measured on the other view's line shows an outline of its radius to this share
@@ -33,6 +33,12 @@ JUMP_FRAMES = 2  # frames after a miss during which a track is searched a larges
 CROWD_MEMORY = 100  # frames of measured positions kept per crowd track (a hidden patch is registered from them)
 REGROUP_REACH = 6.0  # radii: how far a hidden patch of the layer is looked for
 REGROUP_EVERY = 3  # frames between registrations of one patch
+# Two crowd tracks, one per view, are one bead when the other view's line through one never missed the
+# other over PAIR_MIN_FRAMES frames measured together, while every other track of that view left it at
+# PAIR_BREAKS frames or more (more than a wrong measurement or two: a bead beside the line, not on it).
+PAIR_MIN_FRAMES = 10
+PAIR_BREAKS = 3
+ANCHOR_REACH = 4.0  # radii: the beads around a lost one whose moves carry it (as crowd.carried's reach)
 
 
 def _measurable_on_line(model) -> bool:
@@ -72,6 +78,10 @@ class Engine:
     _crowd_prev: dict = field(default_factory=dict)  # camera -> its frame of the previous step (the layer's motion)
     _crowd_seen: dict = field(default_factory=dict)  # crowd track key -> {frame: (x, y)} measured lately
     _regroup_tried: dict = field(default_factory=dict)  # (camera, patch's markers, its frame) -> step last tried
+    # Crowd tracks seeded in one view each, paired across the views by their points (_pair_crowd):
+    partners: dict = field(default_factory=dict)  # crowd track key -> the key of the same bead in the other view
+    # key in one camera -> {key in the other: [frames both measured, frames off each other's lines]} (both ways)
+    _lines: dict = field(default_factory=dict)
 
     def add(self, track: MarkerTrack, start_frame: int) -> None:
         self.tracks[(track.marker, track.camera)] = track
@@ -134,6 +144,10 @@ class Engine:
                 reattached += 1
             if self._crowd_regroup(cam, img, int(j), live[cam], props, forced):
                 reattached += 1
+            if self._crowd_rejoin(cam, img, int(j), live[cam], props, forced):
+                reattached += 1
+            if self.stereo is not None and self._crowd_on_line(cam, img, int(j), live[cam], props, forced, frames):
+                reattached += 1
             self._crowd_prev[cam] = img
         if self.stereo is not None and reattached:
             self._stereo_check(frames, props, forced, only_reattached=True)
@@ -149,9 +163,66 @@ class Engine:
             obs.append(t.set_manual(frames[t.camera][0], None, x, y))
             if t.model.crowd:
                 self._remember_crowd(key, int(frames[t.camera][0]), (float(x), float(y)))
+        if self.stereo is not None:
+            self._pair_crowd(frames, obs)
         return obs
 
     # -- steps ---------------------------------------------------------------------------------
+    def _other_view(self, key):
+        """The key of the same marker in the stereo pair's other camera: the same marker's, or the crowd
+        track paired with it (_pair_crowd); None."""
+        other = (key[0], self.stereo.other(key[1]))
+        return other if other in self.tracks else self.partners.get(key)
+
+    def _pair_crowd(self, frames, obs) -> None:
+        """Crowd beads seeded in one view each (touching lookalikes are not paired at the seed: an
+        epipolar line crosses several of them) are paired across the views by their points over time.
+        A bead's points in the two views lie on each other's epipolar lines (within the stereo
+        threshold) at every frame both are measured; a track of the other view that left the line at
+        PAIR_BREAKS frames or more is another bead (beside the line, or carried apart from it). Two
+        tracks are paired when each is the only one of the other view that never left the other's line
+        over at least PAIR_MIN_FRAMES frames measured together, every other track measured with it having
+        left it PAIR_BREAKS times or more; anything less stays unpaired."""
+        a, b = self.stereo.cams
+        if a not in frames or b not in frames:
+            return
+        measured = {a: {}, b: {}}
+        for o in obs:
+            key = (o.marker, o.camera)
+            t = self.tracks.get(key)
+            if o.status == TRACKED and t is not None and t.model.crowd and key not in self.partners \
+                    and (o.marker, self.stereo.other(o.camera)) not in self.tracks:
+                measured[o.camera][key] = (o.x_px, o.y_px)
+        if not measured[a] or not measured[b]:
+            return
+        ka, kb = list(measured[a]), list(measured[b])
+        pa = np.repeat(np.array([measured[a][k] for k in ka], float), len(kb), axis=0)
+        pb = np.tile(np.array([measured[b][k] for k in kb], float), (len(ka), 1))
+        off = self.stereo.distance(a, pa, b, pb) > self.stereo.threshold_px
+        for (x, y), broke in zip(((x, y) for x in ka for y in kb), off, strict=True):
+            rec = self._lines.setdefault(x, {}).get(y)
+            if rec is None:
+                rec = self._lines[x][y] = self._lines.setdefault(y, {})[x] = [0, 0]
+            rec[0] += 1
+            rec[1] += int(broke)
+        for x in ka:
+            y = self._only_on_line(x)
+            if y is not None and y in measured[b] and self._only_on_line(y) == x:
+                self.partners[x], self.partners[y] = y, x
+
+    def _only_on_line(self, key):
+        """The one track of the other view that never left `key`'s line over PAIR_MIN_FRAMES frames, every
+        other one measured with it having left it PAIR_BREAKS times or more; None."""
+        found = None
+        for other, (together, broke) in self._lines.get(key, {}).items():
+            if other in self.partners:
+                continue
+            if broke == 0 and together >= PAIR_MIN_FRAMES and found is None:
+                found = other
+            elif broke < PAIR_BREAKS:
+                return None
+        return found
+
     def _crowd_return(self, cam, img, j: int, tracks, props, forced) -> int:
         """Missed markers among touching lookalikes, carried by the layer's motion (crowd.py: the image
         motion around each, else the median move of its measured neighbours), assigned at once to the
@@ -262,6 +333,110 @@ class Engine:
             n += self._give_back(cam, img, {group[patch[i]]: beads[b] for i, b in pairs.items()
                                             if agreed.get(i) == b}, props)
         return n
+
+    def _crowd_rejoin(self, cam, img, j: int, tracks, props, forced) -> int:
+        """Crowd markers unseen for more than SHORT_MISS frames whose neighbours are measured again (given
+        back by a registration, or never lost): each is carried from the last frame it was measured
+        together with at least crowd.MIN_ANCHORS of the beads around it (within ANCHOR_REACH radii) by
+        the affine map of those beads' moves since (crowd.moved_with), then all are assigned at once to
+        the beads no track explains, with crowd.assign's margins; returns how many came back."""
+        strays = [t for t in tracks if t.model.crowd and t.misses > SHORT_MISS
+                  and (t.marker, cam) not in props and (t.marker, cam) not in forced]
+        if not strays:
+            return 0
+        now = {k: (p.match.x, p.match.y) for k, p in props.items() if k[1] == cam}
+        now.update({k: xy for k, xy in forced.items() if k[1] == cam})
+        anchors = [(self._crowd_seen[k], xy) for k, xy in now.items()
+                   if self.tracks[k].model.crowd and k in self._crowd_seen]
+        placed, where = [], []
+        for t in strays:
+            xy = self._carried_by_neighbours(self._crowd_seen.get((t.marker, cam), {}), anchors, t.model.radius)
+            if xy is not None:
+                placed.append(t)
+                where.append(xy)
+        if not placed:
+            return 0
+        where = np.array(where, float)
+        r = max(t.model.radius for t in placed)
+        carried = [(t.marker, cam) for t in tracks if t.model.crowd and t.carried and t not in strays]
+        explained = {**forced, **{k: self._crowd_carried[k] for k in carried if k in self._crowd_carried}}
+        beads = self._unexplained_beads(cam, img, placed[0].model, where, props, explained)
+        if not len(beads):
+            return 0
+        pairs, ambiguous = crowd_rules.assign(where, beads, 0.5 * r, 0.5 * r)
+        for i in ambiguous:
+            self._note_ambiguous(placed[i].marker, cam, j, 2)
+        return self._give_back(cam, img, {placed[i]: beads[b] for i, b in pairs.items()}, props)
+
+    def _crowd_on_line(self, cam, img, j: int, tracks, props, forced, frames) -> int:
+        """Crowd markers unseen for more than SHORT_MISS frames that the other view measures this step (the
+        same marker, or its paired track: _pair_crowd): the bead no track explains lying on the other
+        view's epipolar band within `reach` of where the marker was last (its radius, plus how far the
+        other view saw it move since both last measured it, in this view's scale), with no other such
+        bead within a bead's width more along the band, is given back. Returns how many came back."""
+        n = 0
+        for t in tracks:
+            key = (t.marker, cam)
+            if not t.model.crowd or t.misses <= SHORT_MISS or key in props or key in forced:
+                continue
+            other = self._other_view(key)
+            band_from = None if other is None or other[1] not in frames else \
+                self._point_at(other, frames, props, forced)
+            if band_from is None:
+                continue
+            reach = self._line_reach(key, other, band_from)
+            if reach is None:
+                continue
+            r = t.model.radius
+            px, py = self.stereo.onto_line(other[1], band_from, cam, t.kf.xy)
+            beads = self._unexplained_beads(cam, img, t.model, np.array([[px, py]]), props, forced,
+                                            pad=reach + 2 * r + 4)
+            if not len(beads):
+                continue
+            on = self.stereo.distance(other[1], band_from, cam, beads) <= self.stereo.band_px
+            d = np.hypot(beads[:, 0] - px, beads[:, 1] - py)
+            inside = on & (d <= reach)
+            rivals = on & (d <= reach + 2 * r)
+            if inside.sum() != 1 or rivals.sum() != 1:
+                if rivals.sum() > 1 and inside.any():
+                    self._note_ambiguous(t.marker, cam, j, int(rivals.sum()))
+                continue
+            n += self._give_back(cam, img, {t: beads[int(np.argmax(inside))]}, props)
+        return n
+
+    def _line_reach(self, key, other, other_now) -> float | None:
+        """How far (px) a crowd marker unseen a while may be from where it was last measured: its radius,
+        plus how far the other view's track moved since the last frame both were measured, scaled by
+        the ratio of the two views' radii; None when no frame measured both."""
+        seen, seen_other = self._crowd_seen.get(key, {}), self._crowd_seen.get(other, {})
+        both = [f for f in seen if f in seen_other]
+        if not both:
+            return None
+        f = max(both) if self.direction > 0 else min(both)
+        ox, oy = seen_other[f]
+        r, r_other = self.tracks[key].model.radius, self.tracks[other].model.radius
+        return r + math.hypot(other_now[0] - ox, other_now[1] - oy) * r / r_other
+
+    def _carried_by_neighbours(self, seen: dict, anchors: list, radius: float) -> tuple | None:
+        """Where a lost crowd bead is now (crowd.moved_with), from the latest frame of `seen` ({frame:
+        (x, y)} it was measured) at which at least crowd.MIN_ANCHORS of `anchors` ([(their seen, their
+        position now)]) not all on a line were measured within ANCHOR_REACH radii of it; None when the
+        beads around it did not move as one (an anchor farther than a quarter radius from where the map
+        puts it)."""
+        frames = sorted(seen, reverse=self.direction > 0)
+        for f in frames:
+            x, y = seen[f]
+            near = [(a_seen[f], a_now) for a_seen, a_now in anchors if f in a_seen
+                    and math.hypot(a_seen[f][0] - x, a_seen[f][1] - y) <= ANCHOR_REACH * radius]
+            if len(near) < crowd_rules.MIN_ANCHORS:
+                continue
+            out = crowd_rules.moved_with((x, y), [a for a, _ in near], [b for _, b in near])
+            if out is None:
+                continue  # (those anchors do not fix the map: on a line)
+            if out[1] > 0.25 * radius:
+                return None
+            return float(out[0][0]), float(out[0][1])
+        return None
 
     def _crowd_confirm(self, cam, img, missed, where, props, forced) -> int:
         """Carried crowd markers no detected bead gave back, measured where they were carried
@@ -475,24 +650,22 @@ class Engine:
         a, b = self.stereo.cams
         if a not in frames or b not in frames:
             return
-        markers, pas, pbs = [], [], []
-        for m in self._stereo_markers(a, b):
-            ka, kb = (m, a), (m, b)
+        pairs, pas, pbs = [], [], []
+        for ka, kb in self._stereo_pairs(a, b):
             if only_reattached and not ((ka in props and props[ka].reattach) or (kb in props and props[kb].reattach)):
                 continue
             pa, pb = self._point_at(ka, frames, props, forced), self._point_at(kb, frames, props, forced)
             if pa is None or pb is None:
                 continue
-            markers.append(m)
+            pairs.append((ka, kb))
             pas.append(pa)
             pbs.append(pb)
-        if not markers:
+        if not pairs:
             return
         dist = self.stereo.distance(a, np.array(pas), b, np.array(pbs))  # one call for all markers
-        for m, d in zip(markers, dist, strict=True):
+        for (ka, kb), d in zip(pairs, dist, strict=True):
             if d <= self.stereo.threshold_px:
                 continue
-            ka, kb = (m, a), (m, b)
             cands = [k for k in (ka, kb) if k in props and k not in forced]
             if only_reattached:
                 cands = [k for k in cands if props[k].reattach] or cands
@@ -501,15 +674,18 @@ class Engine:
             suspect = max(cands, key=lambda k: props[k].match.d2 if np.isfinite(props[k].match.d2) else 0.0)
             del props[suspect]
             if len(self.stereo_flags) < self.max_events:
-                self.stereo_flags.append({"marker": m, "camera": suspect[1], "frame": int(frames[suspect[1]][0]),
-                                          "epipolar_px": round(float(d), 2)})
+                self.stereo_flags.append({"marker": suspect[0], "camera": suspect[1],
+                                          "frame": int(frames[suspect[1]][0]), "epipolar_px": round(float(d), 2)})
 
-    def _stereo_markers(self, a, b) -> list:
-        """Markers tracked in both cameras, sorted (kept until the set of tracks changes)."""
+    def _stereo_pairs(self, a, b) -> list:
+        """[(key in a, key in b)] of the markers tracked in both cameras, sorted, then the crowd tracks
+        paired across them (kept until the set of tracks or of pairs changes)."""
         c = self._both_cache
-        if c is None or c[0] != (a, b, len(self.tracks)):
+        if c is None or c[0] != (a, b, len(self.tracks), len(self.partners)):
             ms = sorted({m for (m, k) in self.tracks if k == a} & {m for (m, k) in self.tracks if k == b})
-            c = self._both_cache = ((a, b, len(self.tracks)), ms)
+            crowd = sorted((ka, kb) for ka, kb in self.partners.items() if ka[1] == a)
+            c = self._both_cache = ((a, b, len(self.tracks), len(self.partners)),
+                                    [((m, a), (m, b)) for m in ms] + crowd)
         return c[1]
 
     def _reacquire(self, cam, img, tracks, props, forced, frames) -> int:
@@ -535,8 +711,8 @@ class Engine:
             hx, hy = t.search_halfsize()
             band_from = None
             if self.stereo is not None and cam in self.stereo.cams:
-                other = (t.marker, self.stereo.other(cam))
-                if other[1] in frames:
+                other = self._other_view(key)
+                if other is not None and other[1] in frames:
                     band_from = self._point_at(other, frames, props, forced)
                     if band_from is not None and _measurable_on_line(t.model):
                         lines[key] = band_from
