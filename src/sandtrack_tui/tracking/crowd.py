@@ -186,8 +186,8 @@ def packed_coverage(radius: float, at_least: float, rim_px: float = 1.5, slack: 
     return max(at_least, 1.0 + 6.0 * (a + b - c) / (math.pi * radius * radius) + slack)
 
 
-def register(old: np.ndarray, beads: np.ndarray, radius: float, reach: float, margin: float = REGISTER_MARGIN
-             ) -> tuple[np.ndarray | None, dict]:
+def register(old: np.ndarray, beads: np.ndarray, radius: float, reach: float, margin: float = REGISTER_MARGIN,
+             anchors: tuple | None = None) -> tuple[np.ndarray | None, dict]:
     """Where a group of lost beads went while hidden (under the tool), from where they were together
     (`old` (n, 2): their positions at one frame) and the unclaimed beads detected now (`beads`): the
     patch of layer they form was carried as a whole, stretched and sheared, so one affine map takes the
@@ -201,8 +201,11 @@ def register(old: np.ndarray, beads: np.ndarray, radius: float, reach: float, ma
     patch's outline tells: the best map counts only when it pairs at least half the group within half
     a radius and its score is below `margin` x that of every hypothesis pairing the group otherwise
     (fewer than half of the same pairs); and of its pairs, only those every hypothesis scoring within
-    that margin agrees on. Returns (the group's positions under the best map (n, 2), {lost bead: bead}
-    of those pairs), or (None, {})."""
+    that margin agrees on. `anchors` ((then (k, 2), now (k, 2))): beads measured around the group then and
+    now, carried with it: each map is fitted to them too and pays for each as for a lost bead (its
+    distance from where the map puts it, capped at a radius), so a map shifted by a bead pays for all
+    of them. Returns (the group's positions under the best map (n, 2), {lost bead: bead} of those
+    pairs), or (None, {})."""
     old = np.asarray(old, float).reshape(-1, 2)
     beads = np.asarray(beads, float).reshape(-1, 2)
     n = len(old)
@@ -211,6 +214,7 @@ def register(old: np.ndarray, beads: np.ndarray, radius: float, reach: float, ma
     d_old = np.hypot(*(old[:, None] - old[None]).transpose(2, 0, 1))
     d_beads = np.hypot(*(beads[:, None] - beads[None]).transpose(2, 0, 1))
     homog = np.c_[old, np.ones(n)]
+    fixed = _anchored(anchors)
     found: dict = {}  # pairs (old, bead) within half a radius -> (cost, positions)
     for i1 in range(n):
         for i2 in np.argsort(d_old[i1])[1:3]:
@@ -222,7 +226,7 @@ def register(old: np.ndarray, beads: np.ndarray, radius: float, reach: float, ma
                         continue
                     s = complex(*(beads[j2] - beads[j1])) / a
                     at = (old - old[i1]) @ np.array([[s.real, s.imag], [-s.imag, s.real]]) + beads[j1]
-                    cost, pairs, at = _refine(homog, at, beads, radius)
+                    cost, pairs, at = _refine(homog, at, beads, radius, fixed)
                     if not _carried_like(homog, at):
                         continue
                     if pairs not in found or found[pairs][0] > cost:
@@ -243,6 +247,20 @@ def register(old: np.ndarray, beads: np.ndarray, radius: float, reach: float, ma
     return at, dict(agreed)
 
 
+def anchor_misfit(old: np.ndarray, at: np.ndarray, anchors_old: np.ndarray, anchors_now: np.ndarray) -> float:
+    """How far (px, the largest) the beads measured around a registered patch (`anchors_old` (k, 2) at
+    the patch's frame, `anchors_now` now) lie from where the patch's map (the affine map taking `old` to
+    `at`) puts them: the layer carried them with the patch, so a map shifted by a bead (a lattice fits
+    itself shifted) misplaces them by as much. 0 without anchors."""
+    a_old = np.asarray(anchors_old, float).reshape(-1, 2)
+    if not len(a_old):
+        return 0.0
+    old = np.asarray(old, float).reshape(-1, 2)
+    m, *_r = np.linalg.lstsq(np.c_[old, np.ones(len(old))], np.asarray(at, float), rcond=None)
+    placed = np.c_[a_old, np.ones(len(a_old))] @ m
+    return float(np.hypot(*(placed - np.asarray(anchors_now, float).reshape(-1, 2)).T).max())
+
+
 def _carried_like(homog: np.ndarray, at: np.ndarray) -> bool:
     """The affine map taking the group (homogeneous (n, 3)) to `at` neither mirrors it nor turns it by
     MAX_TURN_DEG or more (the rotation nearest its linear part)."""
@@ -255,8 +273,19 @@ def _carried_like(homog: np.ndarray, at: np.ndarray) -> bool:
     return abs(math.degrees(math.atan2(rot[1, 0], rot[0, 0]))) < MAX_TURN_DEG
 
 
-def _refine(homog: np.ndarray, at: np.ndarray, beads: np.ndarray, radius: float, rounds: int = 3):
-    """(cost, pairs within half a radius, positions) of one registration hypothesis, refined."""
+def _anchored(anchors: tuple | None) -> tuple | None:
+    """(homogeneous positions then (k, 3), positions now (k, 2)) of a registration's anchors; None without."""
+    if anchors is None or not len(anchors[0]):
+        return None
+    then = np.asarray(anchors[0], float).reshape(-1, 2)
+    return np.c_[then, np.ones(len(then))], np.asarray(anchors[1], float).reshape(-1, 2)
+
+
+def _refine(homog: np.ndarray, at: np.ndarray, beads: np.ndarray, radius: float, fixed: tuple | None = None,
+            rounds: int = 3):
+    """(cost, pairs within half a radius, positions) of one registration hypothesis, refined (with the
+    anchors `fixed` (_anchored) in the fit and in the cost)."""
+    m = None
     for k in range(rounds + 1):
         d = np.hypot(at[:, None, 0] - beads[None, :, 0], at[:, None, 1] - beads[None, :, 1])
         capped = np.minimum(d, radius)
@@ -264,7 +293,15 @@ def _refine(homog: np.ndarray, at: np.ndarray, beads: np.ndarray, radius: float,
         ok = d[rows, cols] < radius
         if k == rounds or ok.sum() < MIN_GROUP:
             break
-        m, *_r = np.linalg.lstsq(homog[rows[ok]], beads[cols[ok]], rcond=None)
+        src, dst = homog[rows[ok]], beads[cols[ok]]
+        if fixed is not None:
+            src, dst = np.r_[src, fixed[0]], np.r_[dst, fixed[1]]
+        m, *_r = np.linalg.lstsq(src, dst, rcond=None)
         at = homog @ m
     pairs = tuple((int(r), int(c)) for r, c in zip(rows, cols, strict=True) if d[r, c] < 0.5 * radius)
-    return float(capped[rows, cols].sum()), pairs, at
+    cost = float(capped[rows, cols].sum())
+    if fixed is not None:
+        if m is None:
+            m, *_r = np.linalg.lstsq(homog, at, rcond=None)
+        cost += float(np.minimum(np.hypot(*(fixed[0] @ m - fixed[1]).T), radius).sum())
+    return cost, pairs, at

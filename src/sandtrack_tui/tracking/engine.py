@@ -77,7 +77,8 @@ class Engine:
     _crowd_carried: dict = field(default_factory=dict)  # missed crowd track key -> (x, y) carried by the layer
     _crowd_prev: dict = field(default_factory=dict)  # camera -> its frame of the previous step (the layer's motion)
     _crowd_seen: dict = field(default_factory=dict)  # crowd track key -> {frame: (x, y)} measured lately
-    _regroup_tried: dict = field(default_factory=dict)  # (camera, patch's markers, its frame) -> step last tried
+    # (camera, patch's markers, its frame) -> (step last tried, unexplained beads then)
+    _regroup_tried: dict = field(default_factory=dict)
     # Crowd tracks seeded in one view each, paired across the views by their points (_pair_crowd):
     partners: dict = field(default_factory=dict)  # crowd track key -> the key of the same bead in the other view
     # key in one camera -> {key in the other: [frames both measured, frames off each other's lines]} (both ways)
@@ -287,8 +288,9 @@ class Engine:
         tool and carried on meanwhile, where nothing measured its motion), found again together: their
         positions at the latest frame that measured most of them, split into patches of touching beads,
         each registered onto the beads no track explains (crowd.register: one affine map, accepted only
-        with a clear margin over any other pairing), then assigned one by one with the margins of
-        crowd.assign; returns how many came back."""
+        with a clear margin over any other pairing, the beads measured around the patch fitted with it,
+        and only when it puts each of those within a radius of where it is: crowd.anchor_misfit), then
+        assigned one by one with the margins of crowd.assign; returns how many came back."""
         strays = [t for t in tracks if t.model.crowd and t.misses > SHORT_MISS
                   and (t.marker, cam) not in props and (t.marker, cam) not in forced]
         if len(strays) < crowd_rules.MIN_GROUP:
@@ -315,17 +317,20 @@ class Engine:
         for patch in _patches(old, 1.5 * 2.0 * r):
             if len(patch) < crowd_rules.MIN_GROUP:
                 continue
-            # (a patch registered in vain is tried again every REGROUP_EVERY frames: more of it may show)
+            # (a patch registered in vain is tried again once more of it shows, or every REGROUP_EVERY frames)
             who = (cam, tuple(group[i].marker for i in patch), f0)
-            if abs(j - self._regroup_tried.get(who, j - REGROUP_EVERY)) < REGROUP_EVERY:
-                continue
-            self._regroup_tried[who] = j
+            last, shown = self._regroup_tried.get(who, (j - REGROUP_EVERY, 0))
             beads = self._unexplained_beads(cam, img, group[patch[0]].model, old[patch], props, explained,
                                             pad=reach + r)
-            if not len(beads):
+            if not len(beads) or (len(beads) <= shown and abs(j - last) < REGROUP_EVERY):
                 continue
-            at, agreed = crowd_rules.register(old[patch], beads, r, reach)
-            if at is None:
+            self._regroup_tried[who] = (j, len(beads))
+            # (the beads measured around the patch were carried with it: a map that misplaces one of them by
+            # more than a radius, half the pitch of the packing, is nearer the patch shifted by a bead, onto
+            # lookalikes no track follows, than the patch where it is)
+            anchors = self._anchors_at(cam, f0, old[patch], ANCHOR_REACH * r, props, forced)
+            at, agreed = crowd_rules.register(old[patch], beads, r, reach, anchors=anchors)
+            if at is None or crowd_rules.anchor_misfit(old[patch], at, *anchors) > r:
                 continue
             pairs, ambiguous = crowd_rules.assign(at, beads, 0.5 * r, 0.5 * r)
             for i in ambiguous:
@@ -417,12 +422,26 @@ class Engine:
         r, r_other = self.tracks[key].model.radius, self.tracks[other].model.radius
         return r + math.hypot(other_now[0] - ox, other_now[1] - oy) * r / r_other
 
+    def _anchors_at(self, cam, f0: int, near: np.ndarray, reach: float, props, forced) -> tuple:
+        """The crowd tracks of `cam` measured this step that were measured at frame f0 within `reach` px
+        of one of the points `near` (their positions then): (positions then (k, 2), positions now)."""
+        then, now = [], []
+        for key, xy in [(k, (p.match.x, p.match.y)) for k, p in props.items() if k[1] == cam] + \
+                [(k, xy) for k, xy in forced.items() if k[1] == cam]:
+            seen = self._crowd_seen.get(key, {}).get(f0)
+            if seen is None or not self.tracks[key].model.crowd:
+                continue
+            if np.hypot(near[:, 0] - seen[0], near[:, 1] - seen[1]).min() <= reach:
+                then.append(seen)
+                now.append(xy)
+        return np.array(then, float).reshape(-1, 2), np.array(now, float).reshape(-1, 2)
+
     def _carried_by_neighbours(self, seen: dict, anchors: list, radius: float) -> tuple | None:
         """Where a lost crowd bead is now (crowd.moved_with), from the latest frame of `seen` ({frame:
         (x, y)} it was measured) at which at least crowd.MIN_ANCHORS of `anchors` ([(their seen, their
         position now)]) not all on a line were measured within ANCHOR_REACH radii of it; None when the
-        beads around it did not move as one (an anchor farther than a quarter radius from where the map
-        puts it)."""
+        beads around it did not move as one (an anchor farther from where the map puts it than the
+        assignment's gate, half a radius)."""
         frames = sorted(seen, reverse=self.direction > 0)
         for f in frames:
             x, y = seen[f]
@@ -433,7 +452,7 @@ class Engine:
             out = crowd_rules.moved_with((x, y), [a for a, _ in near], [b for _, b in near])
             if out is None:
                 continue  # (those anchors do not fix the map: on a line)
-            if out[1] > 0.25 * radius:
+            if out[1] > 0.5 * radius:
                 return None
             return float(out[0][0]), float(out[0][1])
         return None
