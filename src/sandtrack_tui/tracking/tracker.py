@@ -37,6 +37,10 @@ MERGED_COVERAGE = 1.4  # marker coverage (in seed discs) above which a blob is t
 HELD_MEAS_PX = 1.0  # measurement noise of a held marker's template peak (no outline), px
 CARRIED_AGREE_PX = 1.0  # a carried crowd marker's outline centre this near its carried position re-confirms it
 HIGHLIGHT_ALPHA = 0.2  # share of a new measurement in a crowd bead's highlight offset
+# A crowd bead's highlight is first looked for this far from its centre, in radii: anywhere on its body but
+# its rim (a pixel's blur inside it: beyond, the bright sand or gap bleeds in, and a brightest point on
+# the search's edge is no highlight).
+HIGHLIGHT_FIRST_REACH = 0.8
 SHORT_MISS = 3  # frames unseen up to which a returning marker's match is judged leniently (verify_at)
 # A fast marker's colour match this far behind its brightness pattern is stale chroma: half the pitch of
 # 4:2:0 chroma samples (2 px), under which the colour's centre cannot tell where the marker is anyway.
@@ -477,7 +481,7 @@ class MarkerTrack:
         off = self.highlight_offset
         r = self.model.radius
         h = crowd_rules.highlight(frame_bgr, m.x + (off[0] if off else 0.0), m.y + (off[1] if off else 0.0),
-                                  0.5 * r if off else 0.7 * r)
+                                  0.5 * r if off else HIGHLIGHT_FIRST_REACH * r)
         if h is None:
             return
         d = (h[0] - m.x, h[1] - m.y)
@@ -531,7 +535,10 @@ class MarkerTrack:
             if frame_bgr is not None and self.model.kind == DARK and not self.model.crowd \
                     and m.score >= p.confident_score and m.used_centroid:
                 self.model.follow_level(self.matcher.middle_score(frame_bgr, m.x, m.y), p.level_alpha)
-            if self.model.crowd and frame_bgr is not None and not reattach and not m.rest and not m.lit:
+            # (at rest the centre is the last measurement moved by the brightness shift: it is learned from
+            # there only while no offset is known, e.g. a bead at rest since its seed)
+            if self.model.crowd and frame_bgr is not None and not reattach and not m.lit \
+                    and (not m.rest or self.highlight_offset is None):
                 self._learn_highlight(frame_bgr, m)
             if m.assigned and frame_bgr is not None:  # (its template no longer fits it: cut again where it is)
                 self.matcher.update_template(frame_bgr, m.x, m.y, 1.0)
