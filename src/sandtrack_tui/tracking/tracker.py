@@ -546,7 +546,10 @@ class MarkerTrack:
                 self.rest_frames += 1
             else:
                 self._since_update += 1
-                clean = m.score >= p.confident_score and (
+                # (a crowd bead centred on its own outline is whole and clearly seen however its template
+                # scores: among moving neighbours the template cut among the old ones fits it less and less)
+                sure = m.score >= p.confident_score or (self.model.crowd and m.outline and not m.lit)
+                clean = sure and (
                     not self.model.has_blob or (m.colour_frac >= p.confident_colour and m.used_centroid))
                 if frame_bgr is not None and self._since_update >= p.template_every and clean:
                     self.matcher.update_template(frame_bgr, m.x, m.y, p.template_alpha)
