@@ -35,7 +35,7 @@ class Match:
     rest: bool = False  # the last full measurement moved by the brightness shift since (rest.py)
     touching: bool = False  # other markers touch this one: its centre is from its own share of the blob
     outline: bool = True  # False: a crowd marker whose own outline was not found (its NCC peak only)
-    lit: bool = False  # a crowd marker centred by its highlight (its outline not found all round it)
+    lit: bool = False  # a crowd marker centred by its highlight (its outline not found, or pulled off)
     assigned: bool = False  # a crowd marker measured where an assignment put it, its template not asked
 
 
