@@ -1,0 +1,252 @@
+"""Touching identical beads (a dense layer): who is who from motion and assignment, where each is from its
+outline or its highlight. Small synthetic crowds with exact truth."""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+
+from sandtrack_tui.tracking import crowd, synthetic
+from sandtrack_tui.tracking.engine import Engine
+from sandtrack_tui.tracking.matcher import Match
+from sandtrack_tui.tracking.stereo import StereoCheck
+from sandtrack_tui.tracking.tracker import MarkerTrack, Observation
+
+BLACK = (22.0, 22.0, 25.0)
+R = 7.0
+SHINE = (-0.25, -0.3)  # a bead's highlight from its centre, in radii (the light and the view stay put)
+SIZE = (220, 260)
+
+
+def _packing(gap: float, at=(60.0, 60.0), cols: int = 4, rows: int = 4) -> np.ndarray:
+    """Centres of beads in hexagonal rows, `gap` radii apart (2: touching)."""
+    return np.array([(at[0] + gap * R * (c + 0.5 * (j % 2)), at[1] + 0.866 * gap * R * j)
+                     for j in range(rows) for c in range(cols)])
+
+
+def _beads(centres: np.ndarray, seed: int = 4, dull=()) -> np.ndarray:
+    """Black beads on sand, each with a highlight at SHINE radii from its centre (but those of `dull`)."""
+    paths = [synthetic.MarkerPath(i + 1, np.array([c]), radius=R) for i, c in enumerate(centres)]
+    img = synthetic.render(paths, 1, SIZE, seed=seed, marker_bgr=BLACK).frames[0].astype(np.float32)
+    yy, xx = np.mgrid[0:SIZE[0], 0:SIZE[1]].astype(np.float32)
+    for i, (cx, cy) in enumerate(centres):
+        if i not in dull:
+            disc = np.clip(R + 0.5 - np.hypot(xx - cx, yy - cy), 0, 1)
+            spot = np.exp(-((xx - cx - SHINE[0] * R) ** 2 + (yy - cy - SHINE[1] * R) ** 2) / 2.0)
+            img += (60.0 * disc * spot)[..., None]
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+def _layer_model():
+    """The model of a bead learned among touching ones (a crowd model, shared by the layer's beads)."""
+    packed = _packing(2.02)
+    t = MarkerTrack(1, "cam", _beads(packed), 0, packed[0, 0] + 0.3, packed[0, 1] - 0.2, 22, 22)
+    assert t.model.crowd
+    return t.model
+
+
+def test_a_crowd_bead_is_centred_by_its_highlight_where_its_outline_does_not_measure_it():
+    model, k = _layer_model(), 5
+    loose = _packing(2.4)
+    frames = [_beads(loose + (0.6 * f, 0.3 * f)) for f in range(5)]
+    t = MarkerTrack(2, "cam", frames[0], 0, loose[k, 0] + 0.3, loose[k, 1] - 0.2, 22, 22, kind=model.kind,
+                    like=model)
+    eng = Engine()
+    eng.add(t, 0)
+    for f, img in enumerate(frames):
+        eng.step({"cam": (f, img, 0.0)})
+    assert np.hypot(*(np.array(t.highlight_offset) - np.array(SHINE) * R)) < 0.3  # learned from its outline
+    x, y = loose[k] + (2.4, 1.2)
+    img = frames[-1]
+
+    def centred(dx: float, dy: float, outline: bool, frame=img) -> Match:
+        m = Match(x + dx, y + dy, 0.9, 3.0, 1.2, outline=outline, used_centroid=outline)
+        t._centre_by_highlight(frame, m)
+        return m
+
+    # Its outline not found (the gaps closed round it): its template's peak 1 px off, its highlight places it.
+    m = centred(0.8, -0.6, outline=False)
+    assert m.outline and m.lit and math.hypot(m.x - x, m.y - y) < 0.3
+    # An outline pulled 1.5 px off (a neighbour's rim, a shadow) disagrees with the highlight: the highlight's.
+    m = centred(1.2, 0.9, outline=True)
+    assert m.lit and math.hypot(m.x - x, m.y - y) < 0.3
+    # One within CARRIED_AGREE_PX of it is the outline's measurement, kept as it is.
+    m = centred(0.4, -0.3, outline=True)
+    assert not m.lit and (m.x, m.y) == (x + 0.4, y - 0.3)
+    # No highlight of its own there: held, not measured.
+    m = centred(0.8, -0.6, outline=False, frame=_beads(loose + (2.4, 1.2), dull=(k,)))
+    assert not m.outline and not m.lit
+
+
+def test_a_bead_given_back_by_assignment_is_measured_by_its_outline_and_its_template_cut_again():
+    model, k = _layer_model(), 5
+    packed = _packing(2.02)
+    t = MarkerTrack(2, "cam", _beads(packed), 0, packed[k, 0] + 0.3, packed[k, 1] - 0.2, 22, 22, kind=model.kind,
+                    like=model)
+    # The layer spread while the bead was hidden: its neighbours moved off, its template (cut among them)
+    # no longer fits it, though its whole outline shows.
+    spread = packed + (packed - packed[k]) * 0.35 + (3.0, 2.0)
+    img = _beads(spread)
+    x, y = spread[k]
+    assert t.verify_at(img, x + 0.5, y - 0.4) is None
+    m = t.verify_assigned(img, x + 0.5, y - 0.4)
+    assert m is not None and m.assigned and math.hypot(m.x - x, m.y - y) < 0.3
+    t.misses = 12
+    t.apply(1, img, m, reattach=True)
+    found = t.matcher.match(img, x + 1.0, y + 1.0, 4.0, 4.0)
+    assert found.score > 0.95 and math.hypot(found.x - x, found.y - y) < 0.3  # its template cut again there
+    # Two beads merged into one blob, or no outline there: not measured.
+    assert t.verify_assigned(img, *(0.5 * (spread[k] + spread[k + 1]))) is None
+
+
+def _carry(points: np.ndarray, turn_deg: float = -8.0, stretch: float = 1.3, shift=(17.0, 22.0)) -> np.ndarray:
+    """The layer's carrying of a patch: stretched, turned and moved about its middle (an affine map)."""
+    th = math.radians(turn_deg)
+    lin = np.array([[math.cos(th), -math.sin(th)], [math.sin(th), math.cos(th)]]) @ np.diag([1.0, stretch])
+    centre = np.array([150.0, 120.0])
+    return (np.asarray(points, float) - centre) @ lin.T + centre + shift
+
+
+def test_a_lost_bead_is_carried_by_the_map_of_its_measured_neighbours_moves():
+    layer = _packing(2.0, at=(100.0, 80.0), cols=5, rows=5)
+    lost, around = 12, [6, 7, 11, 13, 17, 18]  # a bead in the middle, its six neighbours measured
+    now = _carry(layer) + np.random.default_rng(1).normal(0.0, 0.2, layer.shape)
+    xy, misfit = crowd.moved_with(layer[lost], layer[around], now[around])
+    assert np.hypot(*(xy - _carry(layer[lost:lost + 1])[0])) < 0.3 and misfit < 0.6
+    # Neighbours on one line do not fix the map across it; two are too few.
+    row = [10, 11, 13, 14]
+    assert crowd.moved_with(layer[lost], layer[row], now[row]) is None
+    assert crowd.moved_with(layer[lost], layer[[6, 7]], now[[6, 7]]) is None
+
+
+def test_a_registration_shifted_onto_lookalikes_no_track_follows_is_refused_by_the_beads_around_it():
+    cols = 8
+    layer = _packing(2.0, at=(100.0, 80.0), cols=cols, rows=6)
+    now = _carry(layer)
+
+    def row(j: int) -> list:
+        return list(range(j * cols, (j + 1) * cols))
+
+    # Six beads of a row were hidden together and four show again; the beads around them are tracked
+    # (anchors), but those of the next row down are followed by no track: lookalikes, unexplained as the
+    # lost ones are.
+    group, anchors, lookalikes = row(2)[1:7], row(1) + [row(2)[0], row(2)[7]], row(3)
+    shown = group[:2] + group[3:5]
+    beads = shown + lookalikes
+    ends = (layer[anchors], now[anchors])
+    # On the beads alone the group fits the row of lookalikes as well, shifted by a row (and pairs more of
+    # it): every bead measured around the patch then lies a row off where that map puts it.
+    at, agreed = crowd.register(layer[group], now[beads], R, 6 * R)
+    assert at is not None and all(beads[b] in lookalikes for b in agreed.values())
+    assert crowd.anchor_misfit(layer[group], at, *ends) > 2 * R
+    # Fitted with the anchors, the map is the patch's: each shown bead its own, none a lookalike.
+    at, agreed = crowd.register(layer[group], now[beads], R, 6 * R, anchors=ends)
+    assert at is not None and crowd.anchor_misfit(layer[group], at, *ends) < 0.5 * R
+    assert {group[i]: beads[b] for i, b in agreed.items()} == {k: k for k in shown}
+    # With only the lookalikes in sight, the anchors leave no map that fits: nothing is paired.
+    assert crowd.register(layer[group], now[lookalikes], R, 6 * R, anchors=ends) == (None, {})
+
+
+def _pairing_run(side_points: dict, front_points: dict, frames: int) -> list:
+    """Engine._pair_crowd fed with crowd tracks' points ({marker: (frames, 2) px} per view, NaN: not
+    measured); returns the engine's pairs after each frame."""
+    cal = synthetic.stereo_rig()
+    eng = Engine(stereo=StereoCheck(cal, "side", "front"))
+    bead = SimpleNamespace(model=SimpleNamespace(crowd=True))
+    for cam, pts in (("side", side_points), ("front", front_points)):
+        for m in pts:
+            eng.tracks[(m, cam)] = bead
+    out = []
+    for f in range(frames):
+        obs = [Observation(f, cam, m, *p[f], "tracked") for cam, pts in (("side", side_points), ("front", front_points))
+               for m, p in pts.items() if np.isfinite(p[f]).all()]
+        eng._pair_crowd({"side": (f, None, 0.0), "front": (f, None, 0.0)}, obs)
+        out.append(dict(eng.partners))
+    return out
+
+
+def test_crowd_tracks_of_the_two_views_are_paired_once_every_other_bead_left_the_line():
+    cal = synthetic.stereo_rig()
+    n = 30
+    a = np.array([10.0, 5.0, 420.0])
+    ray = a - np.array([170.0, 0.0, 30.0])  # the front camera's ray through bead a: b lies on it, deeper
+    b = np.tile(a + 0.08 * ray, (n, 1))
+    b[15:, 1] += np.linspace(0.0, 6.0, n - 15)  # ... until the layer carries it off (from frame 16 on)
+    c = np.tile([-30.0, 20.0, 400.0], (n, 1))
+    side = {m: cal.cameras["side"].project(x) for m, x in ((1, np.tile(a, (n, 1))), (2, b), (3, c))}
+    front = {4: cal.cameras["front"].project(np.tile(a, (n, 1)))}
+    pairs = _pairing_run(side, front, n)
+    # While beads a and b both lie on the line of the front track's point, whose it is is not known.
+    assert all(p == {} for p in pairs[:16])
+    broke = [f for f in range(n) if StereoCheck(cal, "side", "front").distance("side", side[2][f:f + 1], "front",
+                                                                               front[4][f:f + 1])[0] > 2.0]
+    # Paired once b left the line at PAIR_BREAKS frames, both ways, and kept.
+    assert pairs[broke[2]] == {(4, "front"): (1, "side"), (1, "side"): (4, "front")}
+    assert pairs[broke[1]] == {} and pairs[-1] == pairs[broke[2]]
+    # The front track's own bead measured off its line once: a bead beside the line that never left it is
+    # not taken for it (the one that left it did so fewer than PAIR_BREAKS times).
+    side_once = {1: side[1].copy(), 2: side[2].copy()}
+    side_once[1][5] += (0.0, 6.0)
+    side_once[2][15:] = side_once[2][14]  # (b stays on the line)
+    assert all(p == {} for p in _pairing_run(side_once, front, n))
+
+
+class _Lost(SimpleNamespace):
+    __hash__ = object.__hash__  # (a track is a key of the beads given back)
+
+
+def test_a_lost_crowd_bead_is_given_back_on_the_other_views_line_only_when_no_other_bead_lies_there():
+    from sandtrack_tui.tracking.engine import _Proposal
+
+    cal = synthetic.stereo_rig()
+    r = 6.0
+    a = np.array([10.0, 5.0, 420.0])
+    s = cal.cameras["side"].project(a[None])[0]
+    f0 = cal.cameras["front"].project(a[None])[0]
+    along = cal.cameras["front"].project((a + 0.05 * a)[None])[0] - f0  # the side ray through a, seen from the front
+    along /= np.hypot(*along)
+    across = np.array([-along[1], along[0]])
+
+    def given_back(beads: list) -> tuple:
+        eng = Engine(stereo=StereoCheck(cal, "side", "front"))
+        lost = _Lost(marker=4, camera="front", misses=12, kf=SimpleNamespace(xy=tuple(f0)),
+                     model=SimpleNamespace(crowd=True, radius=r))
+        eng.tracks = {(4, "front"): lost, (1, "side"): SimpleNamespace(camera="side", model=SimpleNamespace(radius=r))}
+        eng.partners = {(4, "front"): (1, "side"), (1, "side"): (4, "front")}
+        eng._crowd_seen = {(4, "front"): {0: tuple(f0)}, (1, "side"): {0: tuple(s)}}  # last measured together
+        props = {(1, "side"): _Proposal(Match(*s, 0.95, 5.0, 1.0))}  # the side view measures it, not moved
+        taken = {}
+        eng._unexplained_beads = lambda *args, **kw: np.array(beads, float).reshape(-1, 2)
+        eng._give_back = lambda cam, img, found, props: taken.update(found) or len(found)
+        eng._crowd_on_line("front", None, 5, [lost], props, {}, {"side": (5, None, 0.0), "front": (5, None, 0.0)})
+        return {t.marker: tuple(xy) for t, xy in taken.items()}, eng.ambiguous
+
+    own = f0 + 0.6 * along + 0.4 * across
+    # The one bead on the side view's line near where it was: given back. One beside the line is not a rival.
+    assert given_back([own, f0 + 9.0 * across]) == ({4: tuple(own)}, [])
+    # Another bead on the line within a bead's width more: which one it is is not known (flagged).
+    taken, ambiguous = given_back([own, f0 - 1.6 * r * along])
+    assert taken == {} and ambiguous and ambiguous[0]["marker"] == 4
+    # Beside the line only, or farther than it can have gone: nothing.
+    assert given_back([f0 + 9.0 * across, f0 + 4.0 * r * along]) == ({}, [])
+
+
+def test_a_crowd_bead_centred_on_its_outline_updates_its_template_whatever_the_template_scored():
+    model, k = _layer_model(), 5
+    packed = _packing(2.02)
+    t = MarkerTrack(2, "cam", _beads(packed), 0, packed[k, 0] + 0.3, packed[k, 1] - 0.2, 22, 22, kind=model.kind,
+                    like=model)
+    # The layer around it loosened: its outline shows all round, its template (cut among touching
+    # neighbours) scores it lower than a confident match, and would go on doing so.
+    spread = packed + (packed - packed[k]) * 0.1
+    img = _beads(spread)
+    x, y = spread[k]
+    first = t.matcher.match(img, x, y, 2.0, 2.0)
+    assert first.outline and first.score < t.params.confident_score
+    for f in range(1, 13):
+        t.predict()
+        t.apply(f, img, t.matcher.match(img, x, y, 2.0, 2.0))
+    last = t.matcher.match(img, x, y, 2.0, 2.0)
+    assert last.score > max(t.params.confident_score, first.score + 0.1) and math.hypot(last.x - x, last.y - y) < 0.3
