@@ -16,7 +16,12 @@ within `margin` more than the pair's own distance. A carried marker no bead gave
 again where its `highlight` gives a centre agreeing with its carried position (tracker.py).
 Beads hidden together (under the tool) while the layer moved on have no motion measured at all: the
 patch they formed is matched to the beads no track explains by one affine map of the patch, and
-only where the patch's outline tells the map apart from the same map shifted by a bead.
+only where the patch's outline tells the map apart from the same map shifted by a bead; the beads
+measured around the patch were carried with it (`anchor_misfit`): a map that misplaces them is the
+patch shifted onto lookalikes no track follows. A lost bead whose neighbours are measured again is
+carried by the affine map of their moves since they were last measured together (`moved_with`).
+A bead given back is measured by its own outline (its template, cut among its old neighbours, may
+no longer fit it) or, where its outline is pressed against its neighbours', by its highlight.
 Anything else stays flagged for the operator.
 """
 

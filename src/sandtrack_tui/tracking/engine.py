@@ -4,7 +4,9 @@ Per step: every track predicts and proposes its best gated match; two tracks of 
 claiming the same marker keep only the better; with a calibration, the proposals of a marker in
 the two cameras are checked against each other's epipolar lines (the suspect view is dropped and
 flagged); coasting tracks look for unexplained blobs (along the epipolar band when the other view
-is tracked); then every track commits its status for the frame. When most tracks of a camera
+is tracked); then every track commits its status for the frame. Touching lookalikes (a crowd,
+crowd.py) seeded in one view each are paired across the views once their points tell who is who
+(_pair_crowd), and then checked and searched like one marker's two views. When most tracks of a camera
 leave their gates at once and the whole view moved (globalmotion.py), every track of that camera
 is moved with the view and searched again.
 """
