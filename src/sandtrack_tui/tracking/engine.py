@@ -651,6 +651,7 @@ class Engine:
             return None
         m.x, m.y = self.stereo.onto_line(other, band_from, cam, (m.x, m.y))
         m.used_centroid = False  # (along the line its place is the template's peak: a looser measurement)
+        m.line = True
         m.d2 = t.kf.d2(m.x, m.y)
         return m
 

@@ -35,6 +35,8 @@ class Match:
     rest: bool = False  # the last full measurement moved by the brightness shift since (rest.py)
     touching: bool = False  # other markers touch this one: its centre is from its own share of the blob
     outline: bool = True  # False: a crowd marker whose own outline was not found (its NCC peak only)
+    look: bool = False  # placed by its look at its last full measurement (MarkerTrack.look_match), not measured
+    line: bool = False  # measured on the other view's epipolar line, its outline found all round (Engine._on_line)
 
 
 STREAK_MIN_SPEED = 4.0  # px per frame from which a marker may be smeared into a streak

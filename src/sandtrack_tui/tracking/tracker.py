@@ -21,7 +21,7 @@ import numpy as np
 
 from ..errors import SandtrackError
 from . import crowd as crowd_rules
-from .appearance import COLOUR, DARK, AppearanceModel, learn
+from .appearance import BRIGHT, COLOUR, DARK, AppearanceModel, learn
 from .kalman import GATE_D2, ConstantVelocityKF
 from .luma import LumaPattern, edge_centre
 from .matcher import STREAK_MIN_SPEED, Match, TemplateMatcher
@@ -138,6 +138,9 @@ class MarkerTrack:
         self._pattern: LumaPattern | None = None  # the marker's brightness at the last intra frame (no silhouette)
         self._kept: tuple | None = None  # (pattern, offset, anchor) of a chain broken by a long miss
         self._rest: RestReference | None = None
+        # A brightness model's marker at its last full measurement: (window, x0, y0, x, y) of its
+        # LumaPattern, cut when first wanted (look_match), then the pattern itself.
+        self._look: tuple | LumaPattern | None = None
         self.rest_frames = 0
         self.held = False
         self.highlight_offset: tuple | None = None  # a crowd bead's highlight - its centre, px
@@ -177,20 +180,74 @@ class MarkerTrack:
                 x, y = o.x + d[0], o.y + d[1]
                 return Match(x, y, o.score, o.psr, o.colour_frac, self.kf.d2(x, y),
                              o.used_centroid, None if o.luma is None else (o.luma[0] + d[0], o.luma[1] + d[1]),
-                             rest=True)
+                             rest=True, look=o.look)
         px, py = self.kf.xy
         hx, hy = self.search_halfsize()
         m = self.matcher.match(frame_bgr, px, py, hx, hy, self.kf.innovation_inv(), self.params.gate_d2,
                                self.kf.vxy)
         if m is None:
-            return self._pattern_match(frame_bgr, frame_index)
+            return self._pattern_match(frame_bgr, frame_index) or self.look_match(frame_bgr)
         if not m.outline and self.counts[TRACKED] == 0:
             return None  # (held only once measured since its seed: a seed nothing confirmed is not followed)
         m.d2 = self.kf.d2(m.x, m.y)
         if not self.acceptable(m, TOUCHING_RELAX if m.touching else 1.0) or self.cut_by_border(frame_bgr, m) \
                 or not self._carry(frame_bgr, m, frame_index):
-            return self._pattern_match(frame_bgr, frame_index)
+            return self._pattern_match(frame_bgr, frame_index) or self.look_match(frame_bgr, (m.x, m.y))
         return m
+
+    def look_match(self, frame_bgr, near: tuple | None = None) -> Match | None:
+        """A marker of a brightness model whose match failed, found again by its look at its last full
+        measurement: the brightness pattern of its disc there (luma.LumaPattern: its body, rim and
+        highlight), registered inside the gate and fitting as closely as a marker seen whole fits its
+        pattern of the frame before (MIN_NCC). A marker's look may change while its match fails: a glass
+        bead's body shows the sand beneath it and turns pale where the lamp's light is focused through it,
+        which its model reads as too little coverage; its pattern still fits. A marker partly hidden (by
+        the tool, by sand) does not: what hides it is in its disc. The pattern is registered from the
+        prediction and from `near` (the failed match's place, or None): where both fit, they must agree
+        (LOST_PLACE_PX), or the place is not clear. None otherwise."""
+        pattern = self._look_pattern()
+        if pattern is None:
+            return None
+        found = None
+        for x, y in (self.kf.xy,) if near is None else (self.kf.xy, near):
+            got = pattern.find(frame_bgr, x, y)
+            if got is None:
+                continue
+            if found is not None and math.hypot(got[0] - found[0][0], got[1] - found[0][1]) > LOST_PLACE_PX:
+                return None
+            if found is None or pattern.fit > found[1]:
+                found = (got, pattern.fit)
+        if found is None:
+            return None
+        (x, y), fit = found
+        m = Match(x, y, fit, float("nan"), float("nan"), self.kf.d2(x, y), look=True)
+        if m.d2 > self.params.gate_d2 or self.cut_by_border(frame_bgr, m):
+            return None
+        return m
+
+    def _look_return(self, frame_bgr) -> Match | None:
+        """look_match for a coasting marker, also from its template's best place inside the gate."""
+        if self._look is None:
+            return None
+        px, py = self.kf.xy
+        hx, hy = self.search_halfsize()
+        m = self.matcher.match(frame_bgr, px, py, hx, hy, self.kf.innovation_inv(), self.params.gate_d2)
+        return self.look_match(frame_bgr, None if m is None else (m.x, m.y))
+
+    def _look_pattern(self) -> LumaPattern | None:
+        look = self._look
+        if isinstance(look, tuple):
+            win, x0, y0, x, y = look
+            look = LumaPattern.from_window((win, x0, y0), x, y, self.model.radius)
+            self._look = look = look if look.ok else None
+        return look
+
+    def _keep_look(self, frame_bgr, m: Match) -> None:
+        """Keep the marker's look at a full measurement (a window of it: its pattern is cut when wanted)."""
+        if frame_bgr is None or self.model.kind not in (DARK, BRIGHT) or self.model.crowd:
+            return
+        cut = LumaPattern.window(frame_bgr, m.x, m.y, self.model.radius)
+        self._look = None if cut is None else (*cut, m.x, m.y)
 
     def pattern_return(self, frame_bgr, frame_index: int | None = None) -> Match | None:
         """A coasting marker with no dark silhouette, unseen a few frames at most, whose brightness
@@ -201,7 +258,7 @@ class MarkerTrack:
         if not self.coasting:
             return None
         if self.misses <= SHORT_MISS:
-            return self._pattern_match(frame_bgr, frame_index)
+            return self._pattern_match(frame_bgr, frame_index) or self._look_return(frame_bgr)
         if self.status != LOST or self._kept is None or self.model.luma_follows:
             return None
         pattern, offset, anchor = self._kept
@@ -495,7 +552,7 @@ class MarkerTrack:
             # A dark marker's level follows its body (appearance.follow_level), also at rest (a glass bead
             # shows the sand beneath it): the marker's look, not its coverage by the model, says the
             # match is good, since a marker whose body lightens loses coverage first.
-            if frame_bgr is not None and self.model.kind == DARK and not self.model.crowd \
+            if frame_bgr is not None and self.model.kind == DARK and not self.model.crowd and not m.look \
                     and m.score >= p.confident_score and m.used_centroid:
                 self.model.follow_level(self.matcher.middle_score(frame_bgr, m.x, m.y), p.level_alpha)
             if self.model.crowd and frame_bgr is not None and not reattach and not m.rest:
@@ -506,6 +563,8 @@ class MarkerTrack:
                 self._since_update += 1
                 clean = m.score >= p.confident_score and (
                     not self.model.has_blob or (m.colour_frac >= p.confident_colour and m.used_centroid))
+                if clean or m.line:
+                    self._keep_look(frame_bgr, m)
                 if frame_bgr is not None and self._since_update >= p.template_every and clean:
                     self.matcher.update_template(frame_bgr, m.x, m.y, p.template_alpha)
                     self._since_update = 0
