@@ -635,10 +635,11 @@ class Engine:
         m = t.matcher.match(img, x, y, half, half)
         # (more than MERGED_COVERAGE discs of the marker's brightness there: merged with another dark thing)
         if m is None or m.score < p.min_score or not m.psr >= p.min_psr or m.colour_frac > MERGED_COVERAGE \
-                or t.cut_by_border(img, m):
-            return None
-        if self.stereo.distance(other, band_from, cam, (m.x, m.y))[0] > self.stereo.agree_px:
-            return None
+                or t.cut_by_border(img, m) or \
+                self.stereo.distance(other, band_from, cam, (m.x, m.y))[0] > self.stereo.agree_px:
+            m = self._look_on_line(t, img, (x, y) if m is None else (m.x, m.y), other, band_from)
+            if m is None:
+                return None
         # A marker partly hidden (behind the tool, or sinking) shows part of its disc: the template slides
         # along the line to the part in sight, and the outline found round it is a smaller circle. The
         # outline must be found all round, of the marker's own size (to ONLINE_RADIUS_TOL: a bead moving
@@ -651,9 +652,19 @@ class Engine:
             return None
         m.x, m.y = self.stereo.onto_line(other, band_from, cam, (m.x, m.y))
         m.used_centroid = False  # (along the line its place is the template's peak: a looser measurement)
-        m.line = True
+        m.line = not m.look
         m.d2 = t.kf.d2(m.x, m.y)
         return m
+
+    def _look_on_line(self, t: MarkerTrack, img, start: tuple, other, band_from) -> Match | None:
+        """_on_line where the template does not place the marker on the line: its look at its last whole
+        measurement (MarkerTrack.look_place), registered from `start`, placing it on the line as closely
+        as a marker measured in both views lies; None otherwise."""
+        placed = t.look_place(img, *start)
+        if placed is None or self.stereo.distance(other, band_from, t.camera, placed)[0] > self.stereo.agree_px:
+            return None
+        m = Match(*placed, t.look_fit, float("nan"), float("nan"), look=True)
+        return None if t.cut_by_border(img, m) else m
 
     def _band_blobs(self, cam, img, model, band_from, px, py, inner: float, reach: float) -> list:
         """Blobs along the other view's epipolar band through `band_from`, out to `reach` px from

@@ -225,6 +225,20 @@ class MarkerTrack:
             return None
         return m
 
+    def look_place(self, frame_bgr, x: float, y: float) -> tuple[float, float] | None:
+        """Where the marker's look at its last full measurement registers from (x, y) when it fits at
+        least PLACE_MIN_FIT, else None (a place only: the caller knows otherwise that the marker is there)."""
+        pattern = self._look_pattern()
+        if pattern is None:
+            return None
+        pattern.find(frame_bgr, x, y)
+        return pattern.place if pattern.place is not None and pattern.fit >= PLACE_MIN_FIT else None
+
+    @property
+    def look_fit(self) -> float:
+        """How closely the marker's look fitted where it was last registered."""
+        return self._look.fit if isinstance(self._look, LumaPattern) else float("nan")
+
     def _look_return(self, frame_bgr) -> Match | None:
         """look_match for a coasting marker, also from its template's best place inside the gate."""
         if self._look is None:
