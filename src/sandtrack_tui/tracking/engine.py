@@ -35,6 +35,20 @@ REGROUP_REACH = 6.0  # radii: how far a hidden patch of the layer is looked for
 REGROUP_EVERY = 3  # frames between registrations of one patch
 
 
+def _whole(img, model, x: float, y: float) -> bool:
+    """The marker at (x, y) shows its outline all round, of its own size. A marker partly hidden (behind
+    the tool, or sinking) shows part of its disc: a template or a look slides to the part in sight, and
+    the outline found round it is a smaller circle, or not found all round. (ONLINE_RADIUS_TOL: a bead
+    moving in depth changes its image size by about that over a box's depth.)"""
+    e = edge_circle(img, x, y, model.radius, polarity=1.0 if model.kind == DARK else -1.0, outward=model.kind == DARK)
+    return e is not None and e[3] >= 4 and abs(e[2] - model.radius) <= ONLINE_RADIUS_TOL * model.radius
+
+
+def _on_explained(m: Match, model, explained: list) -> bool:
+    """m lies on a marker this camera already explains."""
+    return any(math.hypot(m.x - a, m.y - b) < 1.5 * model.radius + 1 for a, b in explained)
+
+
 def _measurable_on_line(model) -> bool:
     """A marker Engine._on_line may measure: of a brightness model (its coverage follows the light on its
     body, its template does not), not among touching lookalikes (a crowd's line crosses several)."""
@@ -137,6 +151,8 @@ class Engine:
             self._crowd_prev[cam] = img
         if self.stereo is not None and reattached:
             self._stereo_check(frames, props, forced, only_reattached=True)
+        if self.stereo is not None:
+            self._looks_agree(frames, live, props, forced)
         for cam, (j, img, _rem) in frames.items():
             for t in live[cam]:
                 p = props.get((t.marker, cam))
@@ -640,21 +656,48 @@ class Engine:
             m = self._look_on_line(t, img, (x, y) if m is None else (m.x, m.y), other, band_from)
             if m is None:
                 return None
-        # A marker partly hidden (behind the tool, or sinking) shows part of its disc: the template slides
-        # along the line to the part in sight, and the outline found round it is a smaller circle. The
-        # outline must be found all round, of the marker's own size (to ONLINE_RADIUS_TOL: a bead moving
-        # in depth changes its image size by about that over a box's depth).
-        e = edge_circle(img, m.x, m.y, model.radius, polarity=1.0 if model.kind == DARK else -1.0,
-                        outward=model.kind == DARK)
-        if e is None or e[3] < 4 or abs(e[2] - model.radius) > ONLINE_RADIUS_TOL * model.radius:
-            return None
-        if any(math.hypot(m.x - a, m.y - b) < 1.5 * model.radius + 1 for a, b in explained):
+        if not _whole(img, model, m.x, m.y) or _on_explained(m, model, explained):
             return None
         m.x, m.y = self.stereo.onto_line(other, band_from, cam, (m.x, m.y))
         m.used_centroid = False  # (along the line its place is the template's peak: a looser measurement)
         m.line = not m.look
         m.d2 = t.kf.d2(m.x, m.y)
         return m
+
+    def _looks_agree(self, frames, live: dict, props, forced) -> None:
+        """A brightness-model marker unseen this step in both views, still followed in both (not lost):
+        where its look at its last whole measurement (MarkerTrack.look_place) registers in each view near
+        its prediction, the two places lie on each other's epipolar lines as closely as a marker measured
+        in both views does (StereoCheck.agree_px), and the marker shows its outline all round, of its own
+        size, in both, it is there in both (a marker pushed by the tool, whose look changes as it moves
+        over the sand, is found by neither view's match; a marker partly hidden shows no outline all round,
+        and its looks slide to its parts in sight, which the two views do not see alike)."""
+        a, b = self.stereo.cams
+        if a not in frames or b not in frames:
+            return
+        followed = {(t.marker, cam): t for cam in (a, b) for t in live.get(cam, ())
+                    if t.status != LOST and _measurable_on_line(t.model)}
+        for mk in self._stereo_markers(a, b):
+            keys = ((mk, a), (mk, b))
+            if any(k in props or k in forced or k not in followed for k in keys):
+                continue
+            found = []
+            for k in keys:
+                t, img = followed[k], frames[k[1]][1]
+                placed = t.look_place(img, *t.kf.xy)
+                if placed is None:
+                    break
+                m = Match(*placed, t.look_fit, float("nan"), float("nan"), look=True)
+                if t.cut_by_border(img, m) or not _whole(img, t.model, m.x, m.y) \
+                        or _on_explained(m, t.model, self._explained(k[1], props, forced)):
+                    break
+                m.d2 = t.kf.d2(m.x, m.y)
+                found.append(m)
+            if len(found) < 2 or self.stereo.distance(a, (found[0].x, found[0].y), b,
+                                                      (found[1].x, found[1].y))[0] > self.stereo.agree_px:
+                continue
+            for k, m in zip(keys, found, strict=True):
+                props[k] = _Proposal(m, reattach=True)
 
     def _look_on_line(self, t: MarkerTrack, img, start: tuple, other, band_from) -> Match | None:
         """_on_line where the template does not place the marker on the line: its look at its last whole
