@@ -41,7 +41,7 @@ def _whole(img, model, x: float, y: float) -> bool:
     the outline found round it is a smaller circle, or not found all round. (ONLINE_RADIUS_TOL: a bead
     moving in depth changes its image size by about that over a box's depth.)"""
     e = edge_circle(img, x, y, model.radius, polarity=1.0 if model.kind == DARK else -1.0, outward=model.kind == DARK)
-    return e is not None and e[3] >= 4 and abs(e[2] - model.radius) <= ONLINE_RADIUS_TOL * model.radius
+    return e is not None and e[3] >= 4 and e[2] >= (1.0 - ONLINE_RADIUS_TOL) * model.radius
 
 
 def _on_explained(m: Match, model, explained: list) -> bool:
@@ -86,6 +86,7 @@ class Engine:
     _crowd_prev: dict = field(default_factory=dict)  # camera -> its frame of the previous step (the layer's motion)
     _crowd_seen: dict = field(default_factory=dict)  # crowd track key -> {frame: (x, y)} measured lately
     _regroup_tried: dict = field(default_factory=dict)  # (camera, patch's markers, its frame) -> step last tried
+    _searched: dict = field(default_factory=dict)  # camera -> (windows searched, keys measured on a line) this step
 
     def add(self, track: MarkerTrack, start_frame: int) -> None:
         self.tracks[(track.marker, track.camera)] = track
@@ -143,6 +144,10 @@ class Engine:
                 reattached += 1
                 self._resolve_conflicts(live[cam], props, forced)  # (a pass leaves no clash behind)
                 self._crowd_coherence(live[cam], props, self._neighbours(live[cam]))
+        if self.stereo is not None and reattached:
+            for cam, (_j, img, _rem) in frames.items():
+                if self._late_lines(cam, img, live[cam], props, forced, frames):
+                    self._resolve_conflicts(live[cam], props, forced)
         for cam, (j, img, _rem) in frames.items():
             if self._crowd_return(cam, img, int(j), live[cam], props, forced):
                 reattached += 1
@@ -529,6 +534,7 @@ class Engine:
 
     def _reacquire(self, cam, img, tracks, props, forced, frames) -> int:
         """Re-attach coasting tracks of `cam` to unexplained blobs; returns how many were."""
+        self._searched[cam] = ({}, set())
         if all((t.marker, cam) in props for t in tracks):
             return 0
         explained = self._explained(cam, props, forced)
@@ -540,6 +546,7 @@ class Engine:
         seen: list = []  # one blob seen through several tracks' windows is one blob
         lines: dict = {}  # track key -> the other view's point this step, for _on_line (its line pins the marker)
         assigned: dict = {}  # track key -> (x, y) of the blob it was given that its match then failed
+        self._searched[cam] = (windows, lines)
         for t in tracks:
             key = (t.marker, cam)
             if key in props:
@@ -618,11 +625,35 @@ class Engine:
                 m = None if key not in assigned else \
                     self._on_line(cam, img, self.tracks[key], band_from, explained_now, at=assigned[key])
                 m = m or self._on_line(cam, img, self.tracks[key], band_from, explained_now)
+                if m is None and key in windows:
+                    m = self._on_band(cam, img, self.tracks[key], band_from, explained_now, max(windows[key][2:]))
                 if m is not None and self._nearer_searcher(key, m, windows, props):
                     m = None
                 if m is not None:
                     props[key] = _Proposal(m, reattach=True)
                     n += 1
+        return n
+
+    def _late_lines(self, cam, img, tracks, props, forced, frames) -> int:
+        """_reacquire's measurement on the other view's line (_on_line, _on_band) for the coasting tracks of
+        `cam` whose other view was given its point back by a re-acquisition after `cam` was searched this
+        step; returns how many were measured."""
+        windows, lined = self._searched.get(cam, ({}, set()))
+        n = 0
+        for t in tracks:
+            key = (t.marker, cam)
+            if key in props or key in forced or key in lined or not _measurable_on_line(t.model):
+                continue
+            band_from = self._point_at((t.marker, self.stereo.other(cam)), frames, props, forced)
+            if band_from is None:
+                continue
+            explained = self._explained(cam, props, forced)
+            reach = min(max(*t.search_halfsize(), 4 * t.model.radius + 10), t.params.max_search_px)
+            m = self._on_line(cam, img, t, band_from, explained) or self._on_band(cam, img, t, band_from, explained,
+                                                                                 reach)
+            if m is not None and not self._nearer_searcher(key, m, windows, props):
+                props[key] = _Proposal(m, reattach=True)
+                n += 1
         return n
 
     def _nearer_searcher(self, key, m: Match, windows: dict, props) -> bool:
@@ -639,30 +670,74 @@ class Engine:
         both views lies (StereoCheck.agree_px), is the marker there, moved onto the line (the line
         pins it across, the template along). Its coverage is not asked: a brightness model's coverage
         follows the light on the marker's body (a glass bead's body turns pale where the lamp's light is
-        focused through it) while its template still finds it. None otherwise, or when the match lies
-        on a marker this camera already explains. `at`: the blob re-acquisition gave the track (its match
-        failed there), searched instead of the prediction."""
-        model, p = t.model, t.params
+        focused through it) while its template still finds it. Where the template does not place it on
+        the line, its look at its last whole measurement may (_look_on_line). None otherwise, or when
+        the match lies on a marker this camera already explains. `at`: the blob re-acquisition gave the
+        track (its match failed there), searched instead of the prediction."""
+        model = t.model
         if not _measurable_on_line(model):
             return None
         other = self.stereo.other(cam)
         x, y = self.stereo.onto_line(other, band_from, cam, t.kf.xy if at is None else at)
         half = min(max(t.search_halfsize()), 2 * model.radius + 4) if at is None else 2.0
+        m = self._template_on_line(t, img, x, y, half, other, band_from)
+        if m is None:
+            m = self._look_on_line(t, img, (x, y) if m is None else (m.x, m.y), other, band_from)
+        return None if m is None else self._placed_on_line(t, img, m, other, band_from, explained)
+
+    def _template_on_line(self, t: MarkerTrack, img, x: float, y: float, half: float, other, band_from
+                          ) -> Match | None:
+        """The marker's template found within `half` of (x, y), as _on_line takes it (its score and PSR
+        as a tracked marker's, not merged with another dark thing, on the line), or None."""
+        p = t.params
         m = t.matcher.match(img, x, y, half, half)
         # (more than MERGED_COVERAGE discs of the marker's brightness there: merged with another dark thing)
         if m is None or m.score < p.min_score or not m.psr >= p.min_psr or m.colour_frac > MERGED_COVERAGE \
                 or t.cut_by_border(img, m) or \
-                self.stereo.distance(other, band_from, cam, (m.x, m.y))[0] > self.stereo.agree_px:
-            m = self._look_on_line(t, img, (x, y) if m is None else (m.x, m.y), other, band_from)
-            if m is None:
-                return None
-        if not _whole(img, model, m.x, m.y) or _on_explained(m, model, explained):
+                self.stereo.distance(other, band_from, t.camera, (m.x, m.y))[0] > self.stereo.agree_px:
             return None
-        m.x, m.y = self.stereo.onto_line(other, band_from, cam, (m.x, m.y))
+        return m
+
+    def _placed_on_line(self, t: MarkerTrack, img, m: Match, other, band_from, explained: list) -> Match | None:
+        """m, a whole marker (_whole) that this camera does not explain yet, moved onto the other view's
+        line; else None."""
+        if not _whole(img, t.model, m.x, m.y) or _on_explained(m, t.model, explained):
+            return None
+        m.x, m.y = self.stereo.onto_line(other, band_from, t.camera, (m.x, m.y))
         m.used_centroid = False  # (along the line its place is the template's peak: a looser measurement)
         m.line = not m.look
         m.d2 = t.kf.d2(m.x, m.y)
         return m
+
+    def _on_band(self, cam, img, t: MarkerTrack, band_from, explained: list, reach: float) -> Match | None:
+        """_on_line for a marker unseen a while, whose prediction may lie far from it: its template
+        searched in windows along the other view's epipolar line, out to `reach` px from the prediction's
+        foot on it (beyond the window _on_line searched), taken only where it is found at one place
+        along the line (another marker like it there, unseen too, could be either)."""
+        if not _measurable_on_line(t.model):
+            return None
+        other = self.stereo.other(cam)
+        half = 2 * t.model.radius + 4
+        x0, y0 = self.stereo.onto_line(other, band_from, cam, t.kf.xy)
+        x1, y1 = self.stereo.onto_line(other, band_from, cam, (x0 + half, y0))
+        x2, y2 = self.stereo.onto_line(other, band_from, cam, (x0, y0 + half))
+        dx, dy = (x1 - x0, y1 - y0) if math.hypot(x1 - x0, y1 - y0) >= math.hypot(x2 - x0, y2 - y0) else \
+            (x2 - x0, y2 - y0)
+        norm = math.hypot(dx, dy)
+        if norm < 1e-6:
+            return None
+        dx, dy = dx / norm, dy / norm
+        found: list = []
+        for k in range(1, int(reach // (2 * half)) + 1):
+            for sign in (1.0, -1.0):
+                cx, cy = self.stereo.onto_line(other, band_from, cam,
+                                               (x0 + sign * k * 2 * half * dx, y0 + sign * k * 2 * half * dy))
+                m = self._template_on_line(t, img, cx, cy, half, other, band_from)
+                if m is not None and not any(math.hypot(m.x - o.x, m.y - o.y) < t.model.radius for o in found):
+                    found.append(m)
+        if len(found) != 1:
+            return None
+        return self._placed_on_line(t, img, found[0], other, band_from, explained)
 
     def _looks_agree(self, frames, live: dict, props, forced) -> None:
         """A brightness-model marker unseen this step in both views, still followed in both (not lost):
