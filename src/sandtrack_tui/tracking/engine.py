@@ -21,7 +21,7 @@ from . import crowd as crowd_rules
 from .appearance import BRIGHT, DARK
 from .detection import detect_like
 from .globalmotion import image_shift
-from .luma import edge_circle
+from .luma import edge_circle, rim_step
 from .matcher import Match
 from .reacquire import find_blobs, search_window, unexplained
 from .stereo import StereoCheck
@@ -29,6 +29,9 @@ from .tracker import LOST, MERGED_COVERAGE, SHORT_MISS, MarkerTrack, Observation
 
 FLOW_AGREE_PX = 1.5  # a crowd marker's match this far from where the image motion took it is not its own
 ONLINE_RADIUS_TOL = 0.15  # a marker measured on the other view's line shows an outline of its radius to this share
+# A whole marker's outline steps by at least this share of its contrast with the sand all round (the median
+# over rays, luma.rim_step): a pale glass bead's rim 0.28-0.34 of its seed's contrast, sand's texture under 0.2.
+RIM_SHARE = 0.25
 JUMP_FRAMES = 2  # frames after a miss during which a track is searched a largest move per frame unseen
 CROWD_MEMORY = 100  # frames of measured positions kept per crowd track (a hidden patch is registered from them)
 REGROUP_REACH = 6.0  # radii: how far a hidden patch of the layer is looked for
@@ -40,8 +43,12 @@ def _whole(img, model, x: float, y: float) -> bool:
     the tool, or sinking) shows part of its disc: a template or a look slides to the part in sight, and
     the outline found round it is a smaller circle, or not found all round. (ONLINE_RADIUS_TOL: a bead
     moving in depth changes its image size by about that over a box's depth.)"""
-    e = edge_circle(img, x, y, model.radius, polarity=1.0 if model.kind == DARK else -1.0, outward=model.kind == DARK)
-    return e is not None and e[3] >= 4 and e[2] >= (1.0 - ONLINE_RADIUS_TOL) * model.radius
+    polarity = 1.0 if model.kind == DARK else -1.0
+    e = edge_circle(img, x, y, model.radius, polarity=polarity, outward=model.kind == DARK)
+    if e is None or e[3] < 4 or e[2] < (1.0 - ONLINE_RADIUS_TOL) * model.radius:
+        return False
+    level_d, level_s = model.levels
+    return rim_step(img, e[0], e[1], e[2], polarity) >= RIM_SHARE * abs(level_d - level_s)
 
 
 def _on_explained(m: Match, model, explained: list) -> bool:

@@ -70,6 +70,25 @@ def edge_circle(frame_bgr, x: float, y: float, radius: float, iterations: int = 
     return (cx + x0, cy + y0, r, int(quadrants)) if ok else None
 
 
+def rim_step(frame_bgr, x: float, y: float, radius: float, polarity: float = 1.0, reach: float = 1.5) -> float:
+    """The brightness step across the circle of `radius` around (x, y): the median over N_RAYS rays of the
+    luma `reach` px outside it minus `reach` px inside (times `polarity`: 1 for a dark marker, whose rim
+    is darker than the sand around it; -1 for a bright one); NaN near the image's edge. A marker's outline
+    steps by a good part of its contrast all round; sand's texture inside and outside a circle differs
+    by a few levels."""
+    R = int(np.ceil(radius + reach)) + 2
+    x0, y0 = int(round(x)) - R, int(round(y)) - R
+    H, W = frame_bgr.shape[:2]
+    if x0 < 0 or y0 < 0 or x0 + 2 * R + 1 > W or y0 + 2 * R + 1 > H:
+        return float("nan")
+    win = np.asarray(frame_bgr[y0:y0 + 2 * R + 1, x0:x0 + 2 * R + 1], dtype=np.float32)
+    luma = np.ascontiguousarray(win @ LUMA_BGR if win.ndim == 3 else win)
+    cx, cy = np.float32(x - x0), np.float32(y - y0)
+    out = cv2.remap(luma, cx + (radius + reach) * _COS[None], cy + (radius + reach) * _SIN[None], cv2.INTER_LINEAR)
+    inn = cv2.remap(luma, cx + (radius - reach) * _COS[None], cy + (radius - reach) * _SIN[None], cv2.INTER_LINEAR)
+    return float(polarity * np.median(out - inn))
+
+
 class LumaPattern:
     """The brightness of a marker's disc around (x, y) in one frame, found again in later frames: the
     translation that best fits the pattern (weights: the disc of `radius`, so the sand, which stays
