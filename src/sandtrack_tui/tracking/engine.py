@@ -163,8 +163,7 @@ class Engine:
             self._crowd_prev[cam] = img
         if self.stereo is not None and reattached:
             self._stereo_check(frames, props, forced, only_reattached=True)
-        if self.stereo is not None:
-            self._looks_agree(frames, live, props, forced)
+        self._looks(frames, live, props, forced)
         for cam, (j, img, _rem) in frames.items():
             for t in live[cam]:
                 p = props.get((t.marker, cam))
@@ -746,40 +745,48 @@ class Engine:
             return None
         return self._placed_on_line(t, img, found[0], other, band_from, explained)
 
-    def _looks_agree(self, frames, live: dict, props, forced) -> None:
-        """A brightness-model marker unseen this step in both views, still followed in both (not lost):
-        where its look at its last whole measurement (MarkerTrack.look_place) registers in each view near
-        its prediction, the two places lie on each other's epipolar lines as closely as a marker measured
-        in both views does (StereoCheck.agree_px), and the marker shows its outline all round, of its own
-        size, in both, it is there in both (a marker pushed by the tool, whose look changes as it moves
-        over the sand, is found by neither view's match; a marker partly hidden shows no outline all round,
-        and its looks slide to its parts in sight, which the two views do not see alike)."""
-        a, b = self.stereo.cams
-        if a not in frames or b not in frames:
-            return
-        followed = {(t.marker, cam): t for cam in (a, b) for t in live.get(cam, ())
-                    if t.status != LOST and _measurable_on_line(t.model)}
-        for mk in self._stereo_markers(a, b):
-            keys = ((mk, a), (mk, b))
-            if any(k in props or k in forced or k not in followed for k in keys):
-                continue
-            found = []
-            for k in keys:
-                t, img = followed[k], frames[k[1]][1]
-                placed = t.look_place(img, *t.kf.xy)
-                if placed is None:
-                    break
-                m = Match(*placed, t.look_fit, float("nan"), float("nan"), look=True)
-                if t.cut_by_border(img, m) or not _whole(img, t.model, m.x, m.y) \
-                        or _on_explained(m, t.model, self._explained(k[1], props, forced)):
-                    break
-                m.d2 = t.kf.d2(m.x, m.y)
-                found.append(m)
-            if len(found) < 2 or self.stereo.distance(a, (found[0].x, found[0].y), b,
-                                                      (found[1].x, found[1].y))[0] > self.stereo.agree_px:
-                continue
-            for k, m in zip(keys, found, strict=True):
-                props[k] = _Proposal(m, reattach=True)
+    def _looks(self, frames, live: dict, props, forced) -> None:
+        """Brightness-model markers still followed (not lost) that nothing measured this step: where a
+        marker's look at its last whole measurement (MarkerTrack.look_place) registers near its prediction
+        and the marker shows its outline all round, of its own size (_whole), it is there (a marker pushed
+        by the tool, whose look changes as it moves over the sand, is found by no match; a marker partly
+        hidden shows no outline all round). With a second view: not where that view measures the marker
+        (its line was asked, _on_line); where that view's look places it too, only when the two places lie
+        on each other's epipolar lines as closely as a marker measured in both views does
+        (StereoCheck.agree_px; a look slides to the part of a marker in sight, which the two views do not
+        see alike)."""
+        found = {}
+        for cam, (_j, img, _rem) in frames.items():
+            for t in live.get(cam, ()):
+                key = (t.marker, cam)
+                if key not in props and key not in forced and t.status != LOST and _measurable_on_line(t.model):
+                    m = self._look_alone(t, img, props, forced)
+                    if m is not None:
+                        found[key] = m
+        taken = []
+        for (mk, cam), m in found.items():
+            if self.stereo is not None and cam in self.stereo.cams:
+                other = (mk, self.stereo.other(cam))
+                if other in props or other in forced:
+                    continue
+                o = found.get(other)
+                if o is not None and self.stereo.distance(cam, (m.x, m.y), other[1], (o.x, o.y))[0] \
+                        > self.stereo.agree_px:
+                    continue
+            taken.append(((mk, cam), m))
+        for key, m in taken:
+            props[key] = _Proposal(m, reattach=True)
+
+    def _look_alone(self, t: MarkerTrack, img, props, forced) -> Match | None:
+        """_looks' match of track t in its camera's image, or None."""
+        placed = t.look_place(img, *t.kf.xy)
+        if placed is None:
+            return None
+        m = Match(*placed, t.look_fit, float("nan"), float("nan"), t.kf.d2(*placed), look=True)
+        if m.d2 > t.params.gate_d2 or t.cut_by_border(img, m) or not _whole(img, t.model, m.x, m.y) \
+                or _on_explained(m, t.model, self._explained(t.camera, props, forced)):
+            return None
+        return m
 
     def _look_on_line(self, t: MarkerTrack, img, start: tuple, other, band_from) -> Match | None:
         """_on_line where the template does not place the marker on the line: its look at its last whole
