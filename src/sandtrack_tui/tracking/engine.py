@@ -631,7 +631,8 @@ class Engine:
                 m = None if key not in assigned else \
                     self._on_line(cam, img, self.tracks[key], band_from, explained_now, at=assigned[key])
                 m = m or self._on_line(cam, img, self.tracks[key], band_from, explained_now)
-                if m is None and key in windows:
+                if m is None and key in windows and self.tracks[key].misses % 2 == 1:
+                    # (every other frame, as the band's blobs: a marker back in sight stays in sight)
                     m = self._on_band(cam, img, self.tracks[key], band_from, explained_now, max(windows[key][2:]))
                 if m is not None and self._nearer_searcher(key, m, windows, props):
                     m = None
@@ -724,21 +725,12 @@ class Engine:
             return None
         other = self.stereo.other(cam)
         half = 2 * t.model.radius + 4
-        x0, y0 = self.stereo.onto_line(other, band_from, cam, t.kf.xy)
-        x1, y1 = self.stereo.onto_line(other, band_from, cam, (x0 + half, y0))
-        x2, y2 = self.stereo.onto_line(other, band_from, cam, (x0, y0 + half))
-        dx, dy = (x1 - x0, y1 - y0) if math.hypot(x1 - x0, y1 - y0) >= math.hypot(x2 - x0, y2 - y0) else \
-            (x2 - x0, y2 - y0)
-        norm = math.hypot(dx, dy)
-        if norm < 1e-6:
-            return None
-        dx, dy = dx / norm, dy / norm
+        x0, y0, dx, dy = self.stereo.along_line(other, band_from, cam, t.kf.xy)
         found: list = []
         for k in range(1, int(reach // (2 * half)) + 1):
             for sign in (1.0, -1.0):
-                cx, cy = self.stereo.onto_line(other, band_from, cam,
-                                               (x0 + sign * k * 2 * half * dx, y0 + sign * k * 2 * half * dy))
-                m = self._template_on_line(t, img, cx, cy, half, other, band_from)
+                step = sign * k * 2 * half
+                m = self._template_on_line(t, img, x0 + step * dx, y0 + step * dy, half, other, band_from)
                 if m is not None and not any(math.hypot(m.x - o.x, m.y - o.y) < t.model.radius for o in found):
                     found.append(m)
         if len(found) != 1:
