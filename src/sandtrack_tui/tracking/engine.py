@@ -21,34 +21,16 @@ from . import crowd as crowd_rules
 from .appearance import BRIGHT, DARK
 from .detection import detect_like
 from .globalmotion import image_shift
-from .luma import edge_circle, rim_step
 from .matcher import Match
 from .reacquire import find_blobs, search_window, unexplained
 from .stereo import StereoCheck
 from .tracker import LOST, MERGED_COVERAGE, SHORT_MISS, MarkerTrack, Observation
 
 FLOW_AGREE_PX = 1.5  # a crowd marker's match this far from where the image motion took it is not its own
-ONLINE_RADIUS_TOL = 0.15  # a marker measured on the other view's line shows an outline of its radius to this share
-# A whole marker's outline steps by at least this share of its contrast with the sand all round (the median
-# over rays, luma.rim_step): a pale glass bead's rim 0.28-0.34 of its seed's contrast, sand's texture under 0.2.
-RIM_SHARE = 0.25
 JUMP_FRAMES = 2  # frames after a miss during which a track is searched a largest move per frame unseen
 CROWD_MEMORY = 100  # frames of measured positions kept per crowd track (a hidden patch is registered from them)
 REGROUP_REACH = 6.0  # radii: how far a hidden patch of the layer is looked for
 REGROUP_EVERY = 3  # frames between registrations of one patch
-
-
-def _whole(img, model, x: float, y: float) -> bool:
-    """The marker at (x, y) shows its outline all round, of its own size. A marker partly hidden (behind
-    the tool, or sinking) shows part of its disc: a template or a look slides to the part in sight, and
-    the outline found round it is a smaller circle, or not found all round. (ONLINE_RADIUS_TOL: a bead
-    moving in depth changes its image size by about that over a box's depth.)"""
-    polarity = 1.0 if model.kind == DARK else -1.0
-    e = edge_circle(img, x, y, model.radius, polarity=polarity, outward=model.kind == DARK)
-    if e is None or e[3] < 4 or e[2] < (1.0 - ONLINE_RADIUS_TOL) * model.radius:
-        return False
-    level_d, level_s = model.levels
-    return rim_step(img, e[0], e[1], e[2], polarity) >= RIM_SHARE * abs(level_d - level_s)
 
 
 def _on_explained(m: Match, model, explained: list) -> bool:
@@ -706,9 +688,9 @@ class Engine:
         return m
 
     def _placed_on_line(self, t: MarkerTrack, img, m: Match, other, band_from, explained: list) -> Match | None:
-        """m, a whole marker (_whole) that this camera does not explain yet, moved onto the other view's
+        """m, a whole marker (MarkerTrack.shows_whole) that this camera does not explain yet, moved onto the other view's
         line; else None."""
-        if not _whole(img, t.model, m.x, m.y) or _on_explained(m, t.model, explained):
+        if not t.shows_whole(img, m.x, m.y) or _on_explained(m, t.model, explained):
             return None
         m.x, m.y = self.stereo.onto_line(other, band_from, t.camera, (m.x, m.y))
         m.used_centroid = False  # (along the line its place is the template's peak: a looser measurement)
@@ -740,7 +722,7 @@ class Engine:
     def _looks(self, frames, live: dict, props, forced) -> None:
         """Brightness-model markers still followed (not lost) that nothing measured this step: where a
         marker's look at its last whole measurement (MarkerTrack.look_place) registers near its prediction
-        and the marker shows its outline all round, of its own size (_whole), it is there (a marker pushed
+        and the marker shows its outline all round, of its own size (MarkerTrack.shows_whole), it is there (a marker pushed
         by the tool, whose look changes as it moves over the sand, is found by no match; a marker partly
         hidden shows no outline all round). With a second view: not where that view measures the marker
         (its line was asked, _on_line); where that view's look places it too, only when the two places lie
@@ -775,7 +757,7 @@ class Engine:
         if placed is None:
             return None
         m = Match(*placed, t.look_fit, float("nan"), float("nan"), t.kf.d2(*placed), look=True)
-        if m.d2 > t.params.gate_d2 or t.cut_by_border(img, m) or not _whole(img, t.model, m.x, m.y) \
+        if m.d2 > t.params.gate_d2 or t.cut_by_border(img, m) or not t.shows_whole(img, m.x, m.y) \
                 or _on_explained(m, t.model, self._explained(t.camera, props, forced)):
             return None
         return m

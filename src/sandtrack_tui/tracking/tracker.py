@@ -23,7 +23,7 @@ from ..errors import SandtrackError
 from . import crowd as crowd_rules
 from .appearance import BRIGHT, COLOUR, DARK, AppearanceModel, learn
 from .kalman import GATE_D2, ConstantVelocityKF
-from .luma import LumaPattern, edge_centre
+from .luma import LumaPattern, edge_centre, edge_circle, rim_step
 from .matcher import STREAK_MIN_SPEED, Match, TemplateMatcher
 from .rest import RestReference
 
@@ -45,6 +45,12 @@ STALE_BEHIND_PX = 1.0
 # pattern registers is the uncovered part of a marker partly hidden: the pitch of 4:2:0 chroma samples, within
 # which a whole marker's colour and pattern agree.
 PARTIAL_ASTRAY_PX = 2.0
+# A whole marker shows an outline of at least its radius less this share (a bead moving in depth changes its
+# image size by about that over a box's depth; a larger circle is its contact shadow's rim, not a part hidden).
+OUTLINE_RADIUS_TOL = 0.15
+# ... and its outline steps by at least this share of its contrast with the sand all round (the median over
+# rays, luma.rim_step): a pale glass bead's rim 0.28-0.34 of its seed's contrast, sand's texture under 0.2.
+RIM_SHARE = 0.25
 LOST_PLACE_PX = 0.5  # a lost marker's pattern found from around its place must come back this near it
 PLACE_MIN_FIT = 0.5  # a pattern fitting worse (a quarter of its disc's brightness variance explained) has no place
 
@@ -221,7 +227,7 @@ class MarkerTrack:
             return None
         (x, y), fit = found
         m = Match(x, y, fit, float("nan"), float("nan"), self.kf.d2(x, y), look=True)
-        if m.d2 > self.params.gate_d2 or self.cut_by_border(frame_bgr, m):
+        if m.d2 > self.params.gate_d2 or self.cut_by_border(frame_bgr, m) or not self.shows_whole(frame_bgr, x, y):
             return None
         return m
 
@@ -448,6 +454,20 @@ class MarkerTrack:
             self._pattern, self._offset, self._anchor_luma = pattern, (0.0, 0.0), (x, y)
         else:
             self._pattern = self._offset = self._anchor_luma = None
+
+    def shows_whole(self, frame_bgr, x: float, y: float) -> bool:
+        """The marker of a brightness model at (x, y) shows its outline all round, of its own size, stepping
+        from its rim to the sand by a good part of its contrast. A marker partly hidden (behind the tool, or
+        sinking) shows part of its disc: a template or a look slides to the part in sight, and the outline
+        found round it is a smaller circle, or not found all round; sand's texture shows circles of edges
+        too, but of a few levels."""
+        model = self.model
+        polarity = 1.0 if model.kind == DARK else -1.0
+        e = edge_circle(frame_bgr, x, y, model.radius, polarity=polarity, outward=model.kind == DARK)
+        if e is None or e[3] < 4 or e[2] < (1.0 - OUTLINE_RADIUS_TOL) * model.radius:
+            return False
+        level_d, level_s = model.levels
+        return rim_step(frame_bgr, e[0], e[1], e[2], polarity) >= RIM_SHARE * abs(level_d - level_s)
 
     def cut_by_border(self, frame_bgr, m: Match) -> bool:
         """The marker's disc reaches the image's edge: part of it is outside the picture, and the
