@@ -4,9 +4,11 @@ Per step: every track predicts and proposes its best gated match; two tracks of 
 claiming the same marker keep only the better; with a calibration, the proposals of a marker in
 the two cameras are checked against each other's epipolar lines (the suspect view is dropped and
 flagged); coasting tracks look for unexplained blobs (along the epipolar band when the other view
-is tracked); then every track commits its status for the frame. When most tracks of a camera
-leave their gates at once and the whole view moved (globalmotion.py), every track of that camera
-is moved with the view and searched again.
+is tracked; a brightness model's marker also by its template or its look on the other view's line);
+a brightness model's marker still followed that nothing measured is placed by its look where it shows
+whole (in both views only where they agree); then every track commits its status for the frame.
+When most tracks of a camera leave their gates at once and the whole view moved (globalmotion.py),
+every track of that camera is moved with the view and searched again.
 """
 
 from __future__ import annotations
@@ -688,7 +690,7 @@ class Engine:
         return m
 
     def _placed_on_line(self, t: MarkerTrack, img, m: Match, other, band_from, explained: list) -> Match | None:
-        """m, a whole marker (MarkerTrack.shows_whole) that this camera does not explain yet, moved onto the other view's
+        """m, a whole marker (MarkerTrack.shows_whole) this camera does not explain yet, moved onto the other view's
         line; else None."""
         if not t.shows_whole(img, m.x, m.y) or _on_explained(m, t.model, explained):
             return None
@@ -701,20 +703,20 @@ class Engine:
     def _on_band(self, cam, img, t: MarkerTrack, band_from, explained: list, reach: float) -> Match | None:
         """_on_line for a marker unseen a while, whose prediction may lie far from it: its template
         searched in windows along the other view's epipolar line, out to `reach` px from the prediction's
-        foot on it (beyond the window _on_line searched), taken only where it is found at one place
-        along the line (another marker like it there, unseen too, could be either)."""
+        foot on it, taken only where it is found at one place along the line that this camera does not
+        explain (another marker like it there, unseen too, could be either)."""
         if not _measurable_on_line(t.model):
             return None
         other = self.stereo.other(cam)
         half = 2 * t.model.radius + 4
         x0, y0, dx, dy = self.stereo.along_line(other, band_from, cam, t.kf.xy)
         found: list = []
-        for k in range(1, int(reach // (2 * half)) + 1):
-            for sign in (1.0, -1.0):
-                step = sign * k * 2 * half
-                m = self._template_on_line(t, img, x0 + step * dx, y0 + step * dy, half, other, band_from)
-                if m is not None and not any(math.hypot(m.x - o.x, m.y - o.y) < t.model.radius for o in found):
-                    found.append(m)
+        n = int(reach // (2 * half))
+        for step in 2 * half * np.arange(-n, n + 1):
+            m = self._template_on_line(t, img, x0 + step * dx, y0 + step * dy, half, other, band_from)
+            if m is not None and not _on_explained(m, t.model, explained) and \
+                    not any(math.hypot(m.x - o.x, m.y - o.y) < t.model.radius for o in found):
+                found.append(m)
         if len(found) != 1:
             return None
         return self._placed_on_line(t, img, found[0], other, band_from, explained)
@@ -722,9 +724,9 @@ class Engine:
     def _looks(self, frames, live: dict, props, forced) -> None:
         """Brightness-model markers still followed (not lost) that nothing measured this step: where a
         marker's look at its last whole measurement (MarkerTrack.look_place) registers near its prediction
-        and the marker shows its outline all round, of its own size (MarkerTrack.shows_whole), it is there (a marker pushed
-        by the tool, whose look changes as it moves over the sand, is found by no match; a marker partly
-        hidden shows no outline all round). With a second view: not where that view measures the marker
+        and the marker shows itself whole (MarkerTrack.shows_whole), it is there (a marker pushed by the
+        tool, whose look changes as it moves over the sand, is found by no match; a marker partly hidden
+        shows no outline all round). With a second view: not where that view measures the marker
         (its line was asked, _on_line); where that view's look places it too, only when the two places lie
         on each other's epipolar lines as closely as a marker measured in both views does
         (StereoCheck.agree_px; a look slides to the part of a marker in sight, which the two views do not

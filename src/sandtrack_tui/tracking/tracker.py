@@ -2,6 +2,9 @@
 
 Status per frame (the store's STATUSES):
 - ``tracked``: a match passed the gate, the NCC score, the peak-to-sidelobe ratio and the colour check;
+  or a brightness model's marker whose colour check failed was found whole by its look at its last whole
+  measurement (its disc's brightness pattern: look_match; the engine's measurements on the other view's
+  line and across both views);
 - ``occluded``: no acceptable match; the position written is the Kalman prediction (coasting);
 - ``lost``: more than ``lost_after`` frames without a match; no position is claimed;
 - ``manual``: the operator's point (a seed or a correction), used as a measurement as is.
@@ -272,7 +275,9 @@ class MarkerTrack:
     def pattern_return(self, frame_bgr, frame_index: int | None = None) -> Match | None:
         """A coasting marker with no dark silhouette, unseen a few frames at most, whose brightness
         pattern is found again near its prediction (as closely as a followed marker's: see LumaPattern)
-        is back in sight: its colour, stale between intra frames, may not say so yet. So is a lost one
+        is back in sight: its colour, stale between intra frames, may not say so yet; so is a brightness
+        model's marker found whole by its look (look_match, from its prediction and from its template's
+        best place in the gate). So is a lost one
         whose pattern, kept from before it was hidden (the light, not the marker, sets a matte marker's
         shading), is found within its radius of its prediction, from there and from around it alike."""
         if not self.coasting:
