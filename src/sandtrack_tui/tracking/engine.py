@@ -671,23 +671,19 @@ class Engine:
         other = self.stereo.other(cam)
         x, y = self.stereo.onto_line(other, band_from, cam, t.kf.xy if at is None else at)
         half = min(max(t.search_halfsize()), 2 * model.radius + 4) if at is None else 2.0
-        m = self._template_on_line(t, img, x, y, half, other, band_from)
-        if m is None:
+        m = t.matcher.match(img, x, y, half, half)
+        if not self._template_on_line(t, img, m, other, band_from):
             m = self._look_on_line(t, img, (x, y) if m is None else (m.x, m.y), other, band_from)
         return None if m is None else self._placed_on_line(t, img, m, other, band_from, explained)
 
-    def _template_on_line(self, t: MarkerTrack, img, x: float, y: float, half: float, other, band_from
-                          ) -> Match | None:
-        """The marker's template found within `half` of (x, y), as _on_line takes it (its score and PSR
-        as a tracked marker's, not merged with another dark thing, on the line), or None."""
+    def _template_on_line(self, t: MarkerTrack, img, m: Match | None, other, band_from) -> bool:
+        """The template's match m is as _on_line takes it: its score and PSR as a tracked marker's, not
+        merged with another dark thing, on the other view's line."""
         p = t.params
-        m = t.matcher.match(img, x, y, half, half)
         # (more than MERGED_COVERAGE discs of the marker's brightness there: merged with another dark thing)
-        if m is None or m.score < p.min_score or not m.psr >= p.min_psr or m.colour_frac > MERGED_COVERAGE \
-                or t.cut_by_border(img, m) or \
-                self.stereo.distance(other, band_from, t.camera, (m.x, m.y))[0] > self.stereo.agree_px:
-            return None
-        return m
+        return not (m is None or m.score < p.min_score or not m.psr >= p.min_psr or m.colour_frac > MERGED_COVERAGE
+                    or t.cut_by_border(img, m)
+                    or self.stereo.distance(other, band_from, t.camera, (m.x, m.y))[0] > self.stereo.agree_px)
 
     def _placed_on_line(self, t: MarkerTrack, img, m: Match, other, band_from, explained: list) -> Match | None:
         """m, a whole marker (MarkerTrack.shows_whole) this camera does not explain yet, moved onto the other view's
@@ -713,9 +709,9 @@ class Engine:
         found: list = []
         n = int(reach // (2 * half))
         for step in 2 * half * np.arange(-n, n + 1):
-            m = self._template_on_line(t, img, x0 + step * dx, y0 + step * dy, half, other, band_from)
-            if m is not None and not _on_explained(m, t.model, explained) and \
-                    not any(math.hypot(m.x - o.x, m.y - o.y) < t.model.radius for o in found):
+            m = t.matcher.match(img, x0 + step * dx, y0 + step * dy, half, half)
+            if self._template_on_line(t, img, m, other, band_from) and not _on_explained(m, t.model, explained) \
+                    and not any(math.hypot(m.x - o.x, m.y - o.y) < t.model.radius for o in found):
                 found.append(m)
         if len(found) != 1:
             return None
