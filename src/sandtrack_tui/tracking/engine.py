@@ -4,11 +4,13 @@ Per step: every track predicts and proposes its best gated match; two tracks of 
 claiming the same marker keep only the better; with a calibration, the proposals of a marker in
 the two cameras are checked against each other's epipolar lines (the suspect view is dropped and
 flagged); coasting tracks look for unexplained blobs (along the epipolar band when the other view
-is tracked); then every track commits its status for the frame. Touching lookalikes (a crowd,
-crowd.py) seeded in one view each are paired across the views once their points tell who is who
-(_pair_crowd), and then checked and searched like one marker's two views. When most tracks of a camera
-leave their gates at once and the whole view moved (globalmotion.py), every track of that camera
-is moved with the view and searched again.
+is tracked; a brightness model's marker also by its template or its look on the other view's line);
+a brightness model's marker still followed that nothing measured is placed by its look where it shows
+whole (in both views only where they agree); then every track commits its status for the frame.
+Touching lookalikes (a crowd, crowd.py) seeded in one view each are paired across the views once their
+points tell who is who (_pair_crowd), and then checked and searched like one marker's two views. When
+most tracks of a camera leave their gates at once and the whole view moved (globalmotion.py), every
+track of that camera is moved with the view and searched again.
 """
 
 from __future__ import annotations
@@ -23,14 +25,12 @@ from . import crowd as crowd_rules
 from .appearance import BRIGHT, DARK
 from .detection import detect_like
 from .globalmotion import image_shift
-from .luma import edge_circle
 from .matcher import Match
 from .reacquire import find_blobs, search_window, unexplained
 from .stereo import StereoCheck
 from .tracker import LOST, MERGED_COVERAGE, SHORT_MISS, TRACKED, MarkerTrack, Observation
 
 FLOW_AGREE_PX = 1.5  # a crowd marker's match this far from where the image motion took it is not its own
-ONLINE_RADIUS_TOL = 0.15  # a marker measured on the other view's line shows an outline of its radius to this share
 JUMP_FRAMES = 2  # frames after a miss during which a track is searched a largest move per frame unseen
 CROWD_MEMORY = 100  # frames of measured positions kept per crowd track (a hidden patch is registered from them)
 REGROUP_REACH = 6.0  # radii: how far a hidden patch of the layer is looked for
@@ -41,6 +41,11 @@ REGROUP_EVERY = 3  # frames between registrations of one patch
 PAIR_MIN_FRAMES = 10
 PAIR_BREAKS = 3
 ANCHOR_REACH = 4.0  # radii: the beads around a lost one whose moves carry it (as crowd.carried's reach)
+
+
+def _on_explained(m: Match, model, explained: list) -> bool:
+    """m lies on a marker this camera already explains."""
+    return any(math.hypot(m.x - a, m.y - b) < 1.5 * model.radius + 1 for a, b in explained)
 
 
 def _measurable_on_line(model) -> bool:
@@ -85,6 +90,7 @@ class Engine:
     partners: dict = field(default_factory=dict)  # crowd track key -> the key of the same bead in the other view
     # key in one camera -> {key in the other: [frames both measured, frames off each other's lines]} (both ways)
     _lines: dict = field(default_factory=dict)
+    _searched: dict = field(default_factory=dict)  # camera -> (windows searched, keys measured on a line) this step
 
     def add(self, track: MarkerTrack, start_frame: int) -> None:
         self.tracks[(track.marker, track.camera)] = track
@@ -142,6 +148,10 @@ class Engine:
                 reattached += 1
                 self._resolve_conflicts(live[cam], props, forced)  # (a pass leaves no clash behind)
                 self._crowd_coherence(live[cam], props, self._neighbours(live[cam]))
+        if self.stereo is not None and reattached:
+            for cam, (_j, img, _rem) in frames.items():
+                if self._late_lines(cam, img, live[cam], props, forced, frames):
+                    self._resolve_conflicts(live[cam], props, forced)
         for cam, (j, img, _rem) in frames.items():
             if self._crowd_return(cam, img, int(j), live[cam], props, forced):
                 reattached += 1
@@ -154,6 +164,7 @@ class Engine:
             self._crowd_prev[cam] = img
         if self.stereo is not None and reattached:
             self._stereo_check(frames, props, forced, only_reattached=True)
+        self._looks(frames, live, props, forced)
         for cam, (j, img, _rem) in frames.items():
             for t in live[cam]:
                 p = props.get((t.marker, cam))
@@ -711,6 +722,7 @@ class Engine:
 
     def _reacquire(self, cam, img, tracks, props, forced, frames) -> int:
         """Re-attach coasting tracks of `cam` to unexplained blobs; returns how many were."""
+        self._searched[cam] = ({}, set())
         if all((t.marker, cam) in props for t in tracks):
             return 0
         explained = self._explained(cam, props, forced)
@@ -722,6 +734,7 @@ class Engine:
         seen: list = []  # one blob seen through several tracks' windows is one blob
         lines: dict = {}  # track key -> the other view's point this step, for _on_line (its line pins the marker)
         assigned: dict = {}  # track key -> (x, y) of the blob it was given that its match then failed
+        self._searched[cam] = (windows, lines)
         for t in tracks:
             key = (t.marker, cam)
             if key in props:
@@ -800,11 +813,36 @@ class Engine:
                 m = None if key not in assigned else \
                     self._on_line(cam, img, self.tracks[key], band_from, explained_now, at=assigned[key])
                 m = m or self._on_line(cam, img, self.tracks[key], band_from, explained_now)
+                if m is None and key in windows and self.tracks[key].misses % 2 == 1:
+                    # (every other frame, as the band's blobs: a marker back in sight stays in sight)
+                    m = self._on_band(cam, img, self.tracks[key], band_from, explained_now, max(windows[key][2:]))
                 if m is not None and self._nearer_searcher(key, m, windows, props):
                     m = None
                 if m is not None:
                     props[key] = _Proposal(m, reattach=True)
                     n += 1
+        return n
+
+    def _late_lines(self, cam, img, tracks, props, forced, frames) -> int:
+        """_reacquire's measurement on the other view's line (_on_line, _on_band) for the coasting tracks of
+        `cam` whose other view was given its point back by a re-acquisition after `cam` was searched this
+        step; returns how many were measured."""
+        windows, lined = self._searched.get(cam, ({}, set()))
+        n = 0
+        for t in tracks:
+            key = (t.marker, cam)
+            if key in props or key in forced or key in lined or not _measurable_on_line(t.model):
+                continue
+            band_from = self._point_at((t.marker, self.stereo.other(cam)), frames, props, forced)
+            if band_from is None:
+                continue
+            explained = self._explained(cam, props, forced)
+            reach = min(max(*t.search_halfsize(), 4 * t.model.radius + 10), t.params.max_search_px)
+            m = self._on_line(cam, img, t, band_from, explained) or self._on_band(cam, img, t, band_from, explained,
+                                                                                 reach)
+            if m is not None and not self._nearer_searcher(key, m, windows, props):
+                props[key] = _Proposal(m, reattach=True)
+                n += 1
         return n
 
     def _nearer_searcher(self, key, m: Match, windows: dict, props) -> bool:
@@ -821,36 +859,114 @@ class Engine:
         both views lies (StereoCheck.agree_px), is the marker there, moved onto the line (the line
         pins it across, the template along). Its coverage is not asked: a brightness model's coverage
         follows the light on the marker's body (a glass bead's body turns pale where the lamp's light is
-        focused through it) while its template still finds it. None otherwise, or when the match lies
-        on a marker this camera already explains. `at`: the blob re-acquisition gave the track (its match
-        failed there), searched instead of the prediction."""
-        model, p = t.model, t.params
+        focused through it) while its template still finds it. Where the template does not place it on
+        the line, its look at its last whole measurement may (_look_on_line). None otherwise, or when
+        the match lies on a marker this camera already explains. `at`: the blob re-acquisition gave the
+        track (its match failed there), searched instead of the prediction."""
+        model = t.model
         if not _measurable_on_line(model):
             return None
         other = self.stereo.other(cam)
         x, y = self.stereo.onto_line(other, band_from, cam, t.kf.xy if at is None else at)
         half = min(max(t.search_halfsize()), 2 * model.radius + 4) if at is None else 2.0
         m = t.matcher.match(img, x, y, half, half)
+        if not self._template_on_line(t, img, m, other, band_from):
+            m = self._look_on_line(t, img, (x, y) if m is None else (m.x, m.y), other, band_from)
+        return None if m is None else self._placed_on_line(t, img, m, other, band_from, explained)
+
+    def _template_on_line(self, t: MarkerTrack, img, m: Match | None, other, band_from) -> bool:
+        """The template's match m is as _on_line takes it: its score and PSR as a tracked marker's, not
+        merged with another dark thing, on the other view's line."""
+        p = t.params
         # (more than MERGED_COVERAGE discs of the marker's brightness there: merged with another dark thing)
-        if m is None or m.score < p.min_score or not m.psr >= p.min_psr or m.colour_frac > MERGED_COVERAGE \
-                or t.cut_by_border(img, m):
+        return not (m is None or m.score < p.min_score or not m.psr >= p.min_psr or m.colour_frac > MERGED_COVERAGE
+                    or t.cut_by_border(img, m)
+                    or self.stereo.distance(other, band_from, t.camera, (m.x, m.y))[0] > self.stereo.agree_px)
+
+    def _placed_on_line(self, t: MarkerTrack, img, m: Match, other, band_from, explained: list) -> Match | None:
+        """m, a whole marker (MarkerTrack.shows_whole) this camera does not explain yet, moved onto the other view's
+        line; else None."""
+        if not t.shows_whole(img, m.x, m.y) or _on_explained(m, t.model, explained):
             return None
-        if self.stereo.distance(other, band_from, cam, (m.x, m.y))[0] > self.stereo.agree_px:
-            return None
-        # A marker partly hidden (behind the tool, or sinking) shows part of its disc: the template slides
-        # along the line to the part in sight, and the outline found round it is a smaller circle. The
-        # outline must be found all round, of the marker's own size (to ONLINE_RADIUS_TOL: a bead moving
-        # in depth changes its image size by about that over a box's depth).
-        e = edge_circle(img, m.x, m.y, model.radius, polarity=1.0 if model.kind == DARK else -1.0,
-                        outward=model.kind == DARK)
-        if e is None or e[3] < 4 or abs(e[2] - model.radius) > ONLINE_RADIUS_TOL * model.radius:
-            return None
-        if any(math.hypot(m.x - a, m.y - b) < 1.5 * model.radius + 1 for a, b in explained):
-            return None
-        m.x, m.y = self.stereo.onto_line(other, band_from, cam, (m.x, m.y))
+        m.x, m.y = self.stereo.onto_line(other, band_from, t.camera, (m.x, m.y))
         m.used_centroid = False  # (along the line its place is the template's peak: a looser measurement)
+        m.line = not m.look
         m.d2 = t.kf.d2(m.x, m.y)
         return m
+
+    def _on_band(self, cam, img, t: MarkerTrack, band_from, explained: list, reach: float) -> Match | None:
+        """_on_line for a marker unseen a while, whose prediction may lie far from it: its template
+        searched in windows along the other view's epipolar line, out to `reach` px from the prediction's
+        foot on it, taken only where it is found at one place along the line that this camera does not
+        explain (another marker like it there, unseen too, could be either)."""
+        if not _measurable_on_line(t.model):
+            return None
+        other = self.stereo.other(cam)
+        half = 2 * t.model.radius + 4
+        x0, y0, dx, dy = self.stereo.along_line(other, band_from, cam, t.kf.xy)
+        found: list = []
+        n = int(reach // (2 * half))
+        for step in 2 * half * np.arange(-n, n + 1):
+            m = t.matcher.match(img, x0 + step * dx, y0 + step * dy, half, half)
+            if self._template_on_line(t, img, m, other, band_from) and not _on_explained(m, t.model, explained) \
+                    and not any(math.hypot(m.x - o.x, m.y - o.y) < t.model.radius for o in found):
+                found.append(m)
+        if len(found) != 1:
+            return None
+        return self._placed_on_line(t, img, found[0], other, band_from, explained)
+
+    def _looks(self, frames, live: dict, props, forced) -> None:
+        """Brightness-model markers still followed (not lost) that nothing measured this step: where a
+        marker's look at its last whole measurement (MarkerTrack.look_place) registers near its prediction
+        and the marker shows itself whole (MarkerTrack.shows_whole), it is there (a marker pushed by the
+        tool, whose look changes as it moves over the sand, is found by no match; a marker partly hidden
+        shows no outline all round). With a second view: not where that view measures the marker
+        (its line was asked, _on_line); where that view's look places it too, only when the two places lie
+        on each other's epipolar lines as closely as a marker measured in both views does
+        (StereoCheck.agree_px; a look slides to the part of a marker in sight, which the two views do not
+        see alike)."""
+        found = {}
+        for cam, (_j, img, _rem) in frames.items():
+            for t in live.get(cam, ()):
+                key = (t.marker, cam)
+                if key not in props and key not in forced and t.status != LOST and _measurable_on_line(t.model):
+                    m = self._look_alone(t, img, props, forced)
+                    if m is not None:
+                        found[key] = m
+        taken = []
+        for (mk, cam), m in found.items():
+            if self.stereo is not None and cam in self.stereo.cams:
+                other = (mk, self.stereo.other(cam))
+                if other in props or other in forced:
+                    continue
+                o = found.get(other)
+                if o is not None and self.stereo.distance(cam, (m.x, m.y), other[1], (o.x, o.y))[0] \
+                        > self.stereo.agree_px:
+                    continue
+            taken.append(((mk, cam), m))
+        for key, m in taken:
+            props[key] = _Proposal(m, reattach=True)
+
+    def _look_alone(self, t: MarkerTrack, img, props, forced) -> Match | None:
+        """_looks' match of track t in its camera's image, or None."""
+        placed = t.look_place(img, *t.kf.xy)
+        if placed is None:
+            return None
+        m = Match(*placed, t.look_fit, float("nan"), float("nan"), t.kf.d2(*placed), look=True)
+        if m.d2 > t.params.gate_d2 or t.cut_by_border(img, m) or not t.shows_whole(img, m.x, m.y) \
+                or _on_explained(m, t.model, self._explained(t.camera, props, forced)):
+            return None
+        return m
+
+    def _look_on_line(self, t: MarkerTrack, img, start: tuple, other, band_from) -> Match | None:
+        """_on_line where the template does not place the marker on the line: its look at its last whole
+        measurement (MarkerTrack.look_place), registered from `start`, placing it on the line as closely
+        as a marker measured in both views lies; None otherwise."""
+        placed = t.look_place(img, *start)
+        if placed is None or self.stereo.distance(other, band_from, t.camera, placed)[0] > self.stereo.agree_px:
+            return None
+        m = Match(*placed, t.look_fit, float("nan"), float("nan"), look=True)
+        return None if t.cut_by_border(img, m) else m
 
     def _band_blobs(self, cam, img, model, band_from, px, py, inner: float, reach: float) -> list:
         """Blobs along the other view's epipolar band through `band_from`, out to `reach` px from

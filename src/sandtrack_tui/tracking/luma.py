@@ -70,6 +70,25 @@ def edge_circle(frame_bgr, x: float, y: float, radius: float, iterations: int = 
     return (cx + x0, cy + y0, r, int(quadrants)) if ok else None
 
 
+def rim_step(frame_bgr, x: float, y: float, radius: float, polarity: float = 1.0, reach: float = 1.5) -> float:
+    """The brightness step across the circle of `radius` around (x, y): the median over N_RAYS rays of the
+    luma `reach` px outside it minus `reach` px inside (times `polarity`: 1 for a dark marker, whose rim
+    is darker than the sand around it; -1 for a bright one); NaN near the image's edge. A marker's outline
+    steps by a good part of its contrast all round; sand's texture inside and outside a circle differs
+    by a few levels."""
+    R = int(np.ceil(radius + reach)) + 2
+    x0, y0 = int(round(x)) - R, int(round(y)) - R
+    H, W = frame_bgr.shape[:2]
+    if x0 < 0 or y0 < 0 or x0 + 2 * R + 1 > W or y0 + 2 * R + 1 > H:
+        return float("nan")
+    win = np.asarray(frame_bgr[y0:y0 + 2 * R + 1, x0:x0 + 2 * R + 1], dtype=np.float32)
+    luma = np.ascontiguousarray(win @ LUMA_BGR if win.ndim == 3 else win)
+    cx, cy = np.float32(x - x0), np.float32(y - y0)
+    out = cv2.remap(luma, cx + (radius + reach) * _COS[None], cy + (radius + reach) * _SIN[None], cv2.INTER_LINEAR)
+    inn = cv2.remap(luma, cx + (radius - reach) * _COS[None], cy + (radius - reach) * _SIN[None], cv2.INTER_LINEAR)
+    return float(polarity * np.median(out - inn))
+
+
 class LumaPattern:
     """The brightness of a marker's disc around (x, y) in one frame, found again in later frames: the
     translation that best fits the pattern (weights: the disc of `radius`, so the sand, which stays
@@ -81,11 +100,12 @@ class LumaPattern:
     MIN_NCC = 0.9  # a registered disc must look like the pattern this much, or nothing is reported
     SETTLED_PX = 0.01
 
-    def __init__(self, frame, x: float, y: float, radius: float):
+    def __init__(self, frame, x: float, y: float, radius: float, smears: bool = True):
         self.x, self.y = float(x), float(y)
         self.half = h = int(math.ceil(radius)) + 2
         self.ok = False
-        wide = self._sample(frame, x, y, 2 * h)  # (room to smear the pattern by up to 2 half)
+        self._room = h if smears else 0  # (room to smear the pattern by up to 2 half; none: still only)
+        wide = self._sample(frame, x, y, h + self._room)
         if wide is None:
             return
         self._wide = wide
@@ -99,13 +119,34 @@ class LumaPattern:
         self.place: tuple | None = None  # where the last find registered it, however well it fitted
         self.ok = True
 
+    @staticmethod
+    def window(frame, x: float, y: float, radius: float) -> tuple | None:
+        """(window, x0, y0): the part of `frame` (its top-left corner at x0, y0) that the still pattern
+        of the marker at (x, y) is cut from (see from_window), a copy; None near the image's edge."""
+        h = int(math.ceil(radius)) + 2
+        x0, y0 = int(math.floor(x)) - h - 2, int(math.floor(y)) - h - 2
+        size = 2 * h + 5
+        H, W = frame.shape[:2]
+        if x0 < 0 or y0 < 0 or x0 + size > W or y0 + size > H:
+            return None
+        return np.array(frame[y0:y0 + size, x0:x0 + size]), x0, y0
+
+    @classmethod
+    def from_window(cls, cut: tuple, x: float, y: float, radius: float) -> LumaPattern:
+        """The still pattern of the marker at (x, y) (frame coordinates) from the window kept by `window`
+        (no smeared one: find() fits it as it is)."""
+        win, x0, y0 = cut
+        pattern = cls(win, x - x0, y - y0, radius, smears=False)
+        pattern.x, pattern.y = float(x), float(y)
+        return pattern
+
     def _mean(self, a: np.ndarray) -> float:
         return float((self.w * a).sum() / self.w.sum())
 
     def _smeared(self, ux: float, uy: float, length: float) -> np.ndarray:
         """The pattern's window averaged over a move of `length` px along (ux, uy), centred."""
         size = 2 * self.half + 1
-        c = 2 * self.half
+        c = self.half + self._room
         n = max(int(math.ceil(length)) + 1, 1)
         out = np.zeros((size, size), np.float32)
         for s in np.linspace(-0.5 * length, 0.5 * length, n):
@@ -146,14 +187,14 @@ class LumaPattern:
         if not self.ok:
             return None
         best = self._register(frame, x, y, self._still)
-        if velocity is not None:
+        if velocity is not None and self._room:
             from .matcher import STREAK_EXPOSURES, STREAK_MIN_SPEED  # (matcher imports this module)
 
             speed = math.hypot(*velocity)
             if speed >= STREAK_MIN_SPEED:
                 ux, uy = velocity[0] / speed, velocity[1] / speed
                 for e in STREAK_EXPOSURES:
-                    length = min(e * speed, 2.0 * self.half)
+                    length = min(e * speed, 2.0 * self._room)
                     key = (round(ux, 1), round(uy, 1), round(length))
                     prep = self._smears.get(key)
                     if prep is None:

@@ -37,6 +37,8 @@ class Match:
     outline: bool = True  # False: a crowd marker whose own outline was not found (its NCC peak only)
     lit: bool = False  # a crowd marker centred by its highlight (its outline not found, or pulled off)
     assigned: bool = False  # a crowd marker measured where an assignment put it, its template not asked
+    look: bool = False  # placed by its look at its last full measurement (MarkerTrack.look_match), not measured
+    line: bool = False  # measured on the other view's epipolar line, its outline found all round (Engine._on_line)
 
 
 STREAK_MIN_SPEED = 4.0  # px per frame from which a marker may be smeared into a streak

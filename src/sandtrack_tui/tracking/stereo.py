@@ -53,6 +53,15 @@ class StereoCheck:
         k = (line[0] * b[0] + line[1] * b[1] + line[2]) / max(line[0] ** 2 + line[1] ** 2, 1e-24)
         return float(p_to[0] - k * line[0]), float(p_to[1] - k * line[1])
 
+    def along_line(self, cam_from: str, p_from, cam_to: str, p_to) -> tuple[float, float, float, float]:
+        """(x, y, ux, uy): onto_line's point, and the unit direction of the line there (in undistorted
+        pixels, which a lens bends little over a marker's search window)."""
+        (line,), (b,) = self._undistorted_lines(cam_from, p_from, cam_to, p_to)
+        n2 = max(line[0] ** 2 + line[1] ** 2, 1e-24)
+        k = (line[0] * b[0] + line[1] * b[1] + line[2]) / n2
+        n = float(np.sqrt(n2))
+        return float(p_to[0] - k * line[0]), float(p_to[1] - k * line[1]), float(line[1] / n), float(-line[0] / n)
+
     def _undistorted_lines(self, cam_from: str, p_from, cam_to: str, p_to) -> tuple[np.ndarray, np.ndarray]:
         """The epipolar lines (a, b, c) in cam_to of the points p_from, and the points p_to, (N, 2) each,
         in undistorted pixels."""

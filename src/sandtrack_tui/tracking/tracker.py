@@ -2,6 +2,9 @@
 
 Status per frame (the store's STATUSES):
 - ``tracked``: a match passed the gate, the NCC score, the peak-to-sidelobe ratio and the colour check;
+  or a brightness model's marker whose colour check failed was found whole by its look at its last whole
+  measurement (its disc's brightness pattern: look_match; the engine's measurements on the other view's
+  line and across both views);
 - ``occluded``: no acceptable match; the position written is the Kalman prediction (coasting);
 - ``lost``: more than ``lost_after`` frames without a match; no position is claimed;
 - ``manual``: the operator's point (a seed or a correction), used as a measurement as is.
@@ -21,9 +24,9 @@ import numpy as np
 
 from ..errors import SandtrackError
 from . import crowd as crowd_rules
-from .appearance import COLOUR, DARK, AppearanceModel, learn
+from .appearance import BRIGHT, COLOUR, DARK, AppearanceModel, learn
 from .kalman import GATE_D2, ConstantVelocityKF
-from .luma import LumaPattern, edge_centre
+from .luma import LumaPattern, edge_centre, edge_circle, rim_step
 from .matcher import STREAK_MIN_SPEED, Match, TemplateMatcher
 from .rest import RestReference
 
@@ -49,6 +52,13 @@ STALE_BEHIND_PX = 1.0
 # pattern registers is the uncovered part of a marker partly hidden: the pitch of 4:2:0 chroma samples, within
 # which a whole marker's colour and pattern agree.
 PARTIAL_ASTRAY_PX = 2.0
+# A whole marker shows an outline of at least its radius less this share (a bead moving in depth changes its
+# image size by about that over a box's depth; a larger circle is its contact shadow's rim, not a part hidden).
+OUTLINE_RADIUS_TOL = 0.15
+# ... and its outline steps by at least this share of its contrast with the sand all round (the median over
+# rays, luma.rim_step): on the glass twin, whole beads 1.05 median (1 % under 0.37), a pale bead's faint rim
+# 0.28 at the least; circles found in sand's texture 0.05 median, 99 % under 0.21.
+RIM_SHARE = 0.25
 LOST_PLACE_PX = 0.5  # a lost marker's pattern found from around its place must come back this near it
 PLACE_MIN_FIT = 0.5  # a pattern fitting worse (a quarter of its disc's brightness variance explained) has no place
 
@@ -142,6 +152,9 @@ class MarkerTrack:
         self._pattern: LumaPattern | None = None  # the marker's brightness at the last intra frame (no silhouette)
         self._kept: tuple | None = None  # (pattern, offset, anchor) of a chain broken by a long miss
         self._rest: RestReference | None = None
+        # A brightness model's marker at its last full measurement: (window, x0, y0, x, y) of its
+        # LumaPattern, cut when first wanted (look_match), then the pattern itself.
+        self._look: tuple | LumaPattern | None = None
         self.rest_frames = 0
         self.held = False
         self.highlight_offset: tuple | None = None  # a crowd bead's highlight - its centre, px
@@ -181,19 +194,19 @@ class MarkerTrack:
                 x, y = o.x + d[0], o.y + d[1]
                 return Match(x, y, o.score, o.psr, o.colour_frac, self.kf.d2(x, y),
                              o.used_centroid, None if o.luma is None else (o.luma[0] + d[0], o.luma[1] + d[1]),
-                             rest=True)
+                             rest=True, look=o.look)
         px, py = self.kf.xy
         hx, hy = self.search_halfsize()
         m = self.matcher.match(frame_bgr, px, py, hx, hy, self.kf.innovation_inv(), self.params.gate_d2,
                                self.kf.vxy)
         if m is None:
-            return self._pattern_match(frame_bgr, frame_index)
+            return self._pattern_match(frame_bgr, frame_index) or self.look_match(frame_bgr)
         if not m.outline and self.counts[TRACKED] == 0:
             return None  # (held only once measured since its seed: a seed nothing confirmed is not followed)
         m.d2 = self.kf.d2(m.x, m.y)
         if not self.acceptable(m, TOUCHING_RELAX if m.touching else 1.0) or self.cut_by_border(frame_bgr, m) \
                 or not self._carry(frame_bgr, m, frame_index):
-            return self._pattern_match(frame_bgr, frame_index)
+            return self._pattern_match(frame_bgr, frame_index) or self.look_match(frame_bgr, (m.x, m.y))
         self._centre_by_highlight(frame_bgr, m)
         return m
 
@@ -219,16 +232,86 @@ class MarkerTrack:
         m.outline = m.used_centroid = m.lit = True
         m.d2 = self.kf.d2(m.x, m.y)
 
+    def look_match(self, frame_bgr, near: tuple | None = None) -> Match | None:
+        """A marker of a brightness model whose match failed, found again by its look at its last full
+        measurement: the brightness pattern of its disc there (luma.LumaPattern: its body, rim and
+        highlight), registered inside the gate and fitting as closely as a marker seen whole fits its
+        pattern of the frame before (MIN_NCC). A marker's look may change while its match fails: a glass
+        bead's body shows the sand beneath it and turns pale where the lamp's light is focused through it,
+        which its model reads as too little coverage; its pattern still fits. A marker partly hidden (by
+        the tool, by sand) does not: what hides it is in its disc. The pattern is registered from the
+        prediction and from `near` (the failed match's place, or None): where both fit, they must agree
+        (LOST_PLACE_PX), or the place is not clear. None otherwise."""
+        pattern = self._look_pattern()
+        if pattern is None:
+            return None
+        found = None
+        for x, y in (self.kf.xy,) if near is None else (self.kf.xy, near):
+            got = pattern.find(frame_bgr, x, y)
+            if got is None:
+                continue
+            if found is not None and math.hypot(got[0] - found[0][0], got[1] - found[0][1]) > LOST_PLACE_PX:
+                return None
+            if found is None or pattern.fit > found[1]:
+                found = (got, pattern.fit)
+        if found is None:
+            return None
+        (x, y), fit = found
+        m = Match(x, y, fit, float("nan"), float("nan"), self.kf.d2(x, y), look=True)
+        if m.d2 > self.params.gate_d2 or self.cut_by_border(frame_bgr, m) or not self.shows_whole(frame_bgr, x, y):
+            return None
+        return m
+
+    def look_place(self, frame_bgr, x: float, y: float) -> tuple[float, float] | None:
+        """Where the marker's look at its last full measurement registers from (x, y) when it fits at
+        least PLACE_MIN_FIT, else None (a place only: the caller knows otherwise that the marker is there)."""
+        pattern = self._look_pattern()
+        if pattern is None:
+            return None
+        pattern.find(frame_bgr, x, y)
+        return pattern.place if pattern.place is not None and pattern.fit >= PLACE_MIN_FIT else None
+
+    @property
+    def look_fit(self) -> float:
+        """How closely the marker's look fitted where it was last registered."""
+        return self._look.fit if isinstance(self._look, LumaPattern) else float("nan")
+
+    def _look_return(self, frame_bgr) -> Match | None:
+        """look_match for a coasting marker, also from its template's best place inside the gate."""
+        if self._look is None:
+            return None
+        px, py = self.kf.xy
+        hx, hy = self.search_halfsize()
+        m = self.matcher.match(frame_bgr, px, py, hx, hy, self.kf.innovation_inv(), self.params.gate_d2)
+        return self.look_match(frame_bgr, None if m is None else (m.x, m.y))
+
+    def _look_pattern(self) -> LumaPattern | None:
+        look = self._look
+        if isinstance(look, tuple):
+            win, x0, y0, x, y = look
+            look = LumaPattern.from_window((win, x0, y0), x, y, self.model.radius)
+            self._look = look = look if look.ok else None
+        return look
+
+    def _keep_look(self, frame_bgr, m: Match) -> None:
+        """Keep the marker's look at a full measurement (a window of it: its pattern is cut when wanted)."""
+        if frame_bgr is None or self.model.kind not in (DARK, BRIGHT) or self.model.crowd:
+            return
+        cut = LumaPattern.window(frame_bgr, m.x, m.y, self.model.radius)
+        self._look = None if cut is None else (*cut, m.x, m.y)
+
     def pattern_return(self, frame_bgr, frame_index: int | None = None) -> Match | None:
         """A coasting marker with no dark silhouette, unseen a few frames at most, whose brightness
         pattern is found again near its prediction (as closely as a followed marker's: see LumaPattern)
-        is back in sight: its colour, stale between intra frames, may not say so yet. So is a lost one
+        is back in sight: its colour, stale between intra frames, may not say so yet; so is a brightness
+        model's marker found whole by its look (look_match, from its prediction and from its template's
+        best place in the gate). So is a lost one
         whose pattern, kept from before it was hidden (the light, not the marker, sets a matte marker's
         shading), is found within its radius of its prediction, from there and from around it alike."""
         if not self.coasting:
             return None
         if self.misses <= SHORT_MISS:
-            return self._pattern_match(frame_bgr, frame_index)
+            return self._pattern_match(frame_bgr, frame_index) or self._look_return(frame_bgr)
         if self.status != LOST or self._kept is None or self.model.luma_follows:
             return None
         pattern, offset, anchor = self._kept
@@ -405,6 +488,20 @@ class MarkerTrack:
         else:
             self._pattern = self._offset = self._anchor_luma = None
 
+    def shows_whole(self, frame_bgr, x: float, y: float) -> bool:
+        """The marker of a brightness model at (x, y) shows its outline all round, of its own size, stepping
+        from its rim to the sand by a good part of its contrast. A marker partly hidden (behind the tool, or
+        sinking) shows part of its disc: a template or a look slides to the part in sight, and the outline
+        found round it is a smaller circle, or not found all round; sand's texture shows circles of edges
+        too, but of a few levels."""
+        model = self.model
+        polarity = 1.0 if model.kind == DARK else -1.0
+        e = edge_circle(frame_bgr, x, y, model.radius, polarity=polarity, outward=model.kind == DARK)
+        if e is None or e[3] < 4 or e[2] < (1.0 - OUTLINE_RADIUS_TOL) * model.radius:
+            return False
+        level_d, level_s = model.levels
+        return rim_step(frame_bgr, e[0], e[1], e[2], polarity) >= RIM_SHARE * abs(level_d - level_s)
+
     def cut_by_border(self, frame_bgr, m: Match) -> bool:
         """The marker's disc reaches the image's edge: part of it is outside the picture, and the
         centre of what is left is not the marker's."""
@@ -537,7 +634,7 @@ class MarkerTrack:
             # A dark marker's level follows its body (appearance.follow_level), also at rest (a glass bead
             # shows the sand beneath it): the marker's look, not its coverage by the model, says the
             # match is good, since a marker whose body lightens loses coverage first.
-            if frame_bgr is not None and self.model.kind == DARK and not self.model.crowd \
+            if frame_bgr is not None and self.model.kind == DARK and not self.model.crowd and not m.look \
                     and m.score >= p.confident_score and m.used_centroid:
                 self.model.follow_level(self.matcher.middle_score(frame_bgr, m.x, m.y), p.level_alpha)
             # (at rest the centre is the last measurement moved by the brightness shift: it is learned from
@@ -556,6 +653,8 @@ class MarkerTrack:
                 sure = m.score >= p.confident_score or (self.model.crowd and m.outline and not m.lit)
                 clean = sure and (
                     not self.model.has_blob or (m.colour_frac >= p.confident_colour and m.used_centroid))
+                if clean or m.line:
+                    self._keep_look(frame_bgr, m)
                 if frame_bgr is not None and self._since_update >= p.template_every and clean:
                     self.matcher.update_template(frame_bgr, m.x, m.y, p.template_alpha)
                     self._since_update = 0
