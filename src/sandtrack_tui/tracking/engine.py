@@ -68,6 +68,7 @@ class Engine:
     _open_ambiguity: dict = field(default_factory=dict)
     _both_cache: tuple | None = None
     _by_camera: dict | None = None  # camera -> [(key, track, start frame)], in the order of `tracks`
+    _crowd_cams: set = field(default_factory=set)  # cameras with a crowd track (kept with _by_camera)
     _crowd_at: dict = field(default_factory=dict)  # crowd track key -> (x, y) measured at the last step
     _crowd_carried: dict = field(default_factory=dict)  # missed crowd track key -> (x, y) carried by the layer
     _crowd_prev: dict = field(default_factory=dict)  # camera -> its frame of the previous step (the layer's motion)
@@ -106,7 +107,12 @@ class Engine:
             for key, t in self.tracks.items():
                 groups.setdefault(t.camera, []).append((key, t, self.start[key]))
             self._by_camera = groups
+            self._crowd_cams = {t.camera for t in self.tracks.values() if t.model.crowd}
         return self._by_camera.get(cam, [])
+
+    def _has_crowd(self, cam: str) -> bool:
+        """Any track of `cam` among touching lookalikes (the crowd passes have nothing to do otherwise)."""
+        return cam in self._crowd_cams
 
     def step(self, frames: dict, manual: dict | None = None) -> list[Observation]:
         """frames: camera -> (frame index, BGR image, remainder in frames of the wanted time);
@@ -148,8 +154,9 @@ class Engine:
             if self.follow_view:
                 self._follow_view(cam, j, img, live[cam], props)
             self._resolve_conflicts(live[cam], props, forced)
-            self._crowd_coherence(live[cam], props, crowd)
-            self._crowd_flow_check(cam, img, live[cam], props)
+            if self._has_crowd(cam):
+                self._crowd_coherence(live[cam], props, crowd)
+                self._crowd_flow_check(cam, img, live[cam], props)
         if self.stereo is not None:
             self._stereo_check(frames, props, forced, only_reattached=False)
         reattached = 0
@@ -157,12 +164,14 @@ class Engine:
             if self._reacquire(cam, img, live[cam], props, forced, frames):
                 reattached += 1
                 self._resolve_conflicts(live[cam], props, forced)  # (a pass leaves no clash behind)
-                self._crowd_coherence(live[cam], props, self._neighbours(live[cam]))
+                if self._has_crowd(cam):
+                    self._crowd_coherence(live[cam], props, self._neighbours(live[cam]))
         for cam, (j, img, _rem) in frames.items():
-            if self._crowd_return(cam, img, int(j), live[cam], props, forced):
-                reattached += 1
-            if self._crowd_regroup(cam, img, int(j), live[cam], props, forced):
-                reattached += 1
+            if self._has_crowd(cam):
+                if self._crowd_return(cam, img, int(j), live[cam], props, forced):
+                    reattached += 1
+                if self._crowd_regroup(cam, img, int(j), live[cam], props, forced):
+                    reattached += 1
             self._crowd_prev[cam] = img
         if self.stereo is not None and reattached:
             self._stereo_check(frames, props, forced, only_reattached=True)
