@@ -24,7 +24,6 @@ from .globalmotion import image_shift
 from .luma import edge_circle
 from .matcher import Match
 from .reacquire import find_blobs, search_window, unexplained
-from .rest import RestBank
 from .stereo import StereoCheck
 from .tracker import LOST, MERGED_COVERAGE, SHORT_MISS, MarkerTrack, Observation
 
@@ -74,32 +73,11 @@ class Engine:
     _crowd_prev: dict = field(default_factory=dict)  # camera -> its frame of the previous step (the layer's motion)
     _crowd_seen: dict = field(default_factory=dict)  # crowd track key -> {frame: (x, y)} measured lately
     _regroup_tried: dict = field(default_factory=dict)  # (camera, patch's markers, its frame) -> step last tried
-    _rest_banks: dict = field(default_factory=dict)  # camera -> RestBank of its tracks
 
     def add(self, track: MarkerTrack, start_frame: int) -> None:
         self.tracks[(track.marker, track.camera)] = track
         self.start[(track.marker, track.camera)] = start_frame
         self._by_camera = None
-        track.use_rest_bank(self._rest_banks.setdefault(track.camera, RestBank()))
-
-    def _rest_shifts(self, cam, img, j, tracks) -> dict:
-        """The rest test (MarkerTrack.propose) of every track of `cam` due for it this frame, in one call
-        (RestBank.shifts; a frame in its 4:2:0 planes): id(track) -> (dx, dy), or None where it failed."""
-        yuv = getattr(img, "yuv", None)
-        bank = self._rest_banks.get(cam)
-        if yuv is None or bank is None:
-            return {}
-        due, rows = [], []
-        for t in tracks:
-            row = t.rest_row(j)
-            if row is not None:
-                due.append(t)
-                rows.append(row)
-        if not due:
-            return {}
-        ok, dx, dy = bank.shifts(yuv, np.array(rows, np.int64))
-        return {id(t): (x, y) if k else None
-                for t, k, x, y in zip(due, ok.tolist(), dx.tolist(), dy.tolist(), strict=True)}
 
     def _tracks_of(self, cam: str) -> list:
         if self._by_camera is None:
@@ -138,15 +116,8 @@ class Engine:
                         continue
                 lv.append(t)
             crowd = self._neighbours(live[cam])
-            rest = self._rest_shifts(cam, img, j, live[cam])
             for t in live[cam]:
-                if t.coasting and not t.awaiting_outline:
-                    m = t.pattern_return(img, j)
-                elif id(t) in rest:
-                    d = rest[id(t)]
-                    m = t.propose(img, j, rest_tested=True) if d is None else t.at_rest(*d)
-                else:
-                    m = t.propose(img, j)
+                m = t.pattern_return(img, j) if t.coasting and not t.awaiting_outline else t.propose(img, j)
                 if m is not None and self._crowded_reject(t, m, crowd.get(id(t), ())):
                     m = None
                 if m is not None:

@@ -129,49 +129,39 @@ def _rest_shift_of(luma, ref, gx, gy, ginv, max_shift_px, max_residual):
 
 
 @_jit
-def _cubic_weights(t):
-    """OpenCV's cubic interpolation weights (Keys, a = -0.75) at fraction t, as four floats (in registers:
-    an array of four took a fifth of a profile sample's time)."""
+def _cubic_weights(t, w):
     a = -0.75
     x = t + 1.0
-    w0 = ((a * x - 5 * a) * x + 8 * a) * x - 4 * a
-    w1 = ((a + 2) * t - (a + 3)) * t * t + 1
+    w[0] = ((a * x - 5 * a) * x + 8 * a) * x - 4 * a
+    w[1] = ((a + 2) * t - (a + 3)) * t * t + 1
     x = 1.0 - t
-    w2 = ((a + 2) * x - (a + 3)) * x * x + 1
-    return w0, w1, w2, 1.0 - w0 - w1 - w2
+    w[2] = ((a + 2) * x - (a + 3)) * x * x + 1
+    w[3] = 1.0 - w[0] - w[1] - w[2]
 
 
 @_jit
-def _cubic_row(img, yy, x0, x1, x2, x3, w0, w1, w2, w3):
-    row = 0.0
-    row += w0 * img[yy, x0]
-    row += w1 * img[yy, x1]
-    row += w2 * img[yy, x2]
-    row += w3 * img[yy, x3]
-    return row
-
-
-@_jit
-def _cubic_sample(img, x, y):
-    """img (float32, 2-D) at (x, y) by cubic interpolation, edges replicated (as cv2.remap INTER_CUBIC)."""
+def _cubic_sample(img, x, y, wx, wy):
     h, w = img.shape
     fx, fy = np.floor(x), np.floor(y)
     ix, iy = int(fx), int(fy)
-    wx0, wx1, wx2, wx3 = _cubic_weights(x - fx)
-    wy0, wy1, wy2, wy3 = _cubic_weights(y - fy)
-    if 1 <= ix < w - 2 and 1 <= iy < h - 2:  # (most samples: no edge to replicate)
-        xa, xb, xc, xd = ix - 1, ix, ix + 1, ix + 2
-        ya, yb, yc, yd = iy - 1, iy, iy + 1, iy + 2
-    else:
-        xa, xb = min(max(ix - 1, 0), w - 1), min(max(ix, 0), w - 1)
-        xc, xd = min(max(ix + 1, 0), w - 1), min(max(ix + 2, 0), w - 1)
-        ya, yb = min(max(iy - 1, 0), h - 1), min(max(iy, 0), h - 1)
-        yc, yd = min(max(iy + 1, 0), h - 1), min(max(iy + 2, 0), h - 1)
+    _cubic_weights(x - fx, wx)
+    _cubic_weights(y - fy, wy)
     s = 0.0
-    s += wy0 * _cubic_row(img, ya, xa, xb, xc, xd, wx0, wx1, wx2, wx3)
-    s += wy1 * _cubic_row(img, yb, xa, xb, xc, xd, wx0, wx1, wx2, wx3)
-    s += wy2 * _cubic_row(img, yc, xa, xb, xc, xd, wx0, wx1, wx2, wx3)
-    s += wy3 * _cubic_row(img, yd, xa, xb, xc, xd, wx0, wx1, wx2, wx3)
+    if 1 <= ix < w - 2 and 1 <= iy < h - 2:  # (most samples: no edge to replicate)
+        for r in range(4):
+            yy = iy - 1 + r
+            row = 0.0
+            for c in range(4):
+                row += wx[c] * img[yy, ix - 1 + c]
+            s += wy[r] * row
+        return s
+    for r in range(4):
+        yy = min(max(iy - 1 + r, 0), h - 1)
+        row = 0.0
+        for c in range(4):
+            xx = min(max(ix - 1 + c, 0), w - 1)
+            row += wx[c] * img[yy, xx]
+        s += wy[r] * row
     return s
 
 
@@ -284,6 +274,8 @@ def _edge_centre_of(luma, cx, cy, radius, steps, cos, sin, min_rise, step_px, it
     """edge_centre of a brightness window (float32)."""
     n = steps.shape[0]
     n_rays = cos.shape[0]
+    wx = np.empty(4)
+    wy = np.empty(4)
     prof = np.empty(n)
     ex = np.empty(n_rays)
     ey = np.empty(n_rays)
@@ -294,7 +286,7 @@ def _edge_centre_of(luma, cx, cy, radius, steps, cos, sin, min_rise, step_px, it
             for s in range(n):
                 px = float(cos[ray] * steps[s] + fx)
                 py = float(sin[ray] * steps[s] + fy)
-                prof[s] = sign * _cubic_sample(luma, px, py)
+                prof[s] = sign * _cubic_sample(luma, px, py, wx, wy)
             best, k = -np.inf, 0
             for s in range(n - 2):  # outward rise of brightness (central difference)
                 g = prof[s + 2] - prof[s]
@@ -648,21 +640,6 @@ def rest_reference_yuv(yp, up, vp, t, x0, y0, n):
 def rest_shift_yuv(yp, up, vp, t, x0, y0, ref, gx, gy, ginv, max_shift_px, max_residual):
     n = int(np.sqrt(ref.shape[0]))
     return _rest_shift_of(_luma_window_yuv(yp, up, vp, t, x0, y0, n), ref, gx, gy, ginv, max_shift_px, max_residual)
-
-
-@_jit
-def rest_shifts_yuv(yp, up, vp, t, rows, n, x0, y0, ref, gx, gy, ginv, max_shift_px, max_residual):
-    """rest_shift_yuv of many references at once (rest.RestBank's rows `rows`): (ok, dx, dy) arrays."""
-    k = rows.shape[0]
-    ok = np.zeros(k, np.bool_)
-    dx = np.zeros(k)
-    dy = np.zeros(k)
-    for s in range(k):
-        i = rows[s]
-        m = n[i] * n[i]
-        ok[s], dx[s], dy[s] = _rest_shift_of(_luma_window_yuv(yp, up, vp, t, x0[i], y0[i], n[i]), ref[i, :m],
-                                             gx[i, :m], gy[i, :m], ginv[i], max_shift_px[i], max_residual[i])
-    return ok, dx, dy
 
 
 @_jit

@@ -25,7 +25,7 @@ from .appearance import COLOUR, DARK, AppearanceModel, learn
 from .kalman import GATE_D2, ConstantVelocityKF
 from .luma import LumaPattern, edge_centre
 from .matcher import STREAK_MIN_SPEED, Match, TemplateMatcher
-from .rest import RestBank, RestReference
+from .rest import RestReference
 
 TRACKED, OCCLUDED, LOST, MANUAL, INTERPOLATED = "tracked", "occluded", "lost", "manual", "interpolated"
 DEFAULT_BOX_PX = 16
@@ -138,7 +138,6 @@ class MarkerTrack:
         self._pattern: LumaPattern | None = None  # the marker's brightness at the last intra frame (no silhouette)
         self._kept: tuple | None = None  # (pattern, offset, anchor) of a chain broken by a long miss
         self._rest: RestReference | None = None
-        self._bank: tuple | None = None  # (RestBank, row) holding this track's rest reference too
         self.rest_frames = 0
         self.held = False
         self.highlight_offset: tuple | None = None  # a crowd bead's highlight - its centre, px
@@ -168,35 +167,17 @@ class MarkerTrack:
         cap = self.params.max_search_px
         return min(hx, cap), min(hy, cap)
 
-    def use_rest_bank(self, bank: RestBank) -> None:
-        """Keep this track's rest references in a row of `bank` too (its camera's: engine.py tests the rows
-        of all the camera's markers at rest in one call)."""
-        self._bank = (bank, bank.add(self.model.radius))
-
-    def rest_row(self, frame_index: int | None) -> int | None:
-        """This track's row of its RestBank when its rest test is due this frame (as propose would run
-        it), else None."""
-        r = self._rest
-        if r is None or self._bank is None or not r.ok or self.status != TRACKED or self._is_intra(frame_index):
-            return None
-        return self._bank[1]
-
-    def at_rest(self, dx: float, dy: float) -> Match:
-        """The last full measurement moved by the brightness shift (dx, dy) since (rest.py)."""
-        o = self._rest.match
-        x, y = o.x + dx, o.y + dy
-        return Match(x, y, o.score, o.psr, o.colour_frac, self.kf.d2(x, y), o.used_centroid,
-                     None if o.luma is None else (o.luma[0] + dx, o.luma[1] + dy), rest=True)
-
-    def propose(self, frame_bgr: np.ndarray, frame_index: int | None = None, rest_tested: bool = False
-                ) -> Match | None:
-        """Best acceptable match inside the gate (after predict), or None. `rest_tested`: this frame's rest
-        test has run (RestBank.shifts) and failed: the marker is measured in full."""
+    def propose(self, frame_bgr: np.ndarray, frame_index: int | None = None) -> Match | None:
+        """Best acceptable match inside the gate (after predict), or None."""
         r, p = self._rest, self.params
-        if not rest_tested and r is not None and self.status == TRACKED and not self._is_intra(frame_index):
+        if r is not None and self.status == TRACKED and not self._is_intra(frame_index):
             d = r.shift(frame_bgr, p.rest_shift_px, r.residual_limit)
             if d is not None:
-                return self.at_rest(*d)
+                o = r.match
+                x, y = o.x + d[0], o.y + d[1]
+                return Match(x, y, o.score, o.psr, o.colour_frac, self.kf.d2(x, y),
+                             o.used_centroid, None if o.luma is None else (o.luma[0] + d[0], o.luma[1] + d[1]),
+                             rest=True)
         px, py = self.kf.xy
         hx, hy = self.search_halfsize()
         m = self.matcher.match(frame_bgr, px, py, hx, hy, self.kf.innovation_inv(), self.params.gate_d2,
@@ -531,8 +512,6 @@ class MarkerTrack:
                 self._rest = RestReference(frame_bgr, m.x, m.y, self.model.radius, m, p.rest_residual,
                                            p.rest_residual_frac) \
                     if (p.rest_check and self.model.luma_follows and frame_bgr is not None and not reattach) else None
-                if self._rest is not None and self._rest.ok and self._bank is not None:
-                    self._bank[0].put(self._bank[1], self._rest, p.rest_shift_px)
             self.status, self.misses = TRACKED, 0
             self._last_measured = (frame_index, m.x, m.y)
             obs = Observation(frame_index, self.camera, self.marker, m.x, m.y, TRACKED, m.score, m.psr, m.colour_frac)
