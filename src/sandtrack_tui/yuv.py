@@ -145,8 +145,9 @@ _NONE_PASS = 1 | 1 << 8  # _passing_levels of a chroma with which no brightness 
 @jit
 def _linear_any(yp, up, vp, x0, y0, x1, y1, yt, cb, gu, gv, cr, m0, m1, m2, m3, passing):
     """Does any pixel of the window [y0:y1, x0:x1] pass _linear_mask's test (its `found`, by the same
-    arithmetic)? Most windows of a hidden marker hold none: each 2 x 2 block is mostly settled by
-    its chroma, in one row of chroma at a time, and the first pixel that passes ends the search."""
+    arithmetic)? No mask is made, each 2 x 2 block is mostly settled by its chroma (one row of chroma
+    at a time), and the first pixel that passes ends the search: the epipolar band's tiles, most of
+    which hold nothing of the marker's colour, ~30 % faster than through _linear_mask."""
     c0, c1 = x0 >> 1, ((x1 - 1) >> 1) + 1
     for ci in range(y0 >> 1, ((y1 - 1) >> 1) + 1):
         urow, vrow = up[ci], vp[ci]
@@ -237,13 +238,6 @@ class Yuv420Frame:
         planes without converting the window, and the box of its ones (window coordinates)."""
         return _linear_mask(self._y, self._u, self._v, x0, y0, max(x1, x0), max(y1, y0), *self._tables, *coeffs,
                             _passing(self._tables, coeffs))
-
-    def linear_any(self, coeffs: tuple, x0: int, y0: int, x1: int, y1: int) -> bool:
-        """linear_mask's `found` alone (no mask made; the search ends at the first pixel that passes)."""
-        if x1 <= x0 or y1 <= y0:
-            return False
-        return _linear_any(self._y, self._u, self._v, x0, y0, x1, y1, *self._tables, *coeffs,
-                           _passing(self._tables, coeffs))
 
     def linear_found(self, coeffs: tuple, boxes: np.ndarray) -> np.ndarray:
         """linear_mask's `found` for each window (x0, y0, x1, y1) of `boxes` (n x 4 int64), in one call."""

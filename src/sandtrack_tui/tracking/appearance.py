@@ -185,14 +185,6 @@ class AppearanceModel:
             return mask, False, 0, 0, 0, 0
         return mask, True, int(cols[0]), int(rows[0]), int(cols[-1]) + 1, int(rows[-1]) + 1
 
-    def shows_in(self, frame, x0: int, y0: int, x1: int, y1: int, threshold: float | None = None) -> bool:
-        """May the window [y0:y1, x0:x1] hold a pixel of mask_box's mask? Exact (mask_box's `found`) for a
-        colour model on a frame still in its 4:2:0 planes (no mask made); True where not tested."""
-        linear_any = getattr(frame, "linear_any", None)
-        if linear_any is None or self.kind in (DARK, BRIGHT):
-            return True
-        return linear_any(self._mask_coeffs if threshold is None else self._coeffs_for(threshold), x0, y0, x1, y1)
-
     def any_in(self, frame, boxes: np.ndarray) -> np.ndarray:
         """Per window (x0, y0, x1, y1) of `boxes` (n x 4 int64, inside the frame): may it hold a pixel
         of mask_box's mask? Exact (mask_box's `found`) for a colour model on a frame still in its 4:2:0

@@ -40,11 +40,8 @@ def find_blobs(frame_bgr: np.ndarray, model: AppearanceModel, cx: float, cy: flo
     if model.kind in (DARK, BRIGHT):
         score = model.prepared(model.score_window(frame_bgr, x0, y0, x1, y1))
         return _blobs_in_score(model, score, x0, y0, cx, cy, hx, hy, min_frac, max_frac, threshold)
-    # (most searches of a hidden marker: nothing of its colour in sight, told without making the mask)
-    if not model.shows_in(frame_bgr, x0, y0, x1, y1, threshold):
-        return []
     mask, found, bx0, by0, bx1, by1 = model.mask_box(frame_bgr, x0, y0, x1, y1, threshold)
-    if not found:
+    if not found:  # most searches of a hidden marker: nothing of its colour in sight
         return []
     # Only the part of the window holding marker colour is labelled (plus 2 px: the moments look one
     # pixel around a component); the components and their order are those of the whole window.
