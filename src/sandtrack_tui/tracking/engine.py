@@ -23,7 +23,7 @@ from .detection import detect_like
 from .globalmotion import image_shift
 from .luma import edge_circle
 from .matcher import Match
-from .reacquire import find_blobs, search_window, unexplained
+from .reacquire import find_blobs, search_windows, unexplained
 from .stereo import StereoCheck
 from .tracker import LOST, MERGED_COVERAGE, SHORT_MISS, MarkerTrack, Observation
 
@@ -680,13 +680,12 @@ class Engine:
             return []
         d = self.stereo.distance(self.stereo.other(cam), band_from, cam, np.c_[cx, cy])
         near = d <= h * math.sqrt(2) + self.stereo.band_px
-        tiles = [(float(x), float(y)) for x, y in zip(cx[near], cy[near], strict=True)]
+        cx, cy = cx[near], cy[near]
         # Most tiles hold nothing of the marker's colour: told in one call, only the others are searched.
-        boxes = np.array([search_window(img.shape, model, x, y, h, h) for x, y in tiles], np.int64).reshape(-1, 4)
         out = []
-        for (x, y), maybe in zip(tiles, model.any_in(img, boxes), strict=True):
-            if maybe:
-                out += [b for b in find_blobs(img, model, x, y, h, h) if abs(b.x - px) > inner or abs(b.y - py) > inner]
+        for i in np.flatnonzero(model.any_in(img, search_windows(img.shape, model, cx, cy, h, h))).tolist():
+            out += [b for b in find_blobs(img, model, float(cx[i]), float(cy[i]), h, h)
+                    if abs(b.x - px) > inner or abs(b.y - py) > inner]
         return out
 
     @staticmethod
