@@ -17,7 +17,6 @@ from __future__ import annotations
 import numpy as np
 
 from ..jit import jit as _jit
-from ..yuv import _window_bgr
 from .chroma import LUMA_BGR
 
 _LB, _LG, _LR = (np.float32(v) for v in LUMA_BGR)
@@ -635,11 +634,6 @@ def median(a) -> float:
 # and the conversion tables t): the window is converted inside the call, as the frame's slicing would.
 # The rest test and the score window convert each pixel straight into the brightness or score they
 # read, with no BGR window in between (which took longer to fill than the kernels took to read it).
-@_jit
-def _bgr(yp, up, vp, t, x0, y0, x1, y1):
-    return _window_bgr(yp, up, vp, x0, y0, x1, y1, t[0], t[1], t[2], t[3], t[4])
-
-
 @_jit
 def _bgr_at(yp, up, vp, t, yy, xx):
     """(B, G, R) of frame pixel (yy, xx) as float32, the values yuv._window_bgr gives it."""
