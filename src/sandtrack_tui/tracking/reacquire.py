@@ -124,8 +124,10 @@ def _blobs_in_score(model: AppearanceModel, score: np.ndarray, x0: int, y0: int,
     may = (stats[:, cv2.CC_STAT_AREA] >= 2) & (own + rim * min(max((t - floor) / (1.0 - floor), 0.0), 1.0)
                                                >= min_frac * model.disc_area)
     out = []
-    for k, sl in enumerate(find_objects(labels), start=1):
-        if sl is None or not may[k]:
+    objects = find_objects(labels)
+    for k in (np.flatnonzero(may[1:len(objects) + 1]) + 1).tolist():  # (most are grains: not looped over)
+        sl = objects[k - 1]
+        if sl is None:
             continue
         ya, yb = max(sl[0].start - 1, 0), min(sl[0].stop + 1, mask.shape[0])
         xa, xb = max(sl[1].start - 1, 0), min(sl[1].stop + 1, mask.shape[1])
