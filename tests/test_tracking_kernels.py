@@ -127,7 +127,7 @@ def test_blob_moments_equal_the_dilated_component_moments():
 def test_median_equals_numpys_median():
     rng = np.random.default_rng(8)
     for dtype in (np.float32, np.float64):
-        for n in [*range(1, 30), 299, 300, 961, 1600]:
+        for n in [*range(1, 30), 299, 300, 961, 1600, kernels.MEDIAN_COMPILED_MAX, kernels.MEDIAN_COMPILED_MAX + 1]:
             a = (rng.normal(0, 1, n) * rng.choice([1e-3, 1.0, 300.0])).astype(dtype)
             if n % 3 == 0:
                 a = np.round(a, 1)  # (ties among the middle values)

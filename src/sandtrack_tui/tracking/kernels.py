@@ -599,6 +599,11 @@ def epipolar_distances(pa, pb, cam_a, cam_b, F):
     return out
 
 
+# Above this many values numpy's own selection (introselect) outruns the compiled one by more than its
+# call costs (measured: 4000 values 12 against 19 us, 12000 46 against 35 us).
+MEDIAN_COMPILED_MAX = 6000
+
+
 @_jit
 def _median_of(a):
     """np.median of a 1-D float array: NaN if it holds one; else the middle value, or the mean of the
@@ -625,7 +630,7 @@ def median(a) -> float:
     a = np.asarray(a)
     if a.size == 0:
         return float("nan")  # (as numpy's, without its warning)
-    if a.dtype not in (np.float32, np.float64):
+    if a.dtype not in (np.float32, np.float64) or a.size > MEDIAN_COMPILED_MAX:
         return float(np.median(a))
     return _median_of(np.ascontiguousarray(a).ravel())
 
