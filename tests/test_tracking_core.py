@@ -519,3 +519,17 @@ def test_an_outline_of_sand_texture_is_not_a_whole_marker():
                if (e := edge_circle(plain, x, y, track.model.radius, polarity=1.0, outward=True)) is not None
                and e[3] == 4 and e[2] >= 0.85 * track.model.radius]
     assert len(circles) > 10 and not any(track.shows_whole(plain, x, y) for x, y in circles)
+
+
+def test_search_windows_of_many_centres_are_each_centres_search_window():
+    from sandtrack_tui.tracking.reacquire import search_window, search_windows
+
+    model = appearance.learn(_disc_on_sand(40.0, 40.0, 4.5), 40.0, 40.0, 14, 14)
+    rng = np.random.default_rng(4)
+    # centres inside, beyond every edge and on half pixels (where floor and ceil part)
+    cx = np.r_[rng.uniform(-30, 130, 40), 10.5, -0.5, 99.5]
+    cy = np.r_[rng.uniform(-30, 110, 40), 20.5, 79.5, -3.0]
+    for h in (6.0, 12.5):
+        got = search_windows((80, 100, 3), model, cx, cy, h, h)
+        want = [search_window((80, 100, 3), model, float(x), float(y), h, h) for x, y in zip(cx, cy, strict=True)]
+        assert got.dtype == np.int64 and got.tolist() == [list(w) for w in want]

@@ -122,3 +122,19 @@ def test_blob_moments_equal_the_dilated_component_moments():
                                         np.float32(1), lo)
     assert np.allclose(got, (m["m00"], m["m10"], m["m01"]), rtol=1e-5)
     assert pixels == 64
+
+
+def test_median_equals_numpys_median():
+    rng = np.random.default_rng(8)
+    for dtype in (np.float32, np.float64):
+        for n in [*range(1, 30), 299, 300, 961, 1600, kernels.MEDIAN_COMPILED_MAX, kernels.MEDIAN_COMPILED_MAX + 1]:
+            a = (rng.normal(0, 1, n) * rng.choice([1e-3, 1.0, 300.0])).astype(dtype)
+            if n % 3 == 0:
+                a = np.round(a, 1)  # (ties among the middle values)
+            assert kernels.median(a) == float(np.median(a)), (dtype, n)
+    window = rng.normal(0.1, 0.2, (41, 39)).astype(np.float32)  # a score window, read whole
+    assert kernels.median(window) == float(np.median(window))
+    assert kernels.median(window[::3, ::2]) == float(np.median(window[::3, ::2]))
+    window[5, 7] = np.nan
+    assert np.isnan(kernels.median(window)) and np.isnan(np.median(window))
+    assert np.isnan(kernels.median(np.zeros(0, np.float32)))

@@ -77,6 +77,8 @@ def test_linear_mask_equals_the_test_on_the_converted_window():
         want = kernels.colour_mask(frame[y0:y1, x0:x1], *coeffs)
         got = frame.linear_mask(coeffs, x0, y0, x1, y1)
         assert np.array_equal(got[0], want[0]) and got[1:] == want[1:]
+        y, u, v, tables = frame.yuv
+        assert yuv._linear_any(y, u, v, x0, y0, x1, y1, *tables, *coeffs, yuv._passing(tables, coeffs)) == want[1]
         # many windows at once, found or not (the epipolar band's tiles): each as linear_mask finds it
         boxes = np.array([(x0 + dx, y0 + dy, x1 + dx, y1 + dy) for dx, dy in rng.integers(-40, 40, (6, 2))], np.int64)
         boxes = np.clip(boxes, 0, [1920, 1080, 1920, 1080])
@@ -89,6 +91,7 @@ def test_linear_mask_equals_the_test_on_the_converted_window():
         y, u, v, tables = frame.yuv
         got = yuv._linear_mask(y, u, v, x0, y0, x1, y1, *tables, *coeffs, irregular)
         assert np.array_equal(got[0], want[0]) and got[1:] == want[1:]
+        assert yuv._linear_any(y, u, v, x0, y0, x1, y1, *tables, *coeffs, irregular) == want[1]
     assert 0 < founds < 180  # (both outcomes were tested)
 
 

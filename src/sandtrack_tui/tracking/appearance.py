@@ -99,7 +99,7 @@ class AppearanceModel:
         and texture scores are returned as they are."""
         if self.kind not in (DARK, BRIGHT) or min(score.shape) < 3:
             return score
-        b0 = float(np.median(score))
+        b0 = kernels.median(score)
         sand = self._shadow_edge(score) if self.kind == DARK and not self.crowd else None
         level_d, level_s = self.levels
         if sand is not None:  # the sand level on each pixel's own side of the edge
@@ -129,7 +129,7 @@ class AppearanceModel:
                         borderType=cv2.BORDER_REPLICATE)
         if float(sand.max() - sand.min()) < SHADOW_STEP:
             return None
-        return sand + np.float32(np.median(score - sand))
+        return sand + np.float32(kernels.median(score - sand))
 
     def score_window(self, frame, x0: int, y0: int, x1: int, y1: int) -> np.ndarray:
         """score() of the window [y0:y1, x0:x1] of a frame (inside it), also of a frame still in its

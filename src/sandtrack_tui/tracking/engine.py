@@ -26,7 +26,7 @@ from .appearance import BRIGHT, DARK
 from .detection import detect_like
 from .globalmotion import image_shift
 from .matcher import Match
-from .reacquire import find_blobs, search_window, unexplained
+from .reacquire import find_blobs, search_windows, unexplained
 from .stereo import StereoCheck
 from .tracker import LOST, MERGED_COVERAGE, SHORT_MISS, TRACKED, MarkerTrack, Observation
 
@@ -80,6 +80,7 @@ class Engine:
     _open_ambiguity: dict = field(default_factory=dict)
     _both_cache: tuple | None = None
     _by_camera: dict | None = None  # camera -> [(key, track, start frame)], in the order of `tracks`
+    _crowd_cams: set = field(default_factory=set)  # cameras with a crowd track (kept with _by_camera)
     _crowd_at: dict = field(default_factory=dict)  # crowd track key -> (x, y) measured at the last step
     _crowd_carried: dict = field(default_factory=dict)  # missed crowd track key -> (x, y) carried by the layer
     _crowd_prev: dict = field(default_factory=dict)  # camera -> its frame of the previous step (the layer's motion)
@@ -103,7 +104,12 @@ class Engine:
             for key, t in self.tracks.items():
                 groups.setdefault(t.camera, []).append((key, t, self.start[key]))
             self._by_camera = groups
+            self._crowd_cams = {t.camera for t in self.tracks.values() if t.model.crowd}
         return self._by_camera.get(cam, [])
+
+    def _has_crowd(self, cam: str) -> bool:
+        """Any track of `cam` among touching lookalikes (the crowd passes have nothing to do otherwise)."""
+        return cam in self._crowd_cams
 
     def step(self, frames: dict, manual: dict | None = None) -> list[Observation]:
         """frames: camera -> (frame index, BGR image, remainder in frames of the wanted time);
@@ -138,8 +144,9 @@ class Engine:
             if self.follow_view:
                 self._follow_view(cam, j, img, live[cam], props)
             self._resolve_conflicts(live[cam], props, forced)
-            self._crowd_coherence(live[cam], props, crowd)
-            self._crowd_flow_check(cam, img, live[cam], props)
+            if self._has_crowd(cam):
+                self._crowd_coherence(live[cam], props, crowd)
+                self._crowd_flow_check(cam, img, live[cam], props)
         if self.stereo is not None:
             self._stereo_check(frames, props, forced, only_reattached=False)
         reattached = 0
@@ -147,12 +154,15 @@ class Engine:
             if self._reacquire(cam, img, live[cam], props, forced, frames):
                 reattached += 1
                 self._resolve_conflicts(live[cam], props, forced)  # (a pass leaves no clash behind)
-                self._crowd_coherence(live[cam], props, self._neighbours(live[cam]))
+                if self._has_crowd(cam):
+                    self._crowd_coherence(live[cam], props, self._neighbours(live[cam]))
         if self.stereo is not None and reattached:
             for cam, (_j, img, _rem) in frames.items():
                 if self._late_lines(cam, img, live[cam], props, forced, frames):
                     self._resolve_conflicts(live[cam], props, forced)
         for cam, (j, img, _rem) in frames.items():
+            if not self._has_crowd(cam):
+                continue
             if self._crowd_return(cam, img, int(j), live[cam], props, forced):
                 reattached += 1
             if self._crowd_regroup(cam, img, int(j), live[cam], props, forced):
@@ -985,13 +995,12 @@ class Engine:
             return []
         d = self.stereo.distance(self.stereo.other(cam), band_from, cam, np.c_[cx, cy])
         near = d <= h * math.sqrt(2) + self.stereo.band_px
-        tiles = [(float(x), float(y)) for x, y in zip(cx[near], cy[near], strict=True)]
+        cx, cy = cx[near], cy[near]
         # Most tiles hold nothing of the marker's colour: told in one call, only the others are searched.
-        boxes = np.array([search_window(img.shape, model, x, y, h, h) for x, y in tiles], np.int64).reshape(-1, 4)
         out = []
-        for (x, y), maybe in zip(tiles, model.any_in(img, boxes), strict=True):
-            if maybe:
-                out += [b for b in find_blobs(img, model, x, y, h, h) if abs(b.x - px) > inner or abs(b.y - py) > inner]
+        for i in np.flatnonzero(model.any_in(img, search_windows(img.shape, model, cx, cy, h, h))).tolist():
+            out += [b for b in find_blobs(img, model, float(cx[i]), float(cy[i]), h, h)
+                    if abs(b.x - px) > inner or abs(b.y - py) > inner]
         return out
 
     @staticmethod

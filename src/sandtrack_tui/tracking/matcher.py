@@ -180,8 +180,8 @@ class TemplateMatcher:
             d = np.hypot(xx, yy)
             masks = self._middle_masks = (R, d <= 0.5 * r, d >= 1.8 * r)
         score = self.model.score_window(frame_bgr, x0, y0, x0 + 2 * R + 1, y0 + 2 * R + 1)
-        sand = float(np.median(score[masks[2]]))
-        mid = float(np.median(score[masks[1]]))
+        sand = kernels.median(score[masks[2]])
+        mid = kernels.median(score[masks[1]])
         level_d, level_s = self.model.levels
         k = 1.0 + sand * (level_d - level_s) / level_s  # (the light on the sand, as in prepared())
         return (mid - sand) / k if k > 0.25 else float("nan")
