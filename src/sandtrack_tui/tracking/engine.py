@@ -161,16 +161,8 @@ class Engine:
                 if self._late_lines(cam, img, live[cam], props, forced, frames):
                     self._resolve_conflicts(live[cam], props, forced)
         for cam, (j, img, _rem) in frames.items():
-            if not self._has_crowd(cam):
-                continue
-            if self._crowd_return(cam, img, int(j), live[cam], props, forced):
-                reattached += 1
-            if self._crowd_regroup(cam, img, int(j), live[cam], props, forced):
-                reattached += 1
-            if self._crowd_rejoin(cam, img, int(j), live[cam], props, forced):
-                reattached += 1
-            if self.stereo is not None and self._crowd_on_line(cam, img, int(j), live[cam], props, forced, frames):
-                reattached += 1
+            if self._has_crowd(cam):
+                reattached += self._crowd_passes(cam, img, int(j), live[cam], props, forced, frames)
             self._crowd_prev[cam] = img
         if self.stereo is not None and reattached:
             self._stereo_check(frames, props, forced, only_reattached=True)
@@ -192,6 +184,16 @@ class Engine:
         return obs
 
     # -- steps ---------------------------------------------------------------------------------
+    def _crowd_passes(self, cam, img, j: int, tracks, props, forced, frames) -> int:
+        """The passes that give missed crowd markers back (carried and assigned, a hidden patch registered,
+        carried by their neighbours, on the other view's line); returns how many of them gave any back."""
+        n = int(self._crowd_return(cam, img, j, tracks, props, forced) > 0)
+        n += int(self._crowd_regroup(cam, img, j, tracks, props, forced) > 0)
+        n += int(self._crowd_rejoin(cam, img, j, tracks, props, forced) > 0)
+        if self.stereo is not None:
+            n += int(self._crowd_on_line(cam, img, j, tracks, props, forced, frames) > 0)
+        return n
+
     def _other_view(self, key):
         """The key of the same marker in the stereo pair's other camera: the same marker's, or the crowd
         track paired with it (_pair_crowd); None."""
