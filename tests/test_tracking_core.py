@@ -533,3 +533,34 @@ def test_search_windows_of_many_centres_are_each_centres_search_window():
         got = search_windows((80, 100, 3), model, cx, cy, h, h)
         want = [search_window((80, 100, 3), model, float(x), float(y), h, h) for x, y in zip(cx, cy, strict=True)]
         assert got.dtype == np.int64 and got.tolist() == [list(w) for w in want]
+
+
+def test_updated_template_competes_only_when_the_seed_template_is_not_confident(monkeypatch):
+    # A marker that looks like its seed, or lightly dusted (its seed template's peak 0.89), is matched by
+    # the seed template alone: its peak in the gate makes the match confident whatever the updated one
+    # scores. One whose look drifted further (more dust) is matched by the updated template as well,
+    # which then wins.
+    cx, cy = 40.3, 39.6
+    path = [synthetic.MarkerPath(1, np.array([(cx, cy)] * 2), radius=5.0)]
+    clear = synthetic.render(path, 2, (80, 80), seed=3).frames
+    track = MarkerTrack(1, "cam", clear[0], 0, cx + 0.8, cy - 0.6, 14, 14)
+    tops = []
+    real = cv2.matchTemplate
+
+    def counted(*args):
+        res = real(*args)
+        tops.append(float(np.nan_to_num(res, nan=-1.0).max()))
+        return res
+
+    monkeypatch.setattr(cv2, "matchTemplate", counted)
+    gate = (track.kf.innovation_inv(), track.params.gate_d2)
+    confident = track.params.confident_score
+    for frame in (clear[1], synthetic.render(path, 2, (80, 80), seed=3, dusty=0.25).frames[1]):
+        tops.clear()
+        m = track.matcher.match(frame, cx, cy, 4, 4, *gate)
+        assert len(tops) == 1 and m.score >= confident and math.hypot(m.x - cx, m.y - cy) < 0.2
+    dusty = synthetic.render(path, 2, (80, 80), seed=3, dusty=0.6).frames[1]
+    track.matcher.template = track.matcher._cut(dusty, cx, cy)
+    tops.clear()
+    m = track.matcher.match(dusty, cx, cy, 4, 4, *gate)
+    assert len(tops) == 2 and tops[0] < confident and m.score > tops[0] + 0.1

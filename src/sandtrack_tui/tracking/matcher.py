@@ -47,6 +47,7 @@ STREAK_EXPOSURES = (0.5, 1.0)  # exposures tried, in frames
 
 class TemplateMatcher:
     skip_updated_above = 0.92  # NCC of the seed template above which the updated one is not needed
+    confident_score = 0.85  # a peak this good is a confident match (the track sets TrackParams.confident_score)
 
     def __init__(self, model: AppearanceModel, frame_bgr: np.ndarray, cx: float, cy: float, half: int | None = None):
         self.model = model
@@ -94,32 +95,42 @@ class TemplateMatcher:
         x1, y1 = min(cx0 + ex + self.half + 1, W), min(cy0 + ey + self.half + 1, H)
         if x1 - x0 < self.size + 2 or y1 - y0 < self.size + 2:
             return None
+        # The search box (hx, hy around the prediction) in result-grid indices.
+        ox, oy = x0 + self.half - px, y0 + self.half - py  # grid index 0 -> offset from prediction
+        c_lo, c_hi = max(math.ceil(-hx - 0.5 - ox), 0), min(math.floor(hx + 0.5 - ox), x1 - x0 - self.size)
+        r_lo, r_hi = max(math.ceil(-hy - 0.5 - oy), 0), min(math.floor(hy + 0.5 - oy), y1 - y0 - self.size)
+        if c_hi < c_lo or r_hi < r_lo:
+            return None
+        # The peak inside the gate ellipse (+1: the grid is integer, the refined centre is not).
+        gate = (0.0, 0.0, 0.0, -1.0) if s_inv is None else (*map(float, s_inv), float(gate_d2) + 1.0)
+        box = (c_lo, c_hi, r_lo, r_hi, float(ox), float(oy), *gate)
         score = self.model.prepared(self.model.score_window(frame_bgr, x0, y0, x1, y1))
         res = cv2.matchTemplate(score, self.seed_template, cv2.TM_CCOEFF_NORMED)
         cv2.patchNaNs(res, -1.0)
         top = float(res.max())
+        peak_found = None
         if top < self.skip_updated_above and self.model.has_blob:
             # The seed template alone is not convincing: let the updated one (dust, blur) compete. (Not
             # for a pattern: with no blob to centre on, an updated template would carry its drift on.)
-            res2 = cv2.matchTemplate(score, self.template, cv2.TM_CCOEFF_NORMED)
-            cv2.patchNaNs(res2, -1.0)
-            res = np.maximum(res, res2)
-            top = max(top, float(res2.max()))
+            # Unless the seed template's peak inside the gate already makes the match confident: then
+            # the updated one can change neither which marker is matched, nor whether, nor how surely,
+            # only where its peak falls on that marker, which the centroid measures anyway. (Not for a
+            # marker fast enough to be smeared: its streaks compete with both templates, see _streaks.)
+            if velocity is None or math.hypot(*velocity) < STREAK_MIN_SPEED:
+                peak_found = self._peak(res, score, box, 0.0)
+                if not (peak_found[0] and peak_found[3] >= self.confident_score):
+                    peak_found = None
+            if peak_found is None:
+                res2 = cv2.matchTemplate(score, self.template, cv2.TM_CCOEFF_NORMED)
+                cv2.patchNaNs(res2, -1.0)
+                res = np.maximum(res, res2)
+                top = max(top, float(res2.max()))
         streak = 0.0
-        if velocity is not None and top < self.skip_updated_above:
-            res, streak = self._streaks(score, res, velocity, top)
-        # The search box (hx, hy around the prediction) in result-grid indices.
-        ox, oy = x0 + self.half - px, y0 + self.half - py  # grid index 0 -> offset from prediction
-        c_lo, c_hi = max(math.ceil(-hx - 0.5 - ox), 0), min(math.floor(hx + 0.5 - ox), res.shape[1] - 1)
-        r_lo, r_hi = max(math.ceil(-hy - 0.5 - oy), 0), min(math.floor(hy + 0.5 - oy), res.shape[0] - 1)
-        if c_hi < c_lo or r_hi < r_lo:
-            return None
-        # The peak inside the gate ellipse (+1: the grid is integer, the refined centre is not).
-        s = (0.0, 0.0, 0.0, -1.0) if s_inv is None else (*s_inv, gate_d2 + 1.0)
-        found, mx, my, peak, psr, frac, used, touching = kernels.match_peak(
-            res, score, c_lo, c_hi, r_lo, r_hi, float(ox), float(oy), *map(float, s), self.half,
-            math.ceil(self.model.radius + 0.5 * streak) + 1, self.model.radius + 1.5 + 0.5 * streak,
-            self.model.weight_floor * self._dilution(streak), self.model.disc_area, self.model.radius + 0.5 * streak)
+        if peak_found is None:
+            if velocity is not None and top < self.skip_updated_above:
+                res, streak = self._streaks(score, res, velocity, top)
+            peak_found = self._peak(res, score, box, streak)
+        found, mx, my, peak, psr, frac, used, touching = peak_found
         if not found:
             return None
         self._last = (score, x0, y0)
@@ -141,6 +152,14 @@ class TemplateMatcher:
         elif used and not touching and not streak:
             x, y = self.silhouette(frame_bgr, x, y)
         return Match(x=x, y=y, score=peak, psr=psr, colour_frac=frac, used_centroid=used, touching=touching)
+
+    def _peak(self, res: np.ndarray, score: np.ndarray, box: tuple, streak: float) -> tuple:
+        """kernels.match_peak of the NCC surface `res` on the score window, inside the gate `box`, for a
+        marker smeared over `streak` px: (found, x, y, peak, psr, coverage, centroid used, touching)."""
+        r = self.model.radius
+        return kernels.match_peak(res, score, *box[:6], *box[6:], self.half, math.ceil(r + 0.5 * streak) + 1,
+                                  r + 1.5 + 0.5 * streak, self.model.weight_floor * self._dilution(streak),
+                                  self.model.disc_area, r + 0.5 * streak)
 
     def silhouette(self, frame_bgr, x: float, y: float, strict: bool = False) -> tuple[float, float] | None:
         """A brightness model's marker centred on its outline (luma.edge_centre), not on its pixels'

@@ -138,6 +138,7 @@ class MarkerTrack:
                 x, y = rx, ry
                 self.matcher = TemplateMatcher(self.model, frame_bgr, x, y)
         p = self.params
+        self.matcher.confident_score = p.confident_score
         self.kf = ConstantVelocityKF(x, y, accel_px=p.accel_px, meas_px=p.meas_px)
         self.status = MANUAL
         self.misses = 0
