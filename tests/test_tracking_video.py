@@ -94,6 +94,24 @@ def test_edge_centre_finds_a_dark_disc_and_refuses_flat_sand():
     assert np.hypot(known[0] - cx, known[1] - cy) < 0.3 < np.hypot(free[0] - cx, free[1] - cy)
 
 
+def test_one_fit_of_the_silhouette_circle_from_a_start_off_its_centre_is_the_silhouettes():
+    # The luma carry fits the circle once (tracker.CARRY_EDGE_ROUNDS), from the colour centre less its offset
+    # at the last intra frame: from up to 1.4 px off, in any direction, on noisy sand, that one fit is the
+    # dark disc's circle within 0.06 px.
+    from sandtrack_tui.tracking.tracker import CARRY_EDGE_ROUNDS
+
+    rng = np.random.default_rng(1)
+    cx, cy, r = 30.3, 28.6, 4.5
+    cov = _disc(cx, cy, r)[..., None]
+    img = np.array([110, 150, 185]) * (1 - cov) + np.array([175, 95, 35]) * 0.6 * cov + rng.normal(0, 3, (60, 60, 3))
+    img = np.clip(img, 0, 255).astype(np.uint8)
+    for off in (0.3, 0.7, 1.0, 1.4):
+        for a in np.radians(np.arange(0, 360, 45)):
+            x, y = edge_centre(img, cx + off * np.cos(a), cy + off * np.sin(a), r, iterations=CARRY_EDGE_ROUNDS,
+                               outward=True)
+            assert np.hypot(x - cx, y - cy) < 0.06
+
+
 def _disc(cx: float, cy: float, r: float, n: int = 60, ss: int = 8) -> np.ndarray:
     """Coverage (0..1) of an anti-aliased disc on an n x n grid."""
     yy, xx = np.mgrid[0:n, 0:n]

@@ -59,6 +59,12 @@ OUTLINE_RADIUS_TOL = 0.15
 # rays, luma.rim_step): on the glass twin, whole beads 1.05 median (1 % under 0.37), a pale bead's faint rim
 # 0.28 at the least; circles found in sand's texture 0.05 median, 99 % under 0.21.
 RIM_SHARE = 0.25
+# The luma carry fits the silhouette's circle once, from the colour centre less the last intra frame's offset:
+# that start lies within a fraction of the radius of the silhouette's centre (the sample: 0.31 px median, 1.4 px
+# at most), where the rays still cross the outline nearly square and the circle through their edge points is the
+# silhouette's. Fitted again from its own centre, it moved by 0.06 px (median), no nearer the truth: the sample's
+# centres 0.198 / 0.500 px (mean / p95) with one fit, 0.201 / 0.519 px with up to three.
+CARRY_EDGE_ROUNDS = 1
 LOST_PLACE_PX = 0.5  # a lost marker's pattern found from around its place must come back this near it
 PLACE_MIN_FIT = 0.5  # a pattern fitting worse (a quarter of its disc's brightness variance explained) has no place
 
@@ -377,9 +383,9 @@ class MarkerTrack:
         if not self.model.luma_follows:
             return self._carry_pattern(frame_bgr, m, intra)
         sx, sy = m.x, m.y
-        if self._offset is not None:  # start from where the edge centre is expected: fewer fit rounds
+        if self._offset is not None:  # start from where the edge centre is expected
             sx, sy = sx - self._offset[0], sy - self._offset[1]
-        m.luma = edge_centre(frame_bgr, sx, sy, self.model.radius, outward=True)
+        m.luma = edge_centre(frame_bgr, sx, sy, self.model.radius, iterations=CARRY_EDGE_ROUNDS, outward=True)
         if m.luma is None or intra:
             return True
         lx, ly = m.luma
