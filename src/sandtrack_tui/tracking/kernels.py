@@ -5,7 +5,8 @@ leaving each call, not computing, and the tracker shares two cores with the vide
 kernels do the same arithmetic in one call each. Compiled on first use, cached on disk.
 
 - `luma_window`: BT.601 brightness of a BGR window, float32 (as cv2.transform with LUMA_BGR).
-- `rest_reference` / `rest_shift`: the Lucas-Kanade shift test of rest.py.
+- `rest_reference` / `rest_shift`: the Lucas-Kanade shift test of rest.py (`*_luma`: on a frame's brightness
+  plane).
 - `edge_centre`: the luma silhouette circle of luma.py (cubic profiles along rays, sampled as
   OpenCV's remap does: Keys a = -0.75 weights, edges replicated).
 - `colour_score`, `centroid`, `match_peak`: the template matcher's score image, colour centroid,
@@ -637,7 +638,7 @@ def median(a) -> float:
 
 # The same kernels on a window of a frame still in its 4:2:0 planes (yuv.Yuv420Frame.yuv: planes y, u, v
 # and the conversion tables t): the window is converted inside the call, as the frame's slicing would.
-# The rest test and the score window convert each pixel straight into the brightness or score they
+# The edge circle and the score window convert each pixel straight into the brightness or score they
 # read, with no BGR window in between (which took longer to fill than the kernels took to read it).
 @_jit
 def _bgr_at(yp, up, vp, t, yy, xx):
@@ -662,14 +663,27 @@ def _luma_window_yuv(yp, up, vp, t, x0, y0, n):
 
 
 @_jit
-def rest_reference_yuv(yp, up, vp, t, x0, y0, n):
-    return _rest_reference_of(_luma_window_yuv(yp, up, vp, t, x0, y0, n))
+def _brightness_window(yp, yt, x0, y0, n):
+    """The n x n window at (x0, y0) of a frame's brightness plane in the levels of its BGR conversion (yt: the
+    converter's brightness table, yuv.py), float32: the brightness the video codes, at full resolution."""
+    out = np.empty((n, n), np.float32)
+    for i in range(n):
+        for j in range(n):
+            out[i, j] = yt[yp[y0 + i, x0 + j]]
+    return out
 
 
 @_jit
-def rest_shift_yuv(yp, up, vp, t, x0, y0, ref, gx, gy, ginv, max_shift_px, max_residual):
+def rest_reference_luma(yp, yt, x0, y0, n):
+    """rest_reference of the n x n window at (x0, y0) of a frame's brightness plane (_brightness_window)."""
+    return _rest_reference_of(_brightness_window(yp, yt, x0, y0, n))
+
+
+@_jit
+def rest_shift_luma(yp, yt, x0, y0, ref, gx, gy, ginv, max_shift_px, max_residual):
+    """rest_shift of the window at (x0, y0) of a frame's brightness plane (_brightness_window)."""
     n = int(np.sqrt(ref.shape[0]))
-    return _rest_shift_of(_luma_window_yuv(yp, up, vp, t, x0, y0, n), ref, gx, gy, ginv, max_shift_px, max_residual)
+    return _rest_shift_of(_brightness_window(yp, yt, x0, y0, n), ref, gx, gy, ginv, max_shift_px, max_residual)
 
 
 @_jit

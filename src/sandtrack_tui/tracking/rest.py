@@ -10,7 +10,10 @@ window's edge pixels vote), plus the residual change that no shift explains (a s
 sand arriving). Only when the shift is small (the step is linear within a fraction of a pixel) and
 the residual too is the reference followed; otherwise the marker is measured in full, which
 becomes the new reference. Brightness is coded at full resolution and does not trail the motion
-in predicted frames as the half-resolution colour does (luma.py), so following it is no loss.
+in predicted frames as the half-resolution colour does (luma.py), so following it is no loss. A
+frame still in its 4:2:0 planes (yuv.py) is read in that coded brightness itself (its brightness
+plane, in the levels of the BGR conversion): the brightness of its BGR pixels would mix in the
+half-resolution colour wherever a channel clips, and converting a window costs more than the test.
 """
 
 from __future__ import annotations
@@ -34,9 +37,9 @@ class RestReference:
         if not self.ok:
             return
         # Gradients: Sobel 3 x 3 / 8; ginv: the inverse of the 2 x 2 normal matrix (xx, xy, yy).
-        yuv = getattr(frame_bgr, "yuv", None)  # a frame still in its 4:2:0 planes (yuv.py)
+        yuv = getattr(frame_bgr, "yuv", None)  # a frame still in its 4:2:0 planes (yuv.py): its brightness plane
         if yuv is not None:
-            out = kernels.rest_reference_yuv(*yuv, self.x0, self.y0, self.n)
+            out = kernels.rest_reference_luma(yuv[0], yuv[3][0], self.x0, self.y0, self.n)
         else:
             out = kernels.rest_reference(self._window(frame_bgr))
         self.ok, self.contrast, self.ref, self.gx, self.gy, self.ginv = out
@@ -54,8 +57,8 @@ class RestReference:
             return None
         yuv = getattr(frame_bgr, "yuv", None)
         if yuv is not None:
-            ok, dx, dy = kernels.rest_shift_yuv(*yuv, self.x0, self.y0, self.ref, self.gx, self.gy, self.ginv,
-                                                max_shift_px, max_residual)
+            ok, dx, dy = kernels.rest_shift_luma(yuv[0], yuv[3][0], self.x0, self.y0, self.ref, self.gx, self.gy,
+                                                 self.ginv, max_shift_px, max_residual)
         else:
             ok, dx, dy = kernels.rest_shift(self._window(frame_bgr), self.ref, self.gx, self.gy, self.ginv,
                                             max_shift_px, max_residual)
