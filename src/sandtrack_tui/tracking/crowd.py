@@ -37,6 +37,7 @@ MIN_NEIGHBOURS = 2  # measured neighbours a missed marker's carried position nee
 FLOW_BACK_PX = 0.3  # a bead's image motion is trusted when tracking it back lands within this of its start
 FLOW_MAX_MOVE = 1.0  # a bead's move per frame, in radii, beyond which the image motion is not the layer's
 FLOW_LEVELS = 2  # pyramid levels of the image motion (a layer moves a few px per frame, a bead is ~15 px)
+COLLINEAR = 0.25  # points whose spread across their line is under this share of it along it lie on a line
 MIN_ANCHORS = 3  # measured beads around a lost one that carry it (an affine map of their moves)
 MIN_GROUP = 4  # lost beads (and pairs) a registration of a hidden patch of the layer needs
 # Lost beads a registration takes at most: its hypotheses grow as the patch's square and each is
@@ -47,6 +48,7 @@ REGISTER_MARGIN = 0.85  # a registration's score must be under this share of any
 # A packing of identical beads looks the same turned by 60 degrees: a hidden patch is taken as turned by
 # less than half that (the smallest turn that explains it).
 MAX_TURN_DEG = 30.0
+MIN_STRETCH, MAX_STRETCH = 0.7, 1.8
 
 
 def flowed(prev_bgr: np.ndarray, cur_bgr: np.ndarray, points: np.ndarray, radius: float) -> np.ndarray:
@@ -170,7 +172,7 @@ def moved_with(old: np.ndarray, anchors_old: np.ndarray, anchors_now: np.ndarray
     if len(a_old) < MIN_ANCHORS:
         return None
     spread = np.linalg.svd(a_old - a_old.mean(axis=0), compute_uv=False)
-    if spread[1] < 0.25 * spread[0]:
+    if spread[1] < COLLINEAR * spread[0]:
         return None
     homog = np.c_[a_old, np.ones(len(a_old))]
     m, *_r = np.linalg.lstsq(homog, a_now, rcond=None)
@@ -226,7 +228,7 @@ def register(old: np.ndarray, beads: np.ndarray, radius: float, reach: float, ma
             span = d_old[i1, i2]
             a = complex(*(old[i2] - old[i1]))
             for j1 in np.nonzero(np.hypot(*(beads - old[i1]).T) <= reach)[0]:
-                for j2 in np.nonzero(np.abs(d_beads[j1] - span) <= 0.3 * span)[0]:
+                for j2 in np.nonzero((d_beads[j1] >= MIN_STRETCH * span) & (d_beads[j1] <= MAX_STRETCH * span))[0]:
                     if j2 == j1:
                         continue
                     s = complex(*(beads[j2] - beads[j1])) / a
@@ -240,7 +242,7 @@ def register(old: np.ndarray, beads: np.ndarray, radius: float, reach: float, ma
         return None, {}
     ranked = sorted(found.items(), key=lambda kv: kv[1][0])
     best_pairs, (best, at) = ranked[0]
-    if len(best_pairs) < max(MIN_GROUP, 0.5 * n):
+    if len(best_pairs) < (MIN_GROUP if fixed is not None else max(MIN_GROUP, 0.5 * n)):
         return None, {}
     agreed = set(best_pairs)
     for pairs, (cost, _at) in ranked[1:]:
@@ -273,7 +275,9 @@ def _carried_like(homog: np.ndarray, at: np.ndarray) -> bool:
     lin = m[:2].T
     if np.linalg.det(lin) <= 0:
         return False
-    u, _s, vt = np.linalg.svd(lin)
+    u, stretch, vt = np.linalg.svd(lin)
+    if stretch.min() < MIN_STRETCH or stretch.max() > MAX_STRETCH:
+        return False
     rot = u @ vt
     return abs(math.degrees(math.atan2(rot[1, 0], rot[0, 0]))) < MAX_TURN_DEG
 
@@ -301,12 +305,28 @@ def _refine(homog: np.ndarray, at: np.ndarray, beads: np.ndarray, radius: float,
         src, dst = homog[rows[ok]], beads[cols[ok]]
         if fixed is not None:
             src, dst = np.r_[src, fixed[0]], np.r_[dst, fixed[1]]
-        m, *_r = np.linalg.lstsq(src, dst, rcond=None)
+        m = _fit_map(src, dst)
         at = homog @ m
     pairs = tuple((int(r), int(c)) for r, c in zip(rows, cols, strict=True) if d[r, c] < 0.5 * radius)
     cost = float(capped[rows, cols].sum())
     if fixed is not None:
         if m is None:
-            m, *_r = np.linalg.lstsq(homog, at, rcond=None)
+            m = _fit_map(homog, at)
         cost += float(np.minimum(np.hypot(*(fixed[0] @ m - fixed[1]).T), radius).sum())
     return cost, pairs, at
+
+
+def _fit_map(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """The map (3, 2) taking `src` (homogeneous (k, 3)) to `dst` (k, 2) in least squares: affine, or where
+    the points lie nearly on a line (a column of beads out from under the tool), the map across that
+    line is not known and the similarity (turned and scaled alike) is taken."""
+    spread = np.linalg.svd(src[:, :2] - src[:, :2].mean(axis=0), compute_uv=False)
+    if len(src) >= 3 and spread[1] >= COLLINEAR * spread[0]:
+        m, *_r = np.linalg.lstsq(src, dst, rcond=None)
+        return m
+    x, y = src[:, 0], src[:, 1]
+    a = np.zeros((2 * len(src), 4))
+    a[0::2] = np.c_[x, -y, np.ones_like(x), np.zeros_like(x)]
+    a[1::2] = np.c_[y, x, np.zeros_like(x), np.ones_like(x)]
+    (p, q, tx, ty), *_r = np.linalg.lstsq(a, dst.reshape(-1), rcond=None)
+    return np.array([[p, q], [-q, p], [tx, ty]])

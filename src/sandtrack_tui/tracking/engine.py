@@ -188,10 +188,11 @@ class Engine:
         """The passes that give missed crowd markers back (carried and assigned, a hidden patch registered,
         carried by their neighbours, on the other view's line); returns how many of them gave any back."""
         n = int(self._crowd_return(cam, img, j, tracks, props, forced) > 0)
+        if self.stereo is not None:
+            n += int(self._crowd_outline_on_line(cam, img, tracks, props, forced, frames) > 0)
+            n += int(self._crowd_on_line(cam, img, j, tracks, props, forced, frames) > 0)
         n += int(self._crowd_regroup(cam, img, j, tracks, props, forced) > 0)
         n += int(self._crowd_rejoin(cam, img, j, tracks, props, forced) > 0)
-        if self.stereo is not None:
-            n += int(self._crowd_on_line(cam, img, j, tracks, props, forced, frames) > 0)
         return n
 
     def _other_view(self, key):
@@ -304,6 +305,7 @@ class Engine:
         for t, (x, y) in found.items():
             m = t.verify_at(img, float(x), float(y)) or t.verify_assigned(img, float(x), float(y))
             if m is not None and math.hypot(m.x - x, m.y - y) <= 0.5 * t.model.radius:
+                m.assigned = True  # (who it is comes from where it went: its template is cut again there)
                 props[(t.marker, cam)] = _Proposal(m, reattach=True)
                 n += 1
         return n
@@ -391,12 +393,34 @@ class Engine:
         carried = [(t.marker, cam) for t in tracks if t.model.crowd and t.carried and t not in strays]
         explained = {**forced, **{k: self._crowd_carried[k] for k in carried if k in self._crowd_carried}}
         beads = self._unexplained_beads(cam, img, placed[0].model, where, props, explained)
-        if not len(beads):
-            return 0
-        pairs, ambiguous = crowd_rules.assign(where, beads, 0.5 * r, 0.5 * r)
+        pairs, ambiguous = crowd_rules.assign(where, beads, 0.5 * r, 0.5 * r) if len(beads) else ({}, [])
         for i in ambiguous:
             self._note_ambiguous(placed[i].marker, cam, j, 2)
-        return self._give_back(cam, img, {placed[i]: beads[b] for i, b in pairs.items()}, props)
+        n = self._give_back(cam, img, {placed[i]: beads[b] for i, b in pairs.items()}, props)
+        return n + self._confirm_placed(cam, img, placed, where, beads, set(ambiguous), props, forced)
+
+    def _confirm_placed(self, cam, img, placed, where, beads, ambiguous: set, props, forced) -> int:
+        """Lost crowd markers placed by their neighbours' map (_crowd_rejoin) that no detected bead gave
+        back (in a pressed layer a bead's outline is not seen all round, so it is not detected), measured
+        where they were placed by their highlight (MarkerTrack.confirm_carried: a centre within
+        CARRIED_AGREE_PX of there), unless another bead could be the one there: an unexplained detected
+        bead, another placed marker or a marker measured this step within a radius of the place."""
+        n = 0
+        for i, t in enumerate(placed):
+            if (t.marker, cam) in props or i in ambiguous:
+                continue
+            x, y = where[i]
+            r = t.model.radius
+            others = np.delete(where, i, axis=0)
+            if (len(beads) and np.hypot(beads[:, 0] - x, beads[:, 1] - y).min() <= r) or \
+                    (len(others) and np.hypot(others[:, 0] - x, others[:, 1] - y).min() <= r):
+                continue
+            m = t.confirm_carried(img, float(x), float(y))
+            if m is None or any(math.hypot(m.x - a, m.y - b) < r for a, b in self._explained(cam, props, forced)):
+                continue
+            props[(t.marker, cam)] = _Proposal(m, reattach=True)
+            n += 1
+        return n
 
     def _crowd_on_line(self, cam, img, j: int, tracks, props, forced, frames) -> int:
         """Crowd markers unseen for more than SHORT_MISS frames that the other view measures this step (the
@@ -418,6 +442,7 @@ class Engine:
             if reach is None:
                 continue
             r = t.model.radius
+            reach = min(reach, r)
             px, py = self.stereo.onto_line(other[1], band_from, cam, t.kf.xy)
             beads = self._unexplained_beads(cam, img, t.model, np.array([[px, py]]), props, forced,
                                             pad=reach + 2 * r + 4)
@@ -431,7 +456,8 @@ class Engine:
                 if rivals.sum() > 1 and inside.any():
                     self._note_ambiguous(t.marker, cam, j, int(rivals.sum()))
                 continue
-            n += self._give_back(cam, img, {t: beads[int(np.argmax(inside))]}, props)
+            bead = beads[int(np.argmax(inside))]
+            n += self._give_back(cam, img, {t: bead}, props)
         return n
 
     def _line_reach(self, key, other, other_now) -> float | None:
@@ -481,6 +507,36 @@ class Engine:
                 return None
             return float(out[0][0]), float(out[0][1])
         return None
+
+    def _crowd_outline_on_line(self, cam, img, tracks, props, forced, frames) -> int:
+        """Crowd markers carried by the layer's motion this step (_crowd_return) that nothing gave back and
+        that the other view measures (the same marker, or its paired track): the other view's epipolar line
+        pins the marker across it, the carried place along it. Where the marker's own outline, of its radius,
+        is found all round it within half a radius of the foot of its carried place on that line
+        (MarkerTrack.confirm_on_line; a bead half hidden behind its neighbours in a slanted view shows
+        neither its template nor its highlight, but its outline against the sand), lying on that line as
+        closely as the stereo check asks, with no other marker of this camera measured within a radius, it
+        is measured there. Returns how many came back."""
+        n = 0
+        for t in tracks:
+            key = (t.marker, cam)
+            carried = self._crowd_carried.get(key)
+            if not t.model.crowd or not t.carried or key in props or key in forced or carried is None:
+                continue
+            other = self._other_view(key)
+            band_from = None if other is None or other[1] not in frames else \
+                self._point_at(other, frames, props, forced)
+            if band_from is None:
+                continue
+            foot = self.stereo.onto_line(other[1], band_from, cam, carried)
+            m = t.confirm_on_line(img, *foot)
+            if m is None or self.stereo.distance(other[1], band_from, cam, (m.x, m.y))[0] > self.stereo.threshold_px \
+                    or math.hypot(m.x - carried[0], m.y - carried[1]) > 0.5 * t.model.radius \
+                    or any(math.hypot(m.x - a, m.y - b) < t.model.radius for a, b in self._explained(cam, props, forced)):
+                continue
+            props[key] = _Proposal(m, reattach=True)
+            n += 1
+        return n
 
     def _crowd_confirm(self, cam, img, missed, where, props, forced) -> int:
         """Carried crowd markers no detected bead gave back, measured where they were carried

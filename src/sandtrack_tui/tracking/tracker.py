@@ -577,6 +577,25 @@ class MarkerTrack:
         m.d2 = self.kf.d2(m.x, m.y)
         return m
 
+    def confirm_on_line(self, frame_bgr: np.ndarray, x: float, y: float) -> Match | None:
+        """A crowd marker carried by the layer's motion, placed at (x, y) on the other view's epipolar line
+        (engine.py), measured by its own outline: a circle of its radius found all round it within half a
+        radius of there (TemplateMatcher.silhouette, strict), whatever its template scores (a bead half hidden
+        behind its neighbours shows only part of its shading). None without that outline, on a blob of two
+        beads merged, or cut by the border."""
+        m = self.matcher.match(frame_bgr, x, y, 2.0, 2.0)
+        if m is None or m.colour_frac > MERGED_COVERAGE:
+            return None
+        e = self.matcher.silhouette(frame_bgr, x, y, strict=True)
+        if e is None:
+            return None
+        m.x, m.y = e
+        m.outline, m.used_centroid, m.lit = True, True, False
+        if self.cut_by_border(frame_bgr, m):
+            return None
+        m.d2 = self.kf.d2(m.x, m.y)
+        return m
+
     def _learn_highlight(self, frame_bgr, m: Match) -> None:
         """Where this crowd bead's highlight sits from its centre, from a frame that measured its outline
         all round it (a running mean)."""
