@@ -161,21 +161,27 @@ def assign(markers: np.ndarray, beads: np.ndarray, gate: float, margin: float) -
     return pairs, ambiguous
 
 
-def moved_with(old: np.ndarray, anchors_old: np.ndarray, anchors_now: np.ndarray) -> tuple[np.ndarray, float] | None:
+def moved_with(old: np.ndarray, anchors_old: np.ndarray, anchors_now: np.ndarray, on_line_px: float = 0.0
+               ) -> tuple[np.ndarray, float] | None:
     """Where a bead that was at `old` (x, y) is now, from the beads around it then (`anchors_old` (k, 2))
     and now (`anchors_now`): the sand carries close beads alike (a smooth field), so the affine map of
-    their moves (least squares) carries it too. Returns (its position, the largest distance of an anchor
-    from where the map puts it), or None with fewer than MIN_ANCHORS anchors or ones nearly on a line
-    (the map across that line is not known)."""
+    their moves (least squares) carries it too. Anchors nearly on a line do not tell the map across that
+    line: they carry a bead within `on_line_px` of their line by the similarity of their moves (a column of
+    beads carries its own next bead), and no other. Returns (its position, the largest distance of an
+    anchor from where the map puts it), or None with fewer than MIN_ANCHORS anchors or a bead off their
+    line."""
     a_old = np.asarray(anchors_old, float).reshape(-1, 2)
     a_now = np.asarray(anchors_now, float).reshape(-1, 2)
     if len(a_old) < MIN_ANCHORS:
         return None
-    spread = np.linalg.svd(a_old - a_old.mean(axis=0), compute_uv=False)
-    if spread[1] < COLLINEAR * spread[0]:
-        return None
+    if _on_a_line(a_old):
+        centre = a_old.mean(axis=0)
+        along = np.linalg.svd(a_old - centre)[2][0]
+        off = np.asarray(old, float) - centre
+        if abs(off[0] * along[1] - off[1] * along[0]) > on_line_px:
+            return None
     homog = np.c_[a_old, np.ones(len(a_old))]
-    m, *_r = np.linalg.lstsq(homog, a_now, rcond=None)
+    m = _fit_map(homog, a_now)
     residual = float(np.hypot(*(homog @ m - a_now).T).max())
     return np.r_[np.asarray(old, float), 1.0] @ m, residual
 
@@ -242,7 +248,7 @@ def register(old: np.ndarray, beads: np.ndarray, radius: float, reach: float, ma
         return None, {}
     ranked = sorted(found.items(), key=lambda kv: kv[1][0])
     best_pairs, (best, at) = ranked[0]
-    if len(best_pairs) < (MIN_GROUP if fixed is not None else max(MIN_GROUP, 0.5 * n)):
+    if len(best_pairs) < _pairs_needed(n, anchors):
         return None, {}
     agreed = set(best_pairs)
     for pairs, (cost, _at) in ranked[1:]:
@@ -252,6 +258,26 @@ def register(old: np.ndarray, beads: np.ndarray, radius: float, reach: float, ma
             return None, {}
         agreed &= set(pairs)
     return at, dict(agreed)
+
+
+def _pairs_needed(n: int, anchors: tuple | None) -> int:
+    """Pairs a registration of a group of `n` lost beads needs: half the group (a lattice fits itself
+    shifted by a bead; only a good part of the patch's outline tells them apart); MIN_GROUP when beads
+    measured around the group (anchors) pin the map against such a shift (the caller refuses a map that
+    misplaces one by more than a radius); one when at least MIN_ANCHORS of them, not on a line, fix the
+    map by themselves (as they carry a single lost bead: moved_with)."""
+    then = None if anchors is None else np.asarray(anchors[0], float).reshape(-1, 2)
+    if then is None or not len(then):
+        return int(math.ceil(max(MIN_GROUP, 0.5 * n)))
+    if len(then) >= MIN_ANCHORS and not _on_a_line(then):
+        return 1
+    return MIN_GROUP
+
+
+def _on_a_line(points: np.ndarray) -> bool:
+    """Points (k, 2) whose spread across their line is under COLLINEAR of their spread along it."""
+    spread = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
+    return len(points) < 3 or spread[1] < COLLINEAR * spread[0]
 
 
 def anchor_misfit(old: np.ndarray, at: np.ndarray, anchors_old: np.ndarray, anchors_now: np.ndarray) -> float:

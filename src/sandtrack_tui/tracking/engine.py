@@ -305,7 +305,6 @@ class Engine:
         for t, (x, y) in found.items():
             m = t.verify_at(img, float(x), float(y)) or t.verify_assigned(img, float(x), float(y))
             if m is not None and math.hypot(m.x - x, m.y - y) <= 0.5 * t.model.radius:
-                m.assigned = True  # (who it is comes from where it went: its template is cut again there)
                 props[(t.marker, cam)] = _Proposal(m, reattach=True)
                 n += 1
         return n
@@ -500,7 +499,7 @@ class Engine:
                     and math.hypot(a_seen[f][0] - x, a_seen[f][1] - y) <= ANCHOR_REACH * radius]
             if len(near) < crowd_rules.MIN_ANCHORS:
                 continue
-            out = crowd_rules.moved_with((x, y), [a for a, _ in near], [b for _, b in near])
+            out = crowd_rules.moved_with((x, y), [a for a, _ in near], [b for _, b in near], 0.5 * radius)
             if out is None:
                 continue  # (those anchors do not fix the map: on a line)
             if out[1] > 0.5 * radius:
@@ -724,7 +723,7 @@ class Engine:
         for i, k in _touching_pairs(pts, lambda ri, rk: 1.2 * max(ri, rk)):
             (ta, pa), (tb, pb) = keyed[i], keyed[k]
             ka, kb = (ta.marker, ta.camera), (tb.marker, tb.camera)
-            if ka not in props or kb not in props:
+            if ka not in props or kb not in props:  # XX or _two_outlines(ta, pa.match, tb, pb.match):
                 continue
             better_a = (pa.match.score - 0.05 * pa.match.d2) >= (pb.match.score - 0.05 * pb.match.d2)
             del props[kb if better_a else ka]
@@ -1156,6 +1155,14 @@ class Engine:
                "why": "blob wanted by two tracks" if shared else "several candidate blobs in the gate"}
         self.ambiguous.append(rec)
         self._open_ambiguity[key] = rec
+
+
+def _two_outlines(ta: MarkerTrack, ma: Match, tb: MarkerTrack, mb: Match) -> bool:
+    """Two crowd matches each centred on its own outline, found all round, more than half a radius apart:
+    two beads, one partly over the other (a pressed layer piles up), not one bead claimed twice (one
+    outline measured twice gives centres much nearer than that)."""
+    return ta.model.crowd and tb.model.crowd and ma.outline and mb.outline and \
+        math.hypot(ma.x - mb.x, ma.y - mb.y) > 0.5 * max(ta.model.radius, tb.model.radius)
 
 
 def _alike(moves: list, min_px: float = 2.0, spread_px: float = 1.5) -> bool:

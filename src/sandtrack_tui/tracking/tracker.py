@@ -549,7 +549,7 @@ class MarkerTrack:
         ones poorly (NCC 0.0-0.66 where the pairing was right). Its updated template is cut again there
         (apply). None without that outline, or on a blob of two beads merged, or cut by the border."""
         m = self.matcher.match(frame_bgr, x, y, 2.0, 2.0)
-        if m is None or not m.outline or m.colour_frac > MERGED_COVERAGE or self.cut_by_border(frame_bgr, m):
+        if m is None or not m.outline or m.colour_frac > self._merged_coverage() or self.cut_by_border(frame_bgr, m):
             return None
         m.assigned = True
         m.d2 = self.kf.d2(m.x, m.y)
@@ -584,7 +584,7 @@ class MarkerTrack:
         behind its neighbours shows only part of its shading). None without that outline, on a blob of two
         beads merged, or cut by the border."""
         m = self.matcher.match(frame_bgr, x, y, 2.0, 2.0)
-        if m is None or m.colour_frac > MERGED_COVERAGE:
+        if m is None or m.colour_frac > self._merged_coverage():
             return None
         e = self.matcher.silhouette(frame_bgr, x, y, strict=True)
         if e is None:
@@ -595,6 +595,12 @@ class MarkerTrack:
             return None
         m.d2 = self.kf.d2(m.x, m.y)
         return m
+
+    def _merged_coverage(self) -> float:
+        """Marker coverage (in discs) above which a crowd match centred on its outline is two beads merged:
+        more than a bead shows with six like it touching it all round (crowd.packed_coverage; a small bead's
+        window holds relatively more of its neighbours' rims), and never under MERGED_COVERAGE."""
+        return crowd_rules.packed_coverage(self.model.radius, MERGED_COVERAGE)
 
     def _learn_highlight(self, frame_bgr, m: Match) -> None:
         """Where this crowd bead's highlight sits from its centre, from a frame that measured its outline
