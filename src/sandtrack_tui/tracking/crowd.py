@@ -248,7 +248,7 @@ def register(old: np.ndarray, beads: np.ndarray, radius: float, reach: float, ma
         return None, {}
     ranked = sorted(found.items(), key=lambda kv: kv[1][0])
     best_pairs, (best, at) = ranked[0]
-    if len(best_pairs) < _pairs_needed(n, anchors):
+    if not _pinned(old[[i for i, _b in best_pairs]], n, anchors):
         return None, {}
     agreed = set(best_pairs)
     for pairs, (cost, _at) in ranked[1:]:
@@ -260,18 +260,19 @@ def register(old: np.ndarray, beads: np.ndarray, radius: float, reach: float, ma
     return at, dict(agreed)
 
 
-def _pairs_needed(n: int, anchors: tuple | None) -> int:
-    """Pairs a registration of a group of `n` lost beads needs: half the group (a lattice fits itself
-    shifted by a bead; only a good part of the patch's outline tells them apart); MIN_GROUP when beads
-    measured around the group (anchors) pin the map against such a shift (the caller refuses a map that
-    misplaces one by more than a radius); one when at least MIN_ANCHORS of them, not on a line, fix the
-    map by themselves (as they carry a single lost bead: moved_with)."""
-    then = None if anchors is None else np.asarray(anchors[0], float).reshape(-1, 2)
-    if then is None or not len(then):
-        return int(math.ceil(max(MIN_GROUP, 0.5 * n)))
-    if len(then) >= MIN_ANCHORS and not _on_a_line(then):
-        return 1
-    return MIN_GROUP
+def _pinned(paired: np.ndarray, n: int, anchors: tuple | None) -> bool:
+    """A registration pairing the lost beads at `paired` (k, 2) of a group of `n` is pinned down. Without
+    anchors: by half the group at least (a lattice fits itself shifted by a bead; only a good part of the
+    patch's outline tells them apart). With beads measured around the group (anchors: a map shifted by a
+    bead misplaces them, and the caller refuses one that misplaces any by more than a radius): by
+    MIN_GROUP pairs, or by MIN_GROUP points, pairs and anchors, not on a line (the map across the group
+    measured by them)."""
+    if anchors is None or not len(anchors[0]):
+        return len(paired) >= max(MIN_GROUP, 0.5 * n)
+    if len(paired) >= MIN_GROUP:
+        return True
+    points = np.r_[paired, np.asarray(anchors[0], float).reshape(-1, 2)]
+    return len(paired) >= 1 and len(points) >= MIN_GROUP and not _on_a_line(points)
 
 
 def _on_a_line(points: np.ndarray) -> bool:

@@ -279,6 +279,8 @@ class Engine:
         if lacking.any():
             where[lacking] = crowd_rules.carried(start[lacking], src, dst, 4.0 * r)
         for t, xy in zip(missed, where, strict=True):
+            # (NaN: where the layer took it is not known; it is not carried again, from a prediction that may
+            # lie on another bead by now, until something measures it: the start above stays NaN)
             self._crowd_carried[(t.marker, cam)] = (float(xy[0]), float(xy[1]))
             if np.isfinite(xy[0]):
                 kx, ky = t.kf.xy
@@ -371,7 +373,7 @@ class Engine:
         together with at least crowd.MIN_ANCHORS of the beads around it (within ANCHOR_REACH radii) by
         the affine map of those beads' moves since (crowd.moved_with), then all are assigned at once to
         the beads no track explains, with crowd.assign's margins; returns how many came back."""
-        strays = [t for t in tracks if t.model.crowd and t.misses > SHORT_MISS
+        strays = [t for t in tracks if t.model.crowd and (t.misses > SHORT_MISS or (t.misses and not t.carried))
                   and (t.marker, cam) not in props and (t.marker, cam) not in forced]
         if not strays:
             return 0
