@@ -725,7 +725,7 @@ class Engine:
         for i, k in _touching_pairs(pts, lambda ri, rk: 1.2 * max(ri, rk)):
             (ta, pa), (tb, pb) = keyed[i], keyed[k]
             ka, kb = (ta.marker, ta.camera), (tb.marker, tb.camera)
-            if ka not in props or kb not in props:  # XX or _two_outlines(ta, pa.match, tb, pb.match):
+            if ka not in props or kb not in props or _two_outlines(ta, pa.match, tb, pb.match):
                 continue
             better_a = (pa.match.score - 0.05 * pa.match.d2) >= (pb.match.score - 0.05 * pb.match.d2)
             del props[kb if better_a else ka]
