@@ -239,25 +239,67 @@ def register(old: np.ndarray, beads: np.ndarray, radius: float, reach: float, ma
                         continue
                     s = complex(*(beads[j2] - beads[j1])) / a
                     at = (old - old[i1]) @ np.array([[s.real, s.imag], [-s.imag, s.real]]) + beads[j1]
-                    cost, pairs, at = _refine(homog, at, beads, radius, fixed)
-                    if not _carried_like(homog, at):
+                    cost, pairs, at, m = _refine(homog, at, beads, radius, fixed)
+                    if not _carried_like(m):
                         continue
                     if pairs not in found or found[pairs][0] > cost:
-                        found[pairs] = (cost, at)
+                        found[pairs] = (cost, at, m)
     if not found:
         return None, {}
     ranked = sorted(found.items(), key=lambda kv: kv[1][0])
-    best_pairs, (best, at) = ranked[0]
-    if not _pinned(old[[i for i, _b in best_pairs]], n, anchors):
+    best_pairs, (best, at, m) = ranked[0]
+    if not _pinned(old[[i for i, _b in best_pairs]], n, anchors) or \
+            (fixed is not None and anchor_misfit(m, *anchors) > radius):
         return None, {}
-    agreed = set(best_pairs)
-    for pairs, (cost, _at) in ranked[1:]:
+    rivals = []
+    for pairs, (cost, _at, _m) in ranked[1:]:
         if best <= margin * cost:
             break
         if len(set(pairs) & set(best_pairs)) < 0.5 * len(best_pairs):
             return None, {}
-        agreed &= set(pairs)
+        rivals.append(set(pairs))
+    agreed = set(best_pairs).intersection(*rivals)
+    # (a layer carried by the tool is not stretched alike all over the patch: each lost bead is placed again by
+    # the map of the pairs and anchors nearest it; one the patch's map left unpaired is taken where no rival
+    # pairing contradicts it)
+    at = _placed_locally(old, at, best_pairs, beads, fixed)
+    d = np.hypot(at[:, None, 0] - beads[None, :, 0], at[:, None, 1] - beads[None, :, 1])
+    rows, cols = linear_sum_assignment(np.minimum(d, radius))
+    paired = {i for i, _b in best_pairs}
+    for i, b in zip(rows, cols, strict=True):
+        if i not in paired and d[i, b] < 0.5 * radius and not any(_contradicts(rival, i, b) for rival in rivals):
+            agreed.add((int(i), int(b)))
     return at, dict(agreed)
+
+
+def _contradicts(pairs: set, i: int, b: int) -> bool:
+    """A pairing `pairs` gives lost bead i another bead, or bead b another lost bead."""
+    return any((pi == i) != (pb == b) for pi, pb in pairs)
+
+
+def _placed_locally(old: np.ndarray, at: np.ndarray, pairs: tuple, beads: np.ndarray, fixed: tuple | None
+                    ) -> np.ndarray:
+    """Each lost bead of `old` (n, 2) placed by the affine map of the MIN_GROUP or more points (the
+    registration's pairs, the anchors `fixed`) nearest it where they were, as many as it takes for them not
+    to lie on a line; where there are not enough of them, as `at` (the patch's map) placed it."""
+    src = old[[i for i, _b in pairs]]
+    dst = beads[[b for _i, b in pairs]]
+    if fixed is not None:
+        src, dst = np.r_[src, fixed[0][:, :2]], np.r_[dst, fixed[1]]
+    out = np.array(at, float)
+    if len(src) < MIN_GROUP:
+        return out
+    for i, p in enumerate(old):
+        order = np.argsort(np.hypot(*(src - p).T))
+        k = MIN_GROUP
+        while k <= len(src) and _on_a_line(src[order[:k]]):
+            k += 1
+        if k > len(src):
+            continue
+        near = order[:k]
+        m = _fit_map(np.c_[src[near], np.ones(k)], dst[near])
+        out[i] = np.r_[p, 1.0] @ m
+    return out
 
 
 def _pinned(paired: np.ndarray, n: int, anchors: tuple | None) -> bool:
@@ -281,24 +323,21 @@ def _on_a_line(points: np.ndarray) -> bool:
     return len(points) < 3 or spread[1] < COLLINEAR * spread[0]
 
 
-def anchor_misfit(old: np.ndarray, at: np.ndarray, anchors_old: np.ndarray, anchors_now: np.ndarray) -> float:
+def anchor_misfit(m: np.ndarray, anchors_old: np.ndarray, anchors_now: np.ndarray) -> float:
     """How far (px, the largest) the beads measured around a registered patch (`anchors_old` (k, 2) at
-    the patch's frame, `anchors_now` now) lie from where the patch's map (the affine map taking `old` to
-    `at`) puts them: the layer carried them with the patch, so a map shifted by a bead (a lattice fits
-    itself shifted) misplaces them by as much. 0 without anchors."""
+    the patch's frame, `anchors_now` now) lie from where the patch's map `m` (3, 2) puts them: the layer
+    carried them with the patch, so a map shifted by a bead (a lattice fits itself shifted) misplaces them
+    by as much. 0 without anchors."""
     a_old = np.asarray(anchors_old, float).reshape(-1, 2)
     if not len(a_old):
         return 0.0
-    old = np.asarray(old, float).reshape(-1, 2)
-    m, *_r = np.linalg.lstsq(np.c_[old, np.ones(len(old))], np.asarray(at, float), rcond=None)
     placed = np.c_[a_old, np.ones(len(a_old))] @ m
     return float(np.hypot(*(placed - np.asarray(anchors_now, float).reshape(-1, 2)).T).max())
 
 
-def _carried_like(homog: np.ndarray, at: np.ndarray) -> bool:
-    """The affine map taking the group (homogeneous (n, 3)) to `at` neither mirrors it nor turns it by
-    MAX_TURN_DEG or more (the rotation nearest its linear part)."""
-    m, *_r = np.linalg.lstsq(homog, at, rcond=None)
+def _carried_like(m: np.ndarray) -> bool:
+    """The affine map `m` (3, 2) neither mirrors the group nor turns it by MAX_TURN_DEG or more (the rotation
+    nearest its linear part), nor presses it below MIN_STRETCH or stretches it beyond MAX_STRETCH."""
     lin = m[:2].T
     if np.linalg.det(lin) <= 0:
         return False
@@ -319,8 +358,8 @@ def _anchored(anchors: tuple | None) -> tuple | None:
 
 def _refine(homog: np.ndarray, at: np.ndarray, beads: np.ndarray, radius: float, fixed: tuple | None = None,
             rounds: int = 3):
-    """(cost, pairs within half a radius, positions) of one registration hypothesis, refined (with the
-    anchors `fixed` (_anchored) in the fit and in the cost)."""
+    """(cost, pairs within half a radius, positions, map (3, 2)) of one registration hypothesis, refined
+    (with the anchors `fixed` (_anchored) in the fit and in the cost)."""
     m = None
     for k in range(rounds + 1):
         d = np.hypot(at[:, None, 0] - beads[None, :, 0], at[:, None, 1] - beads[None, :, 1])
@@ -336,11 +375,11 @@ def _refine(homog: np.ndarray, at: np.ndarray, beads: np.ndarray, radius: float,
         at = homog @ m
     pairs = tuple((int(r), int(c)) for r, c in zip(rows, cols, strict=True) if d[r, c] < 0.5 * radius)
     cost = float(capped[rows, cols].sum())
+    if m is None:
+        m = _fit_map(homog, at)
     if fixed is not None:
-        if m is None:
-            m = _fit_map(homog, at)
         cost += float(np.minimum(np.hypot(*(fixed[0] @ m - fixed[1]).T), radius).sum())
-    return cost, pairs, at
+    return cost, pairs, at, m
 
 
 def _fit_map(src: np.ndarray, dst: np.ndarray) -> np.ndarray:

@@ -307,6 +307,7 @@ class Engine:
         for t, (x, y) in found.items():
             m = t.verify_at(img, float(x), float(y)) or t.verify_assigned(img, float(x), float(y))
             if m is not None and math.hypot(m.x - x, m.y - y) <= 0.5 * t.model.radius:
+                m.assigned = True  # (who it is comes from where it went: its template is cut again there)
                 props[(t.marker, cam)] = _Proposal(m, reattach=True)
                 n += 1
         return n
@@ -358,7 +359,7 @@ class Engine:
             # lookalikes no track follows, than the patch where it is)
             anchors = self._anchors_at(cam, f0, old[patch], ANCHOR_REACH * r, props, forced)
             at, agreed = crowd_rules.register(old[patch], beads, r, reach, anchors=anchors)
-            if at is None or crowd_rules.anchor_misfit(old[patch], at, *anchors) > r:
+            if at is None:
                 continue
             pairs, ambiguous = crowd_rules.assign(at, beads, 0.5 * r, 0.5 * r)
             for i in ambiguous:

@@ -571,7 +571,7 @@ class MarkerTrack:
         if h is None:
             return None
         cx, cy = h[0] - off[0], h[1] - off[1]
-        if math.hypot(cx - x, cy - y) > CARRIED_AGREE_PX:
+        if math.hypot(cx - x, cy - y) > self._highlight_agree_px():
             return None
         m.x, m.y, m.outline, m.used_centroid = cx, cy, True, True
         m.d2 = self.kf.d2(m.x, m.y)
@@ -601,6 +601,15 @@ class MarkerTrack:
         more than a bead shows with six like it touching it all round (crowd.packed_coverage; a small bead's
         window holds relatively more of its neighbours' rims), and never under MERGED_COVERAGE."""
         return crowd_rules.packed_coverage(self.model.radius, MERGED_COVERAGE)
+
+    def _highlight_agree_px(self) -> float:
+        """How far from where it was carried a crowd bead's highlight may put its centre (confirm_carried):
+        so far that, were that centre the bead's, the highlight's search (half a radius around the carried
+        place plus the offset) lay wholly on the bead's body, a pixel's blur inside its rim: the brightest
+        point found there is then its own highlight, not the sand between the beads; never under
+        CARRIED_AGREE_PX."""
+        off = self.highlight_offset
+        return max(CARRIED_AGREE_PX, 0.5 * self.model.radius - math.hypot(*off) - 1.0)
 
     def _learn_highlight(self, frame_bgr, m: Match) -> None:
         """Where this crowd bead's highlight sits from its centre, from a frame that measured its outline
