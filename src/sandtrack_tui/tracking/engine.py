@@ -517,8 +517,9 @@ class Engine:
         is found all round it within half a radius of the foot of its carried place on that line
         (MarkerTrack.confirm_on_line; a bead half hidden behind its neighbours in a slanted view shows
         neither its template nor its highlight, but its outline against the sand), lying on that line as
-        closely as the stereo check asks, with no other marker of this camera measured within a radius, it
-        is measured there. Returns how many came back."""
+        closely as the stereo check asks, and no other marker of this camera measured on that outline (within
+        half a radius: in a slanted view a bead half behind another lies nearer than a radius to it), it is
+        measured there. Returns how many came back."""
         n = 0
         for t in tracks:
             key = (t.marker, cam)
@@ -534,7 +535,8 @@ class Engine:
             m = t.confirm_on_line(img, *foot)
             if m is None or self.stereo.distance(other[1], band_from, cam, (m.x, m.y))[0] > self.stereo.threshold_px \
                     or math.hypot(m.x - carried[0], m.y - carried[1]) > 0.5 * t.model.radius \
-                    or any(math.hypot(m.x - a, m.y - b) < t.model.radius for a, b in self._explained(cam, props, forced)):
+                    or any(math.hypot(m.x - a, m.y - b) <= 0.5 * t.model.radius
+                           for a, b in self._explained(cam, props, forced)):
                 continue
             props[key] = _Proposal(m, reattach=True)
             n += 1
