@@ -571,8 +571,14 @@ class MarkerTrack:
         if h is None:
             return None
         cx, cy = h[0] - off[0], h[1] - off[1]
-        if math.hypot(cx - x, cy - y) > self._highlight_agree_px():
-            return None
+        d = math.hypot(cx - x, cy - y)
+        if d > self._highlight_agree_px():
+            # (farther, within the gate of an assignment: its own outline, of its radius, found all round that
+            # centre confirms it; the sand between beads gives no such outline)
+            e = self.matcher.silhouette(frame_bgr, cx, cy, strict=True) if d <= 0.5 * self.model.radius else None
+            if e is None or math.hypot(e[0] - cx, e[1] - cy) > CARRIED_AGREE_PX:
+                return None
+            cx, cy = e
         m.x, m.y, m.outline, m.used_centroid = cx, cy, True, True
         m.d2 = self.kf.d2(m.x, m.y)
         return m
