@@ -18,11 +18,14 @@ Beads hidden together (under the tool) while the layer moved on have no motion m
 patch they formed is matched to the beads no track explains by one affine map of the patch, and
 only where the patch's outline tells the map apart from the same map shifted by a bead; the beads
 measured around the patch were carried with it (`anchor_misfit`): a map that misplaces them is the
-patch shifted onto lookalikes no track follows. A lost bead whose neighbours are measured again is
-carried by the affine map of their moves since they were last measured together (`moved_with`).
-A bead given back is measured by its own outline (its template, cut among its old neighbours, may
-no longer fit it) or, where its outline is pressed against its neighbours', by its highlight.
-Anything else stays flagged for the operator.
+patch shifted onto lookalikes no track follows, and a map they pin needs no more than a few pairs (the
+first beads out from under the tool, a column along its edge, are carried by the similarity along
+that line: `_fit_map`). The tool stretches the layer more near it than away from it: each bead is
+then placed by the map of the pairs and anchors nearest it (`_placed_locally`). A lost bead whose
+neighbours are measured again is carried by the affine map of their moves since they were last
+measured together (`moved_with`). A bead given back is measured by its own outline (its template, cut
+among its old neighbours, may no longer fit it) or, where its outline is pressed against its
+neighbours', by its highlight. Anything else stays flagged for the operator.
 """
 
 from __future__ import annotations
@@ -48,6 +51,9 @@ REGISTER_MARGIN = 0.85  # a registration's score must be under this share of any
 # A packing of identical beads looks the same turned by 60 degrees: a hidden patch is taken as turned by
 # less than half that (the smallest turn that explains it).
 MAX_TURN_DEG = 30.0
+# Touching beads are not pressed closer together (a little, in the image, where the layer tilts) and a carried
+# patch is stretched less than twice (the stretch at which a packing maps onto itself, every other bead):
+# the scale of a registration's map along any direction lies between these.
 MIN_STRETCH, MAX_STRETCH = 0.7, 1.8
 
 
@@ -161,20 +167,22 @@ def assign(markers: np.ndarray, beads: np.ndarray, gate: float, margin: float) -
     return pairs, ambiguous
 
 
-def moved_with(old: np.ndarray, anchors_old: np.ndarray, anchors_now: np.ndarray, on_line_px: float = 0.0
+def moved_with(old: np.ndarray, anchors_old: np.ndarray, anchors_now: np.ndarray, on_line_px: float | None = None
                ) -> tuple[np.ndarray, float] | None:
     """Where a bead that was at `old` (x, y) is now, from the beads around it then (`anchors_old` (k, 2))
     and now (`anchors_now`): the sand carries close beads alike (a smooth field), so the affine map of
     their moves (least squares) carries it too. Anchors nearly on a line do not tell the map across that
-    line: they carry a bead within `on_line_px` of their line by the similarity of their moves (a column of
-    beads carries its own next bead), and no other. Returns (its position, the largest distance of an
-    anchor from where the map puts it), or None with fewer than MIN_ANCHORS anchors or a bead off their
-    line."""
+    line: they carry a bead within `on_line_px` of their line (None: none) by the similarity of their moves
+    (a column of beads carries its own next bead), and no other. Returns (its position, the largest
+    distance of an anchor from where the map puts it), or None with fewer than MIN_ANCHORS anchors or a
+    bead off their line."""
     a_old = np.asarray(anchors_old, float).reshape(-1, 2)
     a_now = np.asarray(anchors_now, float).reshape(-1, 2)
     if len(a_old) < MIN_ANCHORS:
         return None
     if _on_a_line(a_old):
+        if on_line_px is None:
+            return None
         centre = a_old.mean(axis=0)
         along = np.linalg.svd(a_old - centre)[2][0]
         off = np.asarray(old, float) - centre
@@ -208,17 +216,23 @@ def register(old: np.ndarray, beads: np.ndarray, radius: float, reach: float, ma
     matched to two beads as far apart (at most `reach` px from where the first was; the margin below
     means something only when no pairing was left untried), each refined by alternating the assignment
     (Hungarian method, distances capped at a radius) and the least-squares affine map of the pairs
-    within a radius, scored by the capped distances summed over the group. A map that mirrors the
-    patch or turns it by MAX_TURN_DEG or more is no carrying of a packing (which looks the same turned
-    by 60 degrees). A lattice of identical beads fits itself shifted by a bead almost as well, only the
-    patch's outline tells: the best map counts only when it pairs at least half the group within half
-    a radius and its score is below `margin` x that of every hypothesis pairing the group otherwise
-    (fewer than half of the same pairs); and of its pairs, only those every hypothesis scoring within
-    that margin agrees on. `anchors` ((then (k, 2), now (k, 2))): beads measured around the group then and
-    now, carried with it: each map is fitted to them too and pays for each as for a lost bead (its
-    distance from where the map puts it, capped at a radius), so a map shifted by a bead pays for all
-    of them. Returns (the group's positions under the best map (n, 2), {lost bead: bead} of those
-    pairs), or (None, {})."""
+    within a radius (a similarity where they lie on a line: _fit_map), scored by the capped distances
+    summed over the group. A map that mirrors the patch, turns it by MAX_TURN_DEG or more (a packing
+    looks the same turned by 60 degrees) or scales it beyond MIN_STRETCH..MAX_STRETCH is no carrying
+    of a packing. Beads as far apart now as the two lost ones were, stretched as much, start the
+    hypotheses. A lattice of identical beads fits itself shifted by a bead almost as well, only the
+    patch's outline tells: the best map counts only when it is pinned (_pinned: half the group paired
+    within half a radius; with anchors, a few points off a line) and its score is below `margin` x that
+    of every hypothesis pairing the group otherwise (fewer than half of the same pairs); and of its
+    pairs, only those every hypothesis scoring within that margin agrees on. `anchors` ((then (k, 2),
+    now (k, 2))): beads measured around the group then and now, carried with it: each map is fitted to
+    them too and pays for each as for a lost bead (its distance from where the map puts it, capped at a
+    radius), so a map shifted by a bead pays for all of them, and the best is refused when it misplaces
+    any of them by more than a radius (half the pitch of the packing: anchor_misfit). Each lost bead is
+    then placed by the map of the pairs and anchors nearest it (_placed_locally); one the patch's map
+    left unpaired is paired there when within half a radius of a bead that no pair took, and no rival
+    hypothesis within the margin pairs it or that bead otherwise. Returns (the group's positions
+    (n, 2), {lost bead: bead} of those pairs), or (None, {})."""
     old = np.asarray(old, float).reshape(-1, 2)
     beads = np.asarray(beads, float).reshape(-1, 2)
     n = len(old)
@@ -265,9 +279,10 @@ def register(old: np.ndarray, beads: np.ndarray, radius: float, reach: float, ma
     at = _placed_locally(old, at, best_pairs, beads, fixed)
     d = np.hypot(at[:, None, 0] - beads[None, :, 0], at[:, None, 1] - beads[None, :, 1])
     rows, cols = linear_sum_assignment(np.minimum(d, radius))
-    paired = {i for i, _b in best_pairs}
+    paired, taken = {i for i, _b in best_pairs}, {b for _i, b in best_pairs}
     for i, b in zip(rows, cols, strict=True):
-        if i not in paired and d[i, b] < 0.5 * radius and not any(_contradicts(rival, i, b) for rival in rivals):
+        if i not in paired and b not in taken and d[i, b] < 0.5 * radius \
+                and not any(_contradicts(rival, i, b) for rival in rivals):
             agreed.add((int(i), int(b)))
     return at, dict(agreed)
 
@@ -386,8 +401,7 @@ def _fit_map(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     """The map (3, 2) taking `src` (homogeneous (k, 3)) to `dst` (k, 2) in least squares: affine, or where
     the points lie nearly on a line (a column of beads out from under the tool), the map across that
     line is not known and the similarity (turned and scaled alike) is taken."""
-    spread = np.linalg.svd(src[:, :2] - src[:, :2].mean(axis=0), compute_uv=False)
-    if len(src) >= 3 and spread[1] >= COLLINEAR * spread[0]:
+    if not _on_a_line(src[:, :2]):
         m, *_r = np.linalg.lstsq(src, dst, rcond=None)
         return m
     x, y = src[:, 0], src[:, 1]

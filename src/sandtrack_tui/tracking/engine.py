@@ -185,8 +185,9 @@ class Engine:
 
     # -- steps ---------------------------------------------------------------------------------
     def _crowd_passes(self, cam, img, j: int, tracks, props, forced, frames) -> int:
-        """The passes that give missed crowd markers back (carried and assigned, a hidden patch registered,
-        carried by their neighbours, on the other view's line); returns how many of them gave any back."""
+        """The passes that give missed crowd markers back (carried and assigned, measured on the other view's
+        line, a hidden patch registered, carried by their neighbours); returns how many of them gave any
+        back. (Those the other view pins come first: measured again, they pin a registration as anchors.)"""
         n = int(self._crowd_return(cam, img, j, tracks, props, forced) > 0)
         if self.stereo is not None:
             n += int(self._crowd_outline_on_line(cam, img, tracks, props, forced, frames) > 0)
@@ -318,8 +319,9 @@ class Engine:
         positions at the latest frame that measured most of them, split into patches of touching beads,
         each registered onto the beads no track explains (crowd.register: one affine map, accepted only
         with a clear margin over any other pairing, the beads measured around the patch fitted with it,
-        and only when it puts each of those within a radius of where it is: crowd.anchor_misfit), then
-        assigned one by one with the margins of crowd.assign; returns how many came back."""
+        and only when it puts each of those within a radius of where it is; each bead then placed by the
+        map of the pairs and anchors nearest it), then assigned one by one with the margins of
+        crowd.assign; returns how many came back."""
         strays = [t for t in tracks if t.model.crowd and t.misses > SHORT_MISS
                   and (t.marker, cam) not in props and (t.marker, cam) not in forced]
         if len(strays) < crowd_rules.MIN_GROUP:
@@ -369,8 +371,9 @@ class Engine:
         return n
 
     def _crowd_rejoin(self, cam, img, j: int, tracks, props, forced) -> int:
-        """Crowd markers unseen for more than SHORT_MISS frames whose neighbours are measured again (given
-        back by a registration, or never lost): each is carried from the last frame it was measured
+        """Crowd markers unseen for more than SHORT_MISS frames, or missed and carried by no motion (where
+        the layer took them is not known), whose neighbours are measured again (given back by a
+        registration, or never lost): each is carried from the last frame it was measured
         together with at least crowd.MIN_ANCHORS of the beads around it (within ANCHOR_REACH radii) by
         the affine map of those beads' moves since (crowd.moved_with), then all are assigned at once to
         the beads no track explains, with crowd.assign's margins; returns how many came back."""
@@ -404,9 +407,9 @@ class Engine:
     def _confirm_placed(self, cam, img, placed, where, beads, ambiguous: set, props, forced) -> int:
         """Lost crowd markers placed by their neighbours' map (_crowd_rejoin) that no detected bead gave
         back (in a pressed layer a bead's outline is not seen all round, so it is not detected), measured
-        where they were placed by their highlight (MarkerTrack.confirm_carried: a centre within
-        CARRIED_AGREE_PX of there), unless another bead could be the one there: an unexplained detected
-        bead, another placed marker or a marker measured this step within a radius of the place."""
+        where they were placed by their highlight (MarkerTrack.confirm_carried), unless another bead could
+        be the one there: an unexplained detected bead, another placed marker or a marker measured this
+        step within a radius of the place."""
         n = 0
         for i, t in enumerate(placed):
             if (t.marker, cam) in props or i in ambiguous:
@@ -428,8 +431,11 @@ class Engine:
         """Crowd markers unseen for more than SHORT_MISS frames that the other view measures this step (the
         same marker, or its paired track: _pair_crowd): the bead no track explains lying on the other
         view's epipolar band within `reach` of where the marker was last (its radius, plus how far the
-        other view saw it move since both last measured it, in this view's scale), with no other such
-        bead within a bead's width more along the band, is given back. Returns how many came back."""
+        other view saw it move since both last measured it, in this view's scale, but never more than its
+        radius), with no other such bead within a bead's width more along the band, is given back. (A bead
+        farther along the band than a radius leaves room for another nearer, half hidden or pressed among
+        its neighbours so that it is not detected, which may be the marker: on the dense twin every bead
+        given back from farther, 11-15 px, was another.) Returns how many came back."""
         n = 0
         for t in tracks:
             key = (t.marker, cam)

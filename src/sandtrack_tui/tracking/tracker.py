@@ -556,11 +556,13 @@ class MarkerTrack:
         return m
 
     def confirm_carried(self, frame_bgr: np.ndarray, x: float, y: float) -> Match | None:
-        """A crowd marker carried by the layer's motion to (x, y) (engine.py), measured again: its
-        template found there, and its highlight (crowd.highlight) found where this bead's own highlight
-        sits from its centre (learned while its outline was seen all round it), giving a centre within
-        CARRIED_AGREE_PX of (x, y): two independent estimates of where the bead is agree. Else None
-        (it stays flagged)."""
+        """A crowd marker carried by the layer's motion (or placed by its neighbours' moves) to (x, y)
+        (engine.py), measured again: its template found there, and its highlight (crowd.highlight) found
+        where this bead's own highlight sits from its centre (learned while its outline was seen all round
+        it), giving a centre near (x, y): two independent estimates of where the bead is agree. Near: as
+        far as keeps the highlight's search on the bead's body (_highlight_agree_px); or, within half a
+        radius (an assignment's gate), where the bead's own outline of its radius is found all round that
+        centre too. Else None (it stays flagged)."""
         off = self.highlight_offset
         if off is None:
             return None
