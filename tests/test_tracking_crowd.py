@@ -119,6 +119,16 @@ def test_a_lost_bead_is_carried_by_the_map_of_its_measured_neighbours_moves():
     row = [10, 11, 13, 14]
     assert crowd.moved_with(layer[lost], layer[row], now[row]) is None
     assert crowd.moved_with(layer[lost], layer[[6, 7]], now[[6, 7]]) is None
+    # ... but they carry a bead on their own line, along it (a column of beads its next bead): not one a
+    # row off it.
+    xy, misfit = crowd.moved_with(layer[lost], layer[row], now[row], on_line_px=0.5 * R)
+    assert np.hypot(*(xy - _carry(layer[lost:lost + 1])[0])) < 0.3 and misfit < 0.6
+    assert crowd.moved_with(layer[7], layer[row], now[row], on_line_px=0.5 * R) is None
+
+
+def _map_of(old: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """The map (3, 2) taking `old` to `at` (a similarity where `old` lies on a line)."""
+    return crowd._fit_map(np.c_[old, np.ones(len(old))], at)
 
 
 def test_a_registration_shifted_onto_lookalikes_no_track_follows_is_refused_by_the_beads_around_it():
@@ -140,10 +150,10 @@ def test_a_registration_shifted_onto_lookalikes_no_track_follows_is_refused_by_t
     # it): every bead measured around the patch then lies a row off where that map puts it.
     at, agreed = crowd.register(layer[group], now[beads], R, 6 * R)
     assert at is not None and all(beads[b] in lookalikes for b in agreed.values())
-    assert crowd.anchor_misfit(layer[group], at, *ends) > 2 * R
+    assert crowd.anchor_misfit(_map_of(layer[group], at), *ends) > 2 * R
     # Fitted with the anchors, the map is the patch's: each shown bead its own, none a lookalike.
     at, agreed = crowd.register(layer[group], now[beads], R, 6 * R, anchors=ends)
-    assert at is not None and crowd.anchor_misfit(layer[group], at, *ends) < 0.5 * R
+    assert at is not None and np.hypot(*(at - now[group]).T).max() < 0.5 * R
     assert {group[i]: beads[b] for i, b in agreed.items()} == {k: k for k in shown}
     # With only the lookalikes in sight, the anchors leave no map that fits: nothing is paired.
     assert crowd.register(layer[group], now[lookalikes], R, 6 * R, anchors=ends) == (None, {})

@@ -18,11 +18,14 @@ Beads hidden together (under the tool) while the layer moved on have no motion m
 patch they formed is matched to the beads no track explains by one affine map of the patch, and
 only where the patch's outline tells the map apart from the same map shifted by a bead; the beads
 measured around the patch were carried with it (`anchor_misfit`): a map that misplaces them is the
-patch shifted onto lookalikes no track follows. A lost bead whose neighbours are measured again is
-carried by the affine map of their moves since they were last measured together (`moved_with`).
-A bead given back is measured by its own outline (its template, cut among its old neighbours, may
-no longer fit it) or, where its outline is pressed against its neighbours', by its highlight.
-Anything else stays flagged for the operator.
+patch shifted onto lookalikes no track follows, and a map they pin needs no more than a few pairs (the
+first beads out from under the tool, a column along its edge, are carried by the similarity along
+that line: `_fit_map`). The tool stretches the layer more near it than away from it: each bead is
+then placed by the map of the pairs and anchors nearest it (`_placed_locally`). A lost bead whose
+neighbours are measured again is carried by the affine map of their moves since they were last
+measured together (`moved_with`). A bead given back is measured by its own outline (its template, cut
+among its old neighbours, may no longer fit it) or, where its outline is pressed against its
+neighbours', by its highlight. Anything else stays flagged for the operator.
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ MIN_NEIGHBOURS = 2  # measured neighbours a missed marker's carried position nee
 FLOW_BACK_PX = 0.3  # a bead's image motion is trusted when tracking it back lands within this of its start
 FLOW_MAX_MOVE = 1.0  # a bead's move per frame, in radii, beyond which the image motion is not the layer's
 FLOW_LEVELS = 2  # pyramid levels of the image motion (a layer moves a few px per frame, a bead is ~15 px)
+COLLINEAR = 0.25  # points whose spread across their line is under this share of it along it lie on a line
 MIN_ANCHORS = 3  # measured beads around a lost one that carry it (an affine map of their moves)
 MIN_GROUP = 4  # lost beads (and pairs) a registration of a hidden patch of the layer needs
 # Lost beads a registration takes at most: its hypotheses grow as the patch's square and each is
@@ -47,6 +51,10 @@ REGISTER_MARGIN = 0.85  # a registration's score must be under this share of any
 # A packing of identical beads looks the same turned by 60 degrees: a hidden patch is taken as turned by
 # less than half that (the smallest turn that explains it).
 MAX_TURN_DEG = 30.0
+# Touching beads are not pressed closer together (a little, in the image, where the layer tilts) and a carried
+# patch is stretched less than twice (the stretch at which a packing maps onto itself, every other bead):
+# the scale of a registration's map along any direction lies between these.
+MIN_STRETCH, MAX_STRETCH = 0.7, 1.8
 
 
 def flowed(prev_bgr: np.ndarray, cur_bgr: np.ndarray, points: np.ndarray, radius: float) -> np.ndarray:
@@ -159,21 +167,29 @@ def assign(markers: np.ndarray, beads: np.ndarray, gate: float, margin: float) -
     return pairs, ambiguous
 
 
-def moved_with(old: np.ndarray, anchors_old: np.ndarray, anchors_now: np.ndarray) -> tuple[np.ndarray, float] | None:
+def moved_with(old: np.ndarray, anchors_old: np.ndarray, anchors_now: np.ndarray, on_line_px: float | None = None
+               ) -> tuple[np.ndarray, float] | None:
     """Where a bead that was at `old` (x, y) is now, from the beads around it then (`anchors_old` (k, 2))
     and now (`anchors_now`): the sand carries close beads alike (a smooth field), so the affine map of
-    their moves (least squares) carries it too. Returns (its position, the largest distance of an anchor
-    from where the map puts it), or None with fewer than MIN_ANCHORS anchors or ones nearly on a line
-    (the map across that line is not known)."""
+    their moves (least squares) carries it too. Anchors nearly on a line do not tell the map across that
+    line: they carry a bead within `on_line_px` of their line (None: none) by the similarity of their moves
+    (a column of beads carries its own next bead), and no other. Returns (its position, the largest
+    distance of an anchor from where the map puts it), or None with fewer than MIN_ANCHORS anchors or a
+    bead off their line."""
     a_old = np.asarray(anchors_old, float).reshape(-1, 2)
     a_now = np.asarray(anchors_now, float).reshape(-1, 2)
     if len(a_old) < MIN_ANCHORS:
         return None
-    spread = np.linalg.svd(a_old - a_old.mean(axis=0), compute_uv=False)
-    if spread[1] < 0.25 * spread[0]:
-        return None
+    if _on_a_line(a_old):
+        if on_line_px is None:
+            return None
+        centre = a_old.mean(axis=0)
+        along = np.linalg.svd(a_old - centre)[2][0]
+        off = np.asarray(old, float) - centre
+        if abs(off[0] * along[1] - off[1] * along[0]) > on_line_px:
+            return None
     homog = np.c_[a_old, np.ones(len(a_old))]
-    m, *_r = np.linalg.lstsq(homog, a_now, rcond=None)
+    m = _fit_map(homog, a_now)
     residual = float(np.hypot(*(homog @ m - a_now).T).max())
     return np.r_[np.asarray(old, float), 1.0] @ m, residual
 
@@ -200,17 +216,23 @@ def register(old: np.ndarray, beads: np.ndarray, radius: float, reach: float, ma
     matched to two beads as far apart (at most `reach` px from where the first was; the margin below
     means something only when no pairing was left untried), each refined by alternating the assignment
     (Hungarian method, distances capped at a radius) and the least-squares affine map of the pairs
-    within a radius, scored by the capped distances summed over the group. A map that mirrors the
-    patch or turns it by MAX_TURN_DEG or more is no carrying of a packing (which looks the same turned
-    by 60 degrees). A lattice of identical beads fits itself shifted by a bead almost as well, only the
-    patch's outline tells: the best map counts only when it pairs at least half the group within half
-    a radius and its score is below `margin` x that of every hypothesis pairing the group otherwise
-    (fewer than half of the same pairs); and of its pairs, only those every hypothesis scoring within
-    that margin agrees on. `anchors` ((then (k, 2), now (k, 2))): beads measured around the group then and
-    now, carried with it: each map is fitted to them too and pays for each as for a lost bead (its
-    distance from where the map puts it, capped at a radius), so a map shifted by a bead pays for all
-    of them. Returns (the group's positions under the best map (n, 2), {lost bead: bead} of those
-    pairs), or (None, {})."""
+    within a radius (a similarity where they lie on a line: _fit_map), scored by the capped distances
+    summed over the group. A map that mirrors the patch, turns it by MAX_TURN_DEG or more (a packing
+    looks the same turned by 60 degrees) or scales it beyond MIN_STRETCH..MAX_STRETCH is no carrying
+    of a packing. Beads as far apart now as the two lost ones were, stretched as much, start the
+    hypotheses. A lattice of identical beads fits itself shifted by a bead almost as well, only the
+    patch's outline tells: the best map counts only when it is pinned (_pinned: half the group paired
+    within half a radius; with anchors, a few points off a line) and its score is below `margin` x that
+    of every hypothesis pairing the group otherwise (fewer than half of the same pairs); and of its
+    pairs, only those every hypothesis scoring within that margin agrees on. `anchors` ((then (k, 2),
+    now (k, 2))): beads measured around the group then and now, carried with it: each map is fitted to
+    them too and pays for each as for a lost bead (its distance from where the map puts it, capped at a
+    radius), so a map shifted by a bead pays for all of them, and the best is refused when it misplaces
+    any of them by more than a radius (half the pitch of the packing: anchor_misfit). Each lost bead is
+    then placed by the map of the pairs and anchors nearest it (_placed_locally); one the patch's map
+    left unpaired is paired there when within half a radius of a bead that no pair took, and no rival
+    hypothesis within the margin pairs it or that bead otherwise. Returns (the group's positions
+    (n, 2), {lost bead: bead} of those pairs), or (None, {})."""
     old = np.asarray(old, float).reshape(-1, 2)
     beads = np.asarray(beads, float).reshape(-1, 2)
     n = len(old)
@@ -226,54 +248,117 @@ def register(old: np.ndarray, beads: np.ndarray, radius: float, reach: float, ma
             span = d_old[i1, i2]
             a = complex(*(old[i2] - old[i1]))
             for j1 in np.nonzero(np.hypot(*(beads - old[i1]).T) <= reach)[0]:
-                for j2 in np.nonzero(np.abs(d_beads[j1] - span) <= 0.3 * span)[0]:
+                for j2 in np.nonzero((d_beads[j1] >= MIN_STRETCH * span) & (d_beads[j1] <= MAX_STRETCH * span))[0]:
                     if j2 == j1:
                         continue
                     s = complex(*(beads[j2] - beads[j1])) / a
                     at = (old - old[i1]) @ np.array([[s.real, s.imag], [-s.imag, s.real]]) + beads[j1]
-                    cost, pairs, at = _refine(homog, at, beads, radius, fixed)
-                    if not _carried_like(homog, at):
+                    cost, pairs, at, m = _refine(homog, at, beads, radius, fixed)
+                    if not _carried_like(m):
                         continue
                     if pairs not in found or found[pairs][0] > cost:
-                        found[pairs] = (cost, at)
+                        found[pairs] = (cost, at, m)
     if not found:
         return None, {}
     ranked = sorted(found.items(), key=lambda kv: kv[1][0])
-    best_pairs, (best, at) = ranked[0]
-    if len(best_pairs) < max(MIN_GROUP, 0.5 * n):
+    best_pairs, (best, at, m) = ranked[0]
+    if not _pinned(old[[i for i, _b in best_pairs]], n, anchors) or \
+            (fixed is not None and anchor_misfit(m, *anchors) > radius):
         return None, {}
-    agreed = set(best_pairs)
-    for pairs, (cost, _at) in ranked[1:]:
+    rivals = []
+    for pairs, (cost, _at, _m) in ranked[1:]:
         if best <= margin * cost:
             break
         if len(set(pairs) & set(best_pairs)) < 0.5 * len(best_pairs):
             return None, {}
-        agreed &= set(pairs)
+        rivals.append(set(pairs))
+    agreed = set(best_pairs).intersection(*rivals)
+    # (a layer carried by the tool is not stretched alike all over the patch: each lost bead is placed again by
+    # the map of the pairs and anchors nearest it; one the patch's map left unpaired is taken where no rival
+    # pairing contradicts it)
+    at = _placed_locally(old, at, best_pairs, beads, fixed)
+    d = np.hypot(at[:, None, 0] - beads[None, :, 0], at[:, None, 1] - beads[None, :, 1])
+    rows, cols = linear_sum_assignment(np.minimum(d, radius))
+    paired, taken = {i for i, _b in best_pairs}, {b for _i, b in best_pairs}
+    for i, b in zip(rows, cols, strict=True):
+        if i not in paired and b not in taken and d[i, b] < 0.5 * radius \
+                and not any(_contradicts(rival, i, b) for rival in rivals):
+            agreed.add((int(i), int(b)))
     return at, dict(agreed)
 
 
-def anchor_misfit(old: np.ndarray, at: np.ndarray, anchors_old: np.ndarray, anchors_now: np.ndarray) -> float:
+def _contradicts(pairs: set, i: int, b: int) -> bool:
+    """A pairing `pairs` gives lost bead i another bead, or bead b another lost bead."""
+    return any((pi == i) != (pb == b) for pi, pb in pairs)
+
+
+def _placed_locally(old: np.ndarray, at: np.ndarray, pairs: tuple, beads: np.ndarray, fixed: tuple | None
+                    ) -> np.ndarray:
+    """Each lost bead of `old` (n, 2) placed by the affine map of the MIN_GROUP or more points (the
+    registration's pairs, the anchors `fixed`) nearest it where they were, as many as it takes for them not
+    to lie on a line; where there are not enough of them, as `at` (the patch's map) placed it."""
+    src = old[[i for i, _b in pairs]]
+    dst = beads[[b for _i, b in pairs]]
+    if fixed is not None:
+        src, dst = np.r_[src, fixed[0][:, :2]], np.r_[dst, fixed[1]]
+    out = np.array(at, float)
+    if len(src) < MIN_GROUP:
+        return out
+    for i, p in enumerate(old):
+        order = np.argsort(np.hypot(*(src - p).T))
+        k = MIN_GROUP
+        while k <= len(src) and _on_a_line(src[order[:k]]):
+            k += 1
+        if k > len(src):
+            continue
+        near = order[:k]
+        m = _fit_map(np.c_[src[near], np.ones(k)], dst[near])
+        out[i] = np.r_[p, 1.0] @ m
+    return out
+
+
+def _pinned(paired: np.ndarray, n: int, anchors: tuple | None) -> bool:
+    """A registration pairing the lost beads at `paired` (k, 2) of a group of `n` is pinned down. Without
+    anchors: by half the group at least (a lattice fits itself shifted by a bead; only a good part of the
+    patch's outline tells them apart). With beads measured around the group (anchors: a map shifted by a
+    bead misplaces them, and the caller refuses one that misplaces any by more than a radius): by
+    MIN_GROUP pairs, or by MIN_GROUP points, pairs and anchors, not on a line (the map across the group
+    measured by them)."""
+    if anchors is None or not len(anchors[0]):
+        return len(paired) >= max(MIN_GROUP, 0.5 * n)
+    if len(paired) >= MIN_GROUP:
+        return True
+    points = np.r_[paired, np.asarray(anchors[0], float).reshape(-1, 2)]
+    return len(paired) >= 1 and len(points) >= MIN_GROUP and not _on_a_line(points)
+
+
+def _on_a_line(points: np.ndarray) -> bool:
+    """Points (k, 2) whose spread across their line is under COLLINEAR of their spread along it."""
+    spread = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
+    return len(points) < 3 or spread[1] < COLLINEAR * spread[0]
+
+
+def anchor_misfit(m: np.ndarray, anchors_old: np.ndarray, anchors_now: np.ndarray) -> float:
     """How far (px, the largest) the beads measured around a registered patch (`anchors_old` (k, 2) at
-    the patch's frame, `anchors_now` now) lie from where the patch's map (the affine map taking `old` to
-    `at`) puts them: the layer carried them with the patch, so a map shifted by a bead (a lattice fits
-    itself shifted) misplaces them by as much. 0 without anchors."""
+    the patch's frame, `anchors_now` now) lie from where the patch's map `m` (3, 2) puts them: the layer
+    carried them with the patch, so a map shifted by a bead (a lattice fits itself shifted) misplaces them
+    by as much. 0 without anchors."""
     a_old = np.asarray(anchors_old, float).reshape(-1, 2)
     if not len(a_old):
         return 0.0
-    old = np.asarray(old, float).reshape(-1, 2)
-    m, *_r = np.linalg.lstsq(np.c_[old, np.ones(len(old))], np.asarray(at, float), rcond=None)
     placed = np.c_[a_old, np.ones(len(a_old))] @ m
     return float(np.hypot(*(placed - np.asarray(anchors_now, float).reshape(-1, 2)).T).max())
 
 
-def _carried_like(homog: np.ndarray, at: np.ndarray) -> bool:
-    """The affine map taking the group (homogeneous (n, 3)) to `at` neither mirrors it nor turns it by
-    MAX_TURN_DEG or more (the rotation nearest its linear part)."""
-    m, *_r = np.linalg.lstsq(homog, at, rcond=None)
+def _carried_like(m: np.ndarray) -> bool:
+    """The affine map `m` (3, 2) neither mirrors the group nor turns it by MAX_TURN_DEG or more (the rotation
+    nearest its linear part), nor presses it below MIN_STRETCH or stretches it beyond MAX_STRETCH."""
     lin = m[:2].T
     if np.linalg.det(lin) <= 0:
         return False
-    u, _s, vt = np.linalg.svd(lin)
+    u, stretch, vt = np.linalg.svd(lin)
+    if stretch.min() < MIN_STRETCH or stretch.max() > MAX_STRETCH:
+        return False
     rot = u @ vt
     return abs(math.degrees(math.atan2(rot[1, 0], rot[0, 0]))) < MAX_TURN_DEG
 
@@ -288,8 +373,8 @@ def _anchored(anchors: tuple | None) -> tuple | None:
 
 def _refine(homog: np.ndarray, at: np.ndarray, beads: np.ndarray, radius: float, fixed: tuple | None = None,
             rounds: int = 3):
-    """(cost, pairs within half a radius, positions) of one registration hypothesis, refined (with the
-    anchors `fixed` (_anchored) in the fit and in the cost)."""
+    """(cost, pairs within half a radius, positions, map (3, 2)) of one registration hypothesis, refined
+    (with the anchors `fixed` (_anchored) in the fit and in the cost)."""
     m = None
     for k in range(rounds + 1):
         d = np.hypot(at[:, None, 0] - beads[None, :, 0], at[:, None, 1] - beads[None, :, 1])
@@ -301,12 +386,27 @@ def _refine(homog: np.ndarray, at: np.ndarray, beads: np.ndarray, radius: float,
         src, dst = homog[rows[ok]], beads[cols[ok]]
         if fixed is not None:
             src, dst = np.r_[src, fixed[0]], np.r_[dst, fixed[1]]
-        m, *_r = np.linalg.lstsq(src, dst, rcond=None)
+        m = _fit_map(src, dst)
         at = homog @ m
     pairs = tuple((int(r), int(c)) for r, c in zip(rows, cols, strict=True) if d[r, c] < 0.5 * radius)
     cost = float(capped[rows, cols].sum())
+    if m is None:
+        m = _fit_map(homog, at)
     if fixed is not None:
-        if m is None:
-            m, *_r = np.linalg.lstsq(homog, at, rcond=None)
         cost += float(np.minimum(np.hypot(*(fixed[0] @ m - fixed[1]).T), radius).sum())
-    return cost, pairs, at
+    return cost, pairs, at, m
+
+
+def _fit_map(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """The map (3, 2) taking `src` (homogeneous (k, 3)) to `dst` (k, 2) in least squares: affine, or where
+    the points lie nearly on a line (a column of beads out from under the tool), the map across that
+    line is not known and the similarity (turned and scaled alike) is taken."""
+    if not _on_a_line(src[:, :2]):
+        m, *_r = np.linalg.lstsq(src, dst, rcond=None)
+        return m
+    x, y = src[:, 0], src[:, 1]
+    a = np.zeros((2 * len(src), 4))
+    a[0::2] = np.c_[x, -y, np.ones_like(x), np.zeros_like(x)]
+    a[1::2] = np.c_[y, x, np.zeros_like(x), np.ones_like(x)]
+    (p, q, tx, ty), *_r = np.linalg.lstsq(a, dst.reshape(-1), rcond=None)
+    return np.array([[p, q], [-q, p], [tx, ty]])

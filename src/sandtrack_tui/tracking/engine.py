@@ -185,13 +185,15 @@ class Engine:
 
     # -- steps ---------------------------------------------------------------------------------
     def _crowd_passes(self, cam, img, j: int, tracks, props, forced, frames) -> int:
-        """The passes that give missed crowd markers back (carried and assigned, a hidden patch registered,
-        carried by their neighbours, on the other view's line); returns how many of them gave any back."""
+        """The passes that give missed crowd markers back (carried and assigned, measured on the other view's
+        line, a hidden patch registered, carried by their neighbours); returns how many of them gave any
+        back. (Those the other view pins come first: measured again, they pin a registration as anchors.)"""
         n = int(self._crowd_return(cam, img, j, tracks, props, forced) > 0)
+        if self.stereo is not None:
+            n += int(self._crowd_outline_on_line(cam, img, tracks, props, forced, frames) > 0)
+            n += int(self._crowd_on_line(cam, img, j, tracks, props, forced, frames) > 0)
         n += int(self._crowd_regroup(cam, img, j, tracks, props, forced) > 0)
         n += int(self._crowd_rejoin(cam, img, j, tracks, props, forced) > 0)
-        if self.stereo is not None:
-            n += int(self._crowd_on_line(cam, img, j, tracks, props, forced, frames) > 0)
         return n
 
     def _other_view(self, key):
@@ -278,6 +280,8 @@ class Engine:
         if lacking.any():
             where[lacking] = crowd_rules.carried(start[lacking], src, dst, 4.0 * r)
         for t, xy in zip(missed, where, strict=True):
+            # (NaN: where the layer took it is not known; it is not carried again, from a prediction that may
+            # lie on another bead by now, until something measures it: the start above stays NaN)
             self._crowd_carried[(t.marker, cam)] = (float(xy[0]), float(xy[1]))
             if np.isfinite(xy[0]):
                 kx, ky = t.kf.xy
@@ -304,6 +308,7 @@ class Engine:
         for t, (x, y) in found.items():
             m = t.verify_at(img, float(x), float(y)) or t.verify_assigned(img, float(x), float(y))
             if m is not None and math.hypot(m.x - x, m.y - y) <= 0.5 * t.model.radius:
+                m.assigned = True  # (who it is comes from where it went: its template is cut again there)
                 props[(t.marker, cam)] = _Proposal(m, reattach=True)
                 n += 1
         return n
@@ -314,8 +319,9 @@ class Engine:
         positions at the latest frame that measured most of them, split into patches of touching beads,
         each registered onto the beads no track explains (crowd.register: one affine map, accepted only
         with a clear margin over any other pairing, the beads measured around the patch fitted with it,
-        and only when it puts each of those within a radius of where it is: crowd.anchor_misfit), then
-        assigned one by one with the margins of crowd.assign; returns how many came back."""
+        and only when it puts each of those within a radius of where it is; each bead then placed by the
+        map of the pairs and anchors nearest it), then assigned one by one with the margins of
+        crowd.assign; returns how many came back."""
         strays = [t for t in tracks if t.model.crowd and t.misses > SHORT_MISS
                   and (t.marker, cam) not in props and (t.marker, cam) not in forced]
         if len(strays) < crowd_rules.MIN_GROUP:
@@ -355,7 +361,7 @@ class Engine:
             # lookalikes no track follows, than the patch where it is)
             anchors = self._anchors_at(cam, f0, old[patch], ANCHOR_REACH * r, props, forced)
             at, agreed = crowd_rules.register(old[patch], beads, r, reach, anchors=anchors)
-            if at is None or crowd_rules.anchor_misfit(old[patch], at, *anchors) > r:
+            if at is None:
                 continue
             pairs, ambiguous = crowd_rules.assign(at, beads, 0.5 * r, 0.5 * r)
             for i in ambiguous:
@@ -365,12 +371,13 @@ class Engine:
         return n
 
     def _crowd_rejoin(self, cam, img, j: int, tracks, props, forced) -> int:
-        """Crowd markers unseen for more than SHORT_MISS frames whose neighbours are measured again (given
-        back by a registration, or never lost): each is carried from the last frame it was measured
+        """Crowd markers unseen for more than SHORT_MISS frames, or missed and carried by no motion (where
+        the layer took them is not known), whose neighbours are measured again (given back by a
+        registration, or never lost): each is carried from the last frame it was measured
         together with at least crowd.MIN_ANCHORS of the beads around it (within ANCHOR_REACH radii) by
         the affine map of those beads' moves since (crowd.moved_with), then all are assigned at once to
         the beads no track explains, with crowd.assign's margins; returns how many came back."""
-        strays = [t for t in tracks if t.model.crowd and t.misses > SHORT_MISS
+        strays = [t for t in tracks if t.model.crowd and (t.misses > SHORT_MISS or (t.misses and not t.carried))
                   and (t.marker, cam) not in props and (t.marker, cam) not in forced]
         if not strays:
             return 0
@@ -391,19 +398,44 @@ class Engine:
         carried = [(t.marker, cam) for t in tracks if t.model.crowd and t.carried and t not in strays]
         explained = {**forced, **{k: self._crowd_carried[k] for k in carried if k in self._crowd_carried}}
         beads = self._unexplained_beads(cam, img, placed[0].model, where, props, explained)
-        if not len(beads):
-            return 0
-        pairs, ambiguous = crowd_rules.assign(where, beads, 0.5 * r, 0.5 * r)
+        pairs, ambiguous = crowd_rules.assign(where, beads, 0.5 * r, 0.5 * r) if len(beads) else ({}, [])
         for i in ambiguous:
             self._note_ambiguous(placed[i].marker, cam, j, 2)
-        return self._give_back(cam, img, {placed[i]: beads[b] for i, b in pairs.items()}, props)
+        n = self._give_back(cam, img, {placed[i]: beads[b] for i, b in pairs.items()}, props)
+        return n + self._confirm_placed(cam, img, placed, where, beads, set(ambiguous), props, forced)
+
+    def _confirm_placed(self, cam, img, placed, where, beads, ambiguous: set, props, forced) -> int:
+        """Lost crowd markers placed by their neighbours' map (_crowd_rejoin) that no detected bead gave
+        back (in a pressed layer a bead's outline is not seen all round, so it is not detected), measured
+        where they were placed by their highlight (MarkerTrack.confirm_carried), unless another bead could
+        be the one there: an unexplained detected bead, another placed marker or a marker measured this
+        step within a radius of the place."""
+        n = 0
+        for i, t in enumerate(placed):
+            if (t.marker, cam) in props or i in ambiguous:
+                continue
+            x, y = where[i]
+            r = t.model.radius
+            others = np.delete(where, i, axis=0)
+            if (len(beads) and np.hypot(beads[:, 0] - x, beads[:, 1] - y).min() <= r) or \
+                    (len(others) and np.hypot(others[:, 0] - x, others[:, 1] - y).min() <= r):
+                continue
+            m = t.confirm_carried(img, float(x), float(y))
+            if m is None or any(math.hypot(m.x - a, m.y - b) < r for a, b in self._explained(cam, props, forced)):
+                continue
+            props[(t.marker, cam)] = _Proposal(m, reattach=True)
+            n += 1
+        return n
 
     def _crowd_on_line(self, cam, img, j: int, tracks, props, forced, frames) -> int:
         """Crowd markers unseen for more than SHORT_MISS frames that the other view measures this step (the
         same marker, or its paired track: _pair_crowd): the bead no track explains lying on the other
         view's epipolar band within `reach` of where the marker was last (its radius, plus how far the
-        other view saw it move since both last measured it, in this view's scale), with no other such
-        bead within a bead's width more along the band, is given back. Returns how many came back."""
+        other view saw it move since both last measured it, in this view's scale, but never more than its
+        radius), with no other such bead within a bead's width more along the band, is given back. (A bead
+        farther along the band than a radius leaves room for another nearer, half hidden or pressed among
+        its neighbours so that it is not detected, which may be the marker: on the dense twin every bead
+        given back from farther, 11-15 px, was another.) Returns how many came back."""
         n = 0
         for t in tracks:
             key = (t.marker, cam)
@@ -418,6 +450,7 @@ class Engine:
             if reach is None:
                 continue
             r = t.model.radius
+            reach = min(reach, r)
             px, py = self.stereo.onto_line(other[1], band_from, cam, t.kf.xy)
             beads = self._unexplained_beads(cam, img, t.model, np.array([[px, py]]), props, forced,
                                             pad=reach + 2 * r + 4)
@@ -431,7 +464,8 @@ class Engine:
                 if rivals.sum() > 1 and inside.any():
                     self._note_ambiguous(t.marker, cam, j, int(rivals.sum()))
                 continue
-            n += self._give_back(cam, img, {t: beads[int(np.argmax(inside))]}, props)
+            bead = beads[int(np.argmax(inside))]
+            n += self._give_back(cam, img, {t: bead}, props)
         return n
 
     def _line_reach(self, key, other, other_now) -> float | None:
@@ -474,13 +508,45 @@ class Engine:
                     and math.hypot(a_seen[f][0] - x, a_seen[f][1] - y) <= ANCHOR_REACH * radius]
             if len(near) < crowd_rules.MIN_ANCHORS:
                 continue
-            out = crowd_rules.moved_with((x, y), [a for a, _ in near], [b for _, b in near])
+            out = crowd_rules.moved_with((x, y), [a for a, _ in near], [b for _, b in near], 0.5 * radius)
             if out is None:
                 continue  # (those anchors do not fix the map: on a line)
             if out[1] > 0.5 * radius:
                 return None
             return float(out[0][0]), float(out[0][1])
         return None
+
+    def _crowd_outline_on_line(self, cam, img, tracks, props, forced, frames) -> int:
+        """Crowd markers carried by the layer's motion this step (_crowd_return) that nothing gave back and
+        that the other view measures (the same marker, or its paired track): the other view's epipolar line
+        pins the marker across it, the carried place along it. Where the marker's own outline, of its radius,
+        is found all round it within half a radius of the foot of its carried place on that line
+        (MarkerTrack.confirm_on_line; a bead half hidden behind its neighbours in a slanted view shows
+        neither its template nor its highlight, but its outline against the sand), lying on that line as
+        closely as the stereo check asks, and no other marker of this camera measured on that outline (within
+        half a radius: in a slanted view a bead half behind another lies nearer than a radius to it), it is
+        measured there. Returns how many came back."""
+        n = 0
+        for t in tracks:
+            key = (t.marker, cam)
+            carried = self._crowd_carried.get(key)
+            if not t.model.crowd or not t.carried or key in props or key in forced or carried is None:
+                continue
+            other = self._other_view(key)
+            band_from = None if other is None or other[1] not in frames else \
+                self._point_at(other, frames, props, forced)
+            if band_from is None:
+                continue
+            foot = self.stereo.onto_line(other[1], band_from, cam, carried)
+            m = t.confirm_on_line(img, *foot)
+            if m is None or self.stereo.distance(other[1], band_from, cam, (m.x, m.y))[0] > self.stereo.threshold_px \
+                    or math.hypot(m.x - carried[0], m.y - carried[1]) > 0.5 * t.model.radius \
+                    or any(math.hypot(m.x - a, m.y - b) <= 0.5 * t.model.radius
+                           for a, b in self._explained(cam, props, forced)):
+                continue
+            props[key] = _Proposal(m, reattach=True)
+            n += 1
+        return n
 
     def _crowd_confirm(self, cam, img, missed, where, props, forced) -> int:
         """Carried crowd markers no detected bead gave back, measured where they were carried
@@ -668,7 +734,7 @@ class Engine:
         for i, k in _touching_pairs(pts, lambda ri, rk: 1.2 * max(ri, rk)):
             (ta, pa), (tb, pb) = keyed[i], keyed[k]
             ka, kb = (ta.marker, ta.camera), (tb.marker, tb.camera)
-            if ka not in props or kb not in props:
+            if ka not in props or kb not in props or _two_outlines(ta, pa.match, tb, pb.match):
                 continue
             better_a = (pa.match.score - 0.05 * pa.match.d2) >= (pb.match.score - 0.05 * pb.match.d2)
             del props[kb if better_a else ka]
@@ -1100,6 +1166,14 @@ class Engine:
                "why": "blob wanted by two tracks" if shared else "several candidate blobs in the gate"}
         self.ambiguous.append(rec)
         self._open_ambiguity[key] = rec
+
+
+def _two_outlines(ta: MarkerTrack, ma: Match, tb: MarkerTrack, mb: Match) -> bool:
+    """Two crowd matches each centred on its own outline, found all round, more than half a radius apart:
+    two beads, one partly over the other (a pressed layer piles up), not one bead claimed twice (one
+    outline measured twice gives centres much nearer than that)."""
+    return ta.model.crowd and tb.model.crowd and ma.outline and mb.outline and \
+        math.hypot(ma.x - mb.x, ma.y - mb.y) > 0.5 * max(ta.model.radius, tb.model.radius)
 
 
 def _alike(moves: list, min_px: float = 2.0, spread_px: float = 1.5) -> bool:

@@ -556,18 +556,20 @@ class MarkerTrack:
         ones poorly (NCC 0.0-0.66 where the pairing was right). Its updated template is cut again there
         (apply). None without that outline, or on a blob of two beads merged, or cut by the border."""
         m = self.matcher.match(frame_bgr, x, y, 2.0, 2.0)
-        if m is None or not m.outline or m.colour_frac > MERGED_COVERAGE or self.cut_by_border(frame_bgr, m):
+        if m is None or not m.outline or m.colour_frac > self._merged_coverage() or self.cut_by_border(frame_bgr, m):
             return None
         m.assigned = True
         m.d2 = self.kf.d2(m.x, m.y)
         return m
 
     def confirm_carried(self, frame_bgr: np.ndarray, x: float, y: float) -> Match | None:
-        """A crowd marker carried by the layer's motion to (x, y) (engine.py), measured again: its
-        template found there, and its highlight (crowd.highlight) found where this bead's own highlight
-        sits from its centre (learned while its outline was seen all round it), giving a centre within
-        CARRIED_AGREE_PX of (x, y): two independent estimates of where the bead is agree. Else None
-        (it stays flagged)."""
+        """A crowd marker carried by the layer's motion (or placed by its neighbours' moves) to (x, y)
+        (engine.py), measured again: its template found there, and its highlight (crowd.highlight) found
+        where this bead's own highlight sits from its centre (learned while its outline was seen all round
+        it), giving a centre near (x, y): two independent estimates of where the bead is agree. Near: as
+        far as keeps the highlight's search on the bead's body (_highlight_agree_px); or, within half a
+        radius (an assignment's gate), where the bead's own outline of its radius is found all round that
+        centre too. Else None (it stays flagged)."""
         off = self.highlight_offset
         if off is None:
             return None
@@ -578,11 +580,51 @@ class MarkerTrack:
         if h is None:
             return None
         cx, cy = h[0] - off[0], h[1] - off[1]
-        if math.hypot(cx - x, cy - y) > CARRIED_AGREE_PX:
-            return None
+        d = math.hypot(cx - x, cy - y)
+        if d > self._highlight_agree_px():
+            # (farther, within the gate of an assignment: its own outline, of its radius, found all round that
+            # centre confirms it; the sand between beads gives no such outline)
+            e = self.matcher.silhouette(frame_bgr, cx, cy, strict=True) if d <= 0.5 * self.model.radius else None
+            if e is None or math.hypot(e[0] - cx, e[1] - cy) > CARRIED_AGREE_PX:
+                return None
+            cx, cy = e
         m.x, m.y, m.outline, m.used_centroid = cx, cy, True, True
         m.d2 = self.kf.d2(m.x, m.y)
         return m
+
+    def confirm_on_line(self, frame_bgr: np.ndarray, x: float, y: float) -> Match | None:
+        """A crowd marker carried by the layer's motion, placed at (x, y) on the other view's epipolar line
+        (engine.py), measured by its own outline: a circle of its radius found all round it within half a
+        radius of there (TemplateMatcher.silhouette, strict), whatever its template scores (a bead half hidden
+        behind its neighbours shows only part of its shading). None without that outline, on a blob of two
+        beads merged, or cut by the border."""
+        m = self.matcher.match(frame_bgr, x, y, 2.0, 2.0)
+        if m is None or m.colour_frac > self._merged_coverage():
+            return None
+        e = self.matcher.silhouette(frame_bgr, x, y, strict=True)
+        if e is None:
+            return None
+        m.x, m.y = e
+        m.outline, m.used_centroid, m.lit = True, True, False
+        if self.cut_by_border(frame_bgr, m):
+            return None
+        m.d2 = self.kf.d2(m.x, m.y)
+        return m
+
+    def _merged_coverage(self) -> float:
+        """Marker coverage (in discs) above which a crowd match centred on its outline is two beads merged:
+        more than a bead shows with six like it touching it all round (crowd.packed_coverage; a small bead's
+        window holds relatively more of its neighbours' rims), and never under MERGED_COVERAGE."""
+        return crowd_rules.packed_coverage(self.model.radius, MERGED_COVERAGE)
+
+    def _highlight_agree_px(self) -> float:
+        """How far from where it was carried a crowd bead's highlight may put its centre (confirm_carried):
+        so far that, were that centre the bead's, the highlight's search (half a radius around the carried
+        place plus the offset) lay wholly on the bead's body, a pixel's blur inside its rim: the brightest
+        point found there is then its own highlight, not the sand between the beads; never under
+        CARRIED_AGREE_PX."""
+        off = self.highlight_offset
+        return max(CARRIED_AGREE_PX, 0.5 * self.model.radius - math.hypot(*off) - 1.0)
 
     def _learn_highlight(self, frame_bgr, m: Match) -> None:
         """Where this crowd bead's highlight sits from its centre, from a frame that measured its outline
