@@ -127,6 +127,9 @@ def swap_markers(project: Project, m1: int, m2: int, frames, cameras: list[str] 
 
 # Which of two points at one frame and camera a merge keeps: the better-founded status first.
 MERGE_PREFERENCE = ("manual", "tracked", "imported", "interpolated", "occluded", "lost")
+# Settings keyed "MARKER/CAMERA" (tracking.run: the box and the appearance model a marker's track starts
+# from in each camera): a merged marker takes the dropped one's in a camera where it has none of its own.
+MARKER_CAMERA_SETTINGS = ("tracking_boxes", "tracking_models")
 
 
 def merge_markers(project: Project, keep: int, drop: int) -> int:
@@ -137,10 +140,18 @@ def merge_markers(project: Project, keep: int, drop: int) -> int:
     if keep == drop:
         raise SandtrackError("choose two different markers to merge")
     ids = set(project.markers()["id"].tolist())
-    theirs = project.points(marker=drop)
-    if drop not in ids and theirs.empty:
+    if drop not in ids and project.points(marker=drop).empty:
         raise SandtrackError(f"no marker {drop}")
     ensure_marker(project, keep)
+    with project.edit(f"merge marker {drop} into {keep}") as ed:
+        return merge_in_edit(project, ed, keep, drop)
+
+
+def merge_in_edit(project: Project, ed, keep: int, drop: int) -> int:
+    """merge_markers' work as part of the open edit `ed` (Project.edit), `keep` an existing marker:
+    undone with the rest of that edit. Also gives `keep` the per-camera settings of `drop`
+    (MARKER_CAMERA_SETTINGS) in the cameras where it has none. Returns the points taken from `drop`."""
+    theirs = project.points(marker=drop)
     ours = project.points(marker=keep)
     rank = {s: k for k, s in enumerate(MERGE_PREFERENCE)}
     both = theirs.merge(ours[["frame", "camera", "status"]], on=["frame", "camera"], how="left",
@@ -148,12 +159,26 @@ def merge_markers(project: Project, keep: int, drop: int) -> int:
     their_rank = both["status"].map(rank).fillna(len(rank))
     our_rank = both["status_keep"].map(rank).fillna(len(rank) + 1)  # no point of `keep` there: theirs wins
     taken = both.loc[their_rank < our_rank, theirs.columns].assign(marker=keep)
-    with project.edit(f"merge marker {drop} into {keep}") as ed:
-        # written before `drop` goes, so an interrupted merge leaves a copy, never a loss (undo mends either)
-        ed.write(taken)
-        ed.delete(theirs[["frame", "camera", "marker"]].itertuples(index=False, name=None))
-        ed.delete_marker(drop)
+    # written before `drop` goes, so an interrupted merge leaves a copy, never a loss (undo mends either)
+    ed.write(taken)
+    ed.delete(theirs[["frame", "camera", "marker"]].itertuples(index=False, name=None))
+    for key in MARKER_CAMERA_SETTINGS:
+        per = project.get(key, {}) or {}
+        moved = _settings_merged(per, keep, drop)
+        if moved != per:
+            ed.set(key, moved)
+    ed.delete_marker(drop)
     return len(taken)
+
+
+def _settings_merged(per: dict, keep: int, drop: int) -> dict:
+    """A {"MARKER/CAMERA": value} setting with `drop`'s entries given to `keep` where it has none."""
+    out = {k: v for k, v in per.items() if k.partition("/")[0] != str(drop)}
+    for k, v in per.items():
+        marker, _, camera = k.partition("/")
+        if marker == str(drop):
+            out.setdefault(f"{keep}/{camera}", v)
+    return out
 
 
 def rename_marker(project: Project, marker: int, label: str) -> None:

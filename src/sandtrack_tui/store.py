@@ -690,6 +690,21 @@ class _Edit:
         self.project._write(fn)
         return len(keys)
 
+    def set(self, key: str, value) -> None:
+        """Set a setting (JSON-serialisable) as part of this edit (undone with it)."""
+        conn = self.project.conn
+        after = json.dumps(value)
+
+        def fn():
+            if self.edit_id is None:
+                self.edit_id = self.project._new_edit(self.kind, self.description)
+            before = conn.execute("SELECT value FROM settings WHERE key=?", (key,)).fetchone()
+            self.project._log_row(self.edit_id, self.seq, "settings", key, before[0] if before else None, after)
+            self.seq += 1
+            conn.execute("INSERT OR REPLACE INTO settings VALUES (?, ?)", (key, after))
+
+        self.project._write(fn)
+
     def delete_marker(self, marker_id: int) -> None:
         """Remove a marker's row (its points are this edit's business) as part of this edit."""
         conn = self.project.conn
