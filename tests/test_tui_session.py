@@ -379,7 +379,7 @@ async def test_calibration_screen_takes_a_video_of_every_camera(tmp_path, frames
 async def test_tracking_all_makes_beads_seen_in_one_view_each_one_marker_and_undo_parts_them(tmp_path):
     from crowd_synth import crowd_project, layer_mm, turned
 
-    project, _clips, ids = crowd_project(tmp_path, turned(layer_mm(), 24, rest=4, deg_per_frame=1.2))
+    project, _clips, ids = crowd_project(tmp_path, turned(layer_mm(), 16, rest=4, deg_per_frame=1.2))
     front, side = ids[("front", 5)], ids[("side", 5)]
     app = SandtrackApp(project)
     async with app.run_test(size=SIZE) as pilot:
