@@ -8,9 +8,10 @@ is tracked; a brightness model's marker also by its template or its look on the 
 a brightness model's marker still followed that nothing measured is placed by its look where it shows
 whole (in both views only where they agree); then every track commits its status for the frame.
 Touching lookalikes (a crowd, crowd.py) seeded in one view each are paired across the views once their
-points tell who is who (_pair_crowd), and then checked and searched like one marker's two views. When
-most tracks of a camera leave their gates at once and the whole view moved (globalmotion.py), every
-track of that camera is moved with the view and searched again.
+points tell who is who (_pair_crowd), and then checked and searched like one marker's two views (the run
+makes each pair one marker at its end: run._merge_pairs). When most tracks of a camera leave their gates
+at once and the whole view moved (globalmotion.py), every track of that camera is moved with the view and
+searched again.
 """
 
 from __future__ import annotations
