@@ -668,24 +668,25 @@ class _Edit:
         return len(records)
 
     def delete(self, keys) -> int:
-        """Delete points by (frame, camera, marker) as part of this edit (undone with it)."""
-        keys = [(int(f), str(c), int(m)) for f, c, m in keys]
+        """Delete points by (frame, camera, marker) as part of this edit (undone with it), in one
+        committed transaction, logged as one edit_rows row ('points_batch': the points' keys and values
+        before; their "after", none, is logged when the edit is undone, as for `write`)."""
+        keys = list(dict.fromkeys((int(f), str(c), int(m)) for f, c, m in keys))
         if not keys:
             return 0
         conn = self.project.conn
 
         def fn():
+            olds = _existing_values(conn, keys)
+            there = [k for k in keys if k in olds]
+            if not there:
+                return
             if self.edit_id is None:
                 self.edit_id = self.project._new_edit(self.kind, self.description)
-            for key in keys:
-                old = conn.execute(
-                    f"SELECT {', '.join(_POINT_VALUES)} FROM points WHERE frame=? AND camera=? AND marker=?",
-                    key).fetchone()
-                if old is None:
-                    continue
-                self.project._log_row(self.edit_id, self.seq, "points", json.dumps(list(key)), _dumps_row(old), None)
-                self.seq += 1
-                conn.execute(_DELETE_POINT, key)
+            before = json.dumps([olds[k] for k in there], default=str)
+            self.project._log_row(self.edit_id, self.seq, "points_batch", json.dumps(there), before, None)
+            self.seq += 1
+            conn.executemany(_DELETE_POINT, there)
 
         self.project._write(fn)
         return len(keys)

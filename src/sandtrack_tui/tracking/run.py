@@ -350,9 +350,10 @@ def _merge_pairs(project, ed, engine: Engine, problems: list) -> list[dict]:
             problems.append(f"marker {keep} and marker {drop} ({cam}) are one bead by their tracks, but both have "
                             f"points in {', '.join(sorted(shared))}: left apart (merge them by hand if right)")
             continue
-        merge_in_edit(project, ed, keep, drop)
         out.append({"marker": int(keep), "from": int(drop), "camera": cam, "frames_on_line": int(together),
                     "frame": int(frame)})
+    if out:
+        merge_in_edit(project, ed, [(p["marker"], p["from"]) for p in out])
     return out
 
 
