@@ -39,7 +39,7 @@ sys.path.insert(0, str(ROOT / "src"))
 
 from sandtrack_tui.camera import Calibration  # noqa: E402
 from sandtrack_tui.demo import cache_dir, renderer_version  # noqa: E402
-from sandtrack_tui.groundtruth import identity_switches, match_marker_ids, score_tracking  # noqa: E402
+from sandtrack_tui.groundtruth import REPORTED, identity_switches, match_marker_ids, score_tracking, score_xyz  # noqa: E402
 from sandtrack_tui.store import Project  # noqa: E402
 from sandtrack_tui.tracking.matcher import TemplateMatcher  # noqa: E402
 from sandtrack_tui.tracking.run import accept_seeds, auto_seed, track_project  # noqa: E402
@@ -47,6 +47,7 @@ from sandtrack_tui.tracking.seeding import marker_box, snap_to_marker  # noqa: E
 from sandtrack_tui.tracking.tracker import MarkerTrack  # noqa: E402
 from sandtrack_tui.twin.variants import VARIANTS, render_variant  # noqa: E402
 from sandtrack_tui.video import FrameSource  # noqa: E402
+from sandtrack_tui.xyz import compute_xyz  # noqa: E402
 
 CLICK_OFF = (1.5, -1.0)
 
@@ -116,6 +117,7 @@ def run_variant(name: str, seed: int = 0, keep: dict | None = None) -> dict:
         summary = track_project(proj)
         cpu = time.process_time() - c0
         points = proj.points()
+        xyz = compute_xyz(proj, method="triangulation") if summary["stereo"] else None
         proj.close()
     t = SimpleNamespace(markers=truth)
     ids = match_marker_ids(points, t)
@@ -135,8 +137,35 @@ def run_variant(name: str, seed: int = 0, keep: dict | None = None) -> dict:
     out["track_ms_per_marker_frame"] = summary.get("track_ms_per_marker_frame")
     out["run_cpu_s"] = round(cpu, 2)
     out["ambiguous"] = len(summary.get("ambiguous", []))
+    out["paired_across_views"] = len(summary.get("paired_across_views", []))
+    if xyz is not None:
+        out.update(score_3d(xyz, points, truth, ids))
     out["stereo_flags"] = len(summary.get("stereo_flags", []))
     return out
+
+
+def score_3d(xyz: pd.DataFrame, points: pd.DataFrame, truth: dict, ids: dict) -> dict:
+    """The triangulated XYZ against the twin's true bead centres (markers_*.csv X_mm, Y_mm, Z_mm, the
+    reference camera's frames): mean / p95 error (mm) of every finite XYZ, how many true markers get any
+    3D, the same figures of the rows whose every view was measured (tracked or manual: not a flagged view's
+    coasting position), and how many markers hold two true markers' points (their views matched to different markers at
+    their first point in each camera: a wrong pairing across the views)."""
+    ref = next(iter(truth))
+    traj = SimpleNamespace(trajectories=truth[ref][["frame", "marker", "X_mm", "Y_mm", "Z_mm"]])
+    scored = score_xyz(xyz, traj, ids, "triangulation")
+    measured = np.logical_and.reduce([xyz[f"status_{c}"].isin(REPORTED) for c in truth])
+    both = score_xyz(xyz[measured], traj, ids, "triangulation")
+    have = xyz[(xyz.method == "triangulation") & xyz.X_mm.notna() & xyz.marker.isin(list(ids))]
+    wrong = 0
+    for mk, rows in points[points.x_px.notna() & points.marker.isin(list(ids))].groupby("marker"):
+        per_cam = {c: match_marker_ids(g, SimpleNamespace(markers=truth)).get(int(mk))
+                   for c, g in rows.groupby("camera")}
+        wrong += len(set(per_cam.values())) > 1
+    return {"xyz_mean_error_mm": scored["mean_error_mm"], "xyz_p95_error_mm": scored["p95_error_mm"],
+            "xyz_points": scored["points_scored"], "xyz_measured_mean_error_mm": both["mean_error_mm"],
+            "xyz_measured_p95_error_mm": both["p95_error_mm"], "xyz_measured_points": both["points_scored"],
+            "markers_with_3d": int(have.marker.map(ids).nunique()),
+            "markers_mixed_across_views": wrong}
 
 
 @contextmanager
@@ -268,7 +297,8 @@ def _table(rows: list[dict]) -> str:
     cols = [("variant", "{}"), ("models", "{}"), ("mean_error_px", "{:.3f}"), ("p95_error_px", "{:.3f}"),
             ("false_locks", "{}"), ("hidden_flagged_pct", "{:.1f}"), ("flagged_truly_hidden_pct", "{:.1f}"),
             ("visible_tracked_pct", "{:.1f}"), ("identity_switches", "{}"), ("track_cpu_ms_per_marker_frame",
-                                                                              "{:.3f}")]
+                                                                              "{:.3f}"),
+            ("markers_with_3d", "{}"), ("xyz_mean_error_mm", "{:.2f}"), ("xyz_p95_error_mm", "{:.2f}")]
     lines = [" | ".join(c for c, _ in cols)]
     for r in rows:
         lines.append(" | ".join(f.format(r.get(c)) if r.get(c) is not None else "-" for c, f in cols))

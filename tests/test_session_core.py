@@ -84,9 +84,12 @@ def test_merge_keeps_the_better_point_and_is_one_edit(proj):
             (2, "side", 2, 14.0, 10.0, "interpolated", None, None, None),
             (3, "side", 1, 15.0, 10.0, "tracked", 0.8, 4, 1), (3, "side", 2, 16.0, 10.0, "tracked", 0.9, 5, 1)]
     proj.set_points(rows, "tracks")
+    proj.set("tracking_boxes", {"1/side": [10, 10], "2/side": [12, 12], "2/front": [14, 14]})
     before = proj.points()
     edits = len(proj.history())
     assert corrections.merge_markers(proj, 1, 2) == 2  # frames 0 (tracked beats lost) and 2 (only 2 had one)
+    # (the box a track starts from: the dropped marker's in a camera where the kept one has none)
+    assert proj.get("tracking_boxes") == {"1/side": [10, 10], "1/front": [14, 14]}
     got = proj.points().set_index("frame")
     assert set(got.marker) == {1} and list(proj.markers()["id"]) == [1]
     assert got.loc[0, "x_px"] == 11.0 and got.loc[1, "x_px"] == 12.0 and got.loc[2, "status"] == "interpolated"
@@ -94,6 +97,7 @@ def test_merge_keeps_the_better_point_and_is_one_edit(proj):
     assert len(proj.history()) == edits + 1
     assert proj.undo().startswith("merge marker 2 into 1")
     assert proj.points().equals(before) and list(proj.markers()["id"]) == [1, 2]
+    assert proj.get("tracking_boxes") == {"1/side": [10, 10], "2/side": [12, 12], "2/front": [14, 14]}
     with pytest.raises(SandtrackError, match="two different"):
         corrections.merge_markers(proj, 1, 1)
     with pytest.raises(SandtrackError, match="no marker 9"):

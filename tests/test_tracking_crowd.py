@@ -8,6 +8,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from crowd_synth import CLICKED, crowd_project, layer_mm, turned
 from sandtrack_tui.tracking import crowd, synthetic
 from sandtrack_tui.tracking.engine import Engine
 from sandtrack_tui.tracking.matcher import Match
@@ -260,3 +261,109 @@ def test_a_crowd_bead_centred_on_its_outline_updates_its_template_whatever_the_t
         t.apply(f, img, t.matcher.match(img, x, y, 2.0, 2.0))
     last = t.matcher.match(img, x, y, 2.0, 2.0)
     assert last.score > max(t.params.confident_score, first.score + 0.1) and math.hypot(last.x - x, last.y - y) < 0.3
+
+
+# -- a two-view crowd through the project: beads seeded in one view each, paired by their tracks -------------
+def test_beads_seeded_in_one_view_each_become_one_marker_each_with_true_3d_and_undo_parts_them(tmp_path):
+    from sandtrack_tui.tracking.run import BOXES_KEY, KINDS_KEY, track_project
+    from sandtrack_tui.xyz import compute_xyz
+
+    centres = turned(layer_mm(), 24, rest=4, deg_per_frame=1.2)
+    proj, clips, ids = crowd_project(tmp_path, centres)
+    seeded, seeded_boxes = proj.points(), proj.get(BOXES_KEY)
+    summary = track_project(proj)
+    paired = summary["paired_across_views"]
+    # Every bead seeded in one view each: its front marker merged into its side marker, none other.
+    assert sorted((p["marker"], p["from"]) for p in paired) == sorted(
+        (ids[("side", b)], ids[("front", b)]) for b in range(1, 13) if b != CLICKED)
+    assert all(p["camera"] == "front" and p["frames_on_line"] >= 10 for p in paired)
+    assert summary["one_camera_markers"] == [] and not summary["problems"]
+    assert sorted(proj.markers()["id"]) == list(range(1, 13))
+    points = proj.points()
+    assert set(points.marker) == set(range(1, 13)) and (points.groupby("marker").camera.nunique() == 2).all()
+    assert set(summary["per_marker"]) == {str(m) for m in range(1, 13)}
+    boxes, kinds = proj.get(BOXES_KEY), proj.get(KINDS_KEY)
+    assert all(f"{m}/front" in boxes and kinds[f"{m}/front"] == "dark" for m in range(1, 13))
+    # Each marker's points in both views are its own bead's, and so is its XYZ.
+    bead_of = {m: b for (cam, b), m in ids.items() if cam == "side"}
+    for cam, clip in clips.items():
+        got = points[(points.camera == cam) & (points.status == "tracked")].assign(bead=lambda d: d.marker.map(bead_of))
+        m = got.merge(clip.truth, left_on=["frame", "bead"], right_on=["frame", "marker"])
+        assert len(m) == len(got) > 0.9 * 11 * 23 and np.hypot(m.x_px_x - m.x_px_y, m.y_px_x - m.y_px_y).max() < 1.0
+    xyz = compute_xyz(proj, method="triangulation")
+    xyz = xyz[xyz.X_mm.notna()]
+    true = centres[xyz.frame.to_numpy(), xyz.marker.map(bead_of).to_numpy() - 1]
+    err = np.linalg.norm(xyz[["X_mm", "Y_mm", "Z_mm"]].to_numpy() - true, axis=1)
+    # (at 400 mm and 25 degrees between the views a pixel along the epipolar line is ~1.3 mm of depth)
+    assert xyz.marker.nunique() == 12 and err.mean() < 0.3 and err.max() < 1.5
+    # Undo takes back the whole run, the pairing with it: the separate markers of one view each, as seeded.
+    assert proj.undo().startswith("track forward")
+    assert proj.points().equals(seeded) and sorted(proj.markers()["id"]) == sorted(set(ids.values()))
+    assert proj.get(BOXES_KEY) == seeded_boxes
+    assert proj.redo().startswith("track forward") and proj.points().equals(points)
+
+
+def test_lookalikes_that_never_leave_each_others_lines_stay_apart(tmp_path):
+    from sandtrack_tui.tracking.run import track_project
+
+    proj, _clips, ids = crowd_project(tmp_path, turned(layer_mm(), 16, rest=16, deg_per_frame=0.0))
+    before = sorted(proj.markers()["id"])
+    summary = track_project(proj)
+    # At rest each bead's line in the other view crosses its whole row: whose is whose is never told.
+    assert summary["paired_across_views"] == []
+    assert summary["one_camera_markers"] == sorted(set(ids.values()) - {1})
+    assert sorted(proj.markers()["id"]) == before
+    assert (proj.points().groupby("marker").camera.nunique()[lambda s: s.index != 1] == 1).all()
+
+
+def test_cli_track_reports_the_beads_made_one_marker_and_tracks_them_as_one_from_a_later_frame(tmp_path, capsys):
+    import json
+
+    from sandtrack_tui.cli import main
+    from sandtrack_tui.store import Project
+
+    proj, _clips, ids = crowd_project(tmp_path, turned(layer_mm(), 24, rest=4, deg_per_frame=1.2))
+    proj.close()
+    path = str(tmp_path / "crowd.sandtrack")
+    assert main(["track", path, "--to", "15"]) == 0
+    line = [x for x in capsys.readouterr().out.splitlines() if "made one marker with both views" in x]
+    assert len(line) == 1 and line[0].strip().startswith("11 bead(s) seen in one view each")
+    with Project.open(path) as p:
+        assert p.undo().startswith("track forward")
+    assert main(["track", path, "--to", "15", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    bead_of = {m: b for (cam, b), m in ids.items() if cam == "side"}
+    paired = out["paired_across_views"]
+    assert len(paired) == 11 and all(set(p) == {"marker", "from", "camera", "frames_on_line", "frame"} for p in paired)
+    assert all(p["from"] == ids[("front", bead_of[p["marker"]])] and p["frames_on_line"] >= 10 for p in paired)
+    assert out["one_camera_markers"] == []
+    # Re-tracked from a later frame (as after a correction): each is one marker seen in both views, started from
+    # its points there and checked against the epipolar line from the first step, with nothing left to pair.
+    assert main(["track", path, "--from", "15", "--json"]) == 0
+    again = json.loads(capsys.readouterr().out)
+    assert again["paired_across_views"] == [] and not again["problems"] and not again["stereo_flags"]
+    assert all(again["per_marker"][str(p["marker"])][cam]["tracked"] == 8 for p in paired for cam in ("side", "front"))
+
+
+def test_a_pair_whose_markers_both_have_points_in_one_view_is_left_apart_and_said_so(tmp_path):
+    from sandtrack_tui.store import Project
+    from sandtrack_tui.tracking.run import _merge_pairs
+
+    proj = Project.create(tmp_path / "p.sandtrack")
+    rows = [(f, "side", 2, 10.0 + f, 20.0, "tracked", 0.9, 5.0, 1.0) for f in range(3)]
+    rows += [(f, "front", 13, 12.0 + f, 21.0, "tracked", 0.9, 5.0, 1.0) for f in range(3)]
+    rows += [(f, "side", 3, 30.0 + f, 20.0, "tracked", 0.9, 5.0, 1.0) for f in range(3)]
+    rows += [(f, "front", 14, 32.0 + f, 21.0, "tracked", 0.9, 5.0, 1.0) for f in range(3)]
+    rows += [(40, "side", 14, 50.0, 20.0, "manual", 1.0, None, None)]  # placed in the side view before, elsewhere
+    for m in (2, 3, 13, 14):
+        proj.add_marker(str(m), m)
+    proj.set_points(rows, "tracks")
+    engine = SimpleNamespace(pairings=[((2, "side"), (13, "front"), 12, 30), ((3, "side"), (14, "front"), 10, 10)])
+    problems: list = []
+    with proj.edit("track forward from frame 0") as ed:
+        made = _merge_pairs(proj, ed, engine, problems)
+    assert made == [{"marker": 2, "from": 13, "camera": "front", "frames_on_line": 12, "frame": 30}]
+    assert len(problems) == 1 and "marker 3 and marker 14" in problems[0] and "side" in problems[0]
+    pts = proj.points()
+    assert sorted(proj.markers()["id"]) == [2, 3, 14] and set(pts[pts.marker == 2].camera) == {"side", "front"}
+    assert len(pts[pts.marker == 14]) == 4

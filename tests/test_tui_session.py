@@ -372,3 +372,25 @@ async def test_calibration_screen_takes_a_video_of_every_camera(tmp_path, frames
         assert calls and list(calls[0]) == list(cams)
         assert [str(p) for p in calls[0].values()] == [str(tmp_path / f"{c}.mp4") for c in cams]
         assert isinstance(project.calibration(), Calibration) and project.calibration().names == list(cams)
+
+
+# -- touching beads seeded in one view each, made one marker by a tracking run ---------------------------
+@aio
+async def test_tracking_all_makes_beads_seen_in_one_view_each_one_marker_and_undo_parts_them(tmp_path):
+    from crowd_synth import crowd_project, layer_mm, turned
+
+    project, _clips, ids = crowd_project(tmp_path, turned(layer_mm(), 16, rest=4, deg_per_frame=1.2))
+    front, side = ids[("front", 5)], ids[("side", 5)]
+    app = SandtrackApp(project)
+    async with app.run_test(size=SIZE) as pilot:
+        await settle(pilot, app)
+        app.selected = front
+        await pilot.press("home", "r")  # track all forward from frame 0
+        await until_idle(pilot, app)
+        assert any("11 bead(s) seen in one view each made one marker" in n.message for n in app._notifications)
+        marker_ids = [m for m, _ in app.marker_list]
+        assert app.selected == side and front not in marker_ids and len(marker_ids) == 12
+        assert set(project.points(marker=side).camera) == {"side", "front"}
+        await pilot.press("u")  # the whole run, pairing included
+        assert front in [m for m, _ in app.marker_list] and set(project.points(marker=side).camera) == {"side"}
+    project.close()

@@ -127,6 +127,9 @@ def swap_markers(project: Project, m1: int, m2: int, frames, cameras: list[str] 
 
 # Which of two points at one frame and camera a merge keeps: the better-founded status first.
 MERGE_PREFERENCE = ("manual", "tracked", "imported", "interpolated", "occluded", "lost")
+# Settings keyed "MARKER/CAMERA" (tracking.run: the box and the appearance model a marker's track starts
+# from in each camera): a merged marker takes the dropped one's in a camera where it has none of its own.
+MARKER_CAMERA_SETTINGS = ("tracking_boxes", "tracking_models")
 
 
 def merge_markers(project: Project, keep: int, drop: int) -> int:
@@ -137,23 +140,62 @@ def merge_markers(project: Project, keep: int, drop: int) -> int:
     if keep == drop:
         raise SandtrackError("choose two different markers to merge")
     ids = set(project.markers()["id"].tolist())
-    theirs = project.points(marker=drop)
-    if drop not in ids and theirs.empty:
+    if drop not in ids and project.points(marker=drop).empty:
         raise SandtrackError(f"no marker {drop}")
     ensure_marker(project, keep)
-    ours = project.points(marker=keep)
+    with project.edit(f"merge marker {drop} into {keep}") as ed:
+        return merge_in_edit(project, ed, [(keep, drop)])[drop]
+
+
+def merge_in_edit(project: Project, ed, pairs: list[tuple[int, int]]) -> dict[int, int]:
+    """merge_markers' work for every (keep, drop) of `pairs` (each `keep` an existing marker, no marker
+    both kept and dropped) as part of the open edit `ed` (Project.edit): undone with the rest of that
+    edit. Also gives each `keep` the per-camera settings of its `drop` (MARKER_CAMERA_SETTINGS) in the
+    cameras where it has none. Returns {drop: the points taken from it}."""
+    into = {int(d): int(k) for k, d in pairs}
+    if set(into) & set(into.values()) or len(into) != len(pairs):
+        raise SandtrackError("a marker merged away is merged only once, and into a marker that stays")
+    points = project.points()
+    theirs = points[points.marker.isin(list(into))]
+    ours = points[points.marker.isin(list(into.values()))]
     rank = {s: k for k, s in enumerate(MERGE_PREFERENCE)}
-    both = theirs.merge(ours[["frame", "camera", "status"]], on=["frame", "camera"], how="left",
-                        suffixes=("", "_keep"))
+    both = theirs.assign(keep=theirs.marker.map(into)).merge(
+        ours[["frame", "camera", "marker", "status"]].rename(columns={"marker": "keep"}),
+        on=["frame", "camera", "keep"], how="left", suffixes=("", "_keep"))
     their_rank = both["status"].map(rank).fillna(len(rank))
     our_rank = both["status_keep"].map(rank).fillna(len(rank) + 1)  # no point of `keep` there: theirs wins
-    taken = both.loc[their_rank < our_rank, theirs.columns].assign(marker=keep)
-    with project.edit(f"merge marker {drop} into {keep}") as ed:
-        # written before `drop` goes, so an interrupted merge leaves a copy, never a loss (undo mends either)
-        ed.write(taken)
-        ed.delete(theirs[["frame", "camera", "marker"]].itertuples(index=False, name=None))
+    wins = their_rank < our_rank
+    taken = both.loc[wins, theirs.columns].assign(marker=both.loc[wins, "keep"])
+    # written before the dropped go, so an interrupted merge leaves a copy, never a loss (undo mends either)
+    ed.write(taken)
+    ed.delete(theirs[["frame", "camera", "marker"]].itertuples(index=False, name=None))
+    for key in MARKER_CAMERA_SETTINGS:
+        per = project.get(key, {}) or {}
+        moved = _settings_merged(per, into)
+        if moved != per:
+            ed.set(key, moved)
+    for drop in into:
         ed.delete_marker(drop)
-    return len(taken)
+    counts = both.loc[wins, "marker"].value_counts()
+    return {drop: int(counts.get(drop, 0)) for drop in into}
+
+
+def _settings_merged(per: dict, into: dict) -> dict:
+    """A {"MARKER/CAMERA": value} setting with each dropped marker's entries ({drop: keep}) given to its
+    kept one where that has none."""
+    out = {k: v for k, v in per.items() if _int_or_none(k.partition("/")[0]) not in into}
+    for k, v in per.items():
+        marker, _, camera = k.partition("/")
+        if _int_or_none(marker) in into:
+            out.setdefault(f"{into[int(marker)]}/{camera}", v)
+    return out
+
+
+def _int_or_none(text: str) -> int | None:
+    try:
+        return int(text)
+    except ValueError:
+        return None
 
 
 def rename_marker(project: Project, marker: int, label: str) -> None:

@@ -668,27 +668,43 @@ class _Edit:
         return len(records)
 
     def delete(self, keys) -> int:
-        """Delete points by (frame, camera, marker) as part of this edit (undone with it)."""
-        keys = [(int(f), str(c), int(m)) for f, c, m in keys]
+        """Delete points by (frame, camera, marker) as part of this edit (undone with it), in one
+        committed transaction, logged as one edit_rows row ('points_batch': the points' keys and values
+        before; their "after", none, is logged when the edit is undone, as for `write`)."""
+        keys = list(dict.fromkeys((int(f), str(c), int(m)) for f, c, m in keys))
         if not keys:
             return 0
         conn = self.project.conn
 
         def fn():
+            olds = _existing_values(conn, keys)
+            there = [k for k in keys if k in olds]
+            if not there:
+                return
             if self.edit_id is None:
                 self.edit_id = self.project._new_edit(self.kind, self.description)
-            for key in keys:
-                old = conn.execute(
-                    f"SELECT {', '.join(_POINT_VALUES)} FROM points WHERE frame=? AND camera=? AND marker=?",
-                    key).fetchone()
-                if old is None:
-                    continue
-                self.project._log_row(self.edit_id, self.seq, "points", json.dumps(list(key)), _dumps_row(old), None)
-                self.seq += 1
-                conn.execute(_DELETE_POINT, key)
+            before = json.dumps([olds[k] for k in there], default=str)
+            self.project._log_row(self.edit_id, self.seq, "points_batch", json.dumps(there), before, None)
+            self.seq += 1
+            conn.executemany(_DELETE_POINT, there)
 
         self.project._write(fn)
         return len(keys)
+
+    def set(self, key: str, value) -> None:
+        """Set a setting (JSON-serialisable) as part of this edit (undone with it)."""
+        conn = self.project.conn
+        after = json.dumps(value)
+
+        def fn():
+            if self.edit_id is None:
+                self.edit_id = self.project._new_edit(self.kind, self.description)
+            before = conn.execute("SELECT value FROM settings WHERE key=?", (key,)).fetchone()
+            self.project._log_row(self.edit_id, self.seq, "settings", key, before[0] if before else None, after)
+            self.seq += 1
+            conn.execute("INSERT OR REPLACE INTO settings VALUES (?, ?)", (key, after))
+
+        self.project._write(fn)
 
     def delete_marker(self, marker_id: int) -> None:
         """Remove a marker's row (its points are this edit's business) as part of this edit."""

@@ -177,6 +177,10 @@ def _text(s: dict) -> str:
         looks = [f"{c} {describe_text(v['appearance'])}" for c, v in cams.items() if v.get("appearance")]
         if looks:
             lines.append("    appearance: " + "; ".join(looks))
+    if s.get("paired_across_views"):
+        merged = ", ".join(f"{p['from']} ({p['camera']}) into {p['marker']}" for p in s["paired_across_views"])
+        lines.append(f"  {len(s['paired_across_views'])} bead(s) seen in one view each, paired across the views by "
+                     f"their tracks, made one marker with both views (3D): {merged}")
     if s.get("stereo_flags"):
         lines.append(f"  {len(s['stereo_flags'])} stereo inconsistencies flagged (view dropped, searched again)")
     if s.get("ambiguous"):

@@ -8,9 +8,10 @@ is tracked; a brightness model's marker also by its template or its look on the 
 a brightness model's marker still followed that nothing measured is placed by its look where it shows
 whole (in both views only where they agree); then every track commits its status for the frame.
 Touching lookalikes (a crowd, crowd.py) seeded in one view each are paired across the views once their
-points tell who is who (_pair_crowd), and then checked and searched like one marker's two views. When
-most tracks of a camera leave their gates at once and the whole view moved (globalmotion.py), every
-track of that camera is moved with the view and searched again.
+points tell who is who (_pair_crowd), and then checked and searched like one marker's two views (the run
+makes each pair one marker at its end: run._merge_pairs). When most tracks of a camera leave their gates
+at once and the whole view moved (globalmotion.py), every track of that camera is moved with the view and
+searched again.
 """
 
 from __future__ import annotations
@@ -89,6 +90,9 @@ class Engine:
     _regroup_tried: dict = field(default_factory=dict)
     # Crowd tracks seeded in one view each, paired across the views by their points (_pair_crowd):
     partners: dict = field(default_factory=dict)  # crowd track key -> the key of the same bead in the other view
+    # each pair as it was made: (key in the stereo pair's first camera, key in the second, frames measured on
+    # each other's lines then, frame of the first camera at which it was made)
+    pairings: list = field(default_factory=list)
     # key in one camera -> {key in the other: [frames both measured, frames off each other's lines]} (both ways)
     _lines: dict = field(default_factory=dict)
     _searched: dict = field(default_factory=dict)  # camera -> (windows searched, keys measured on a line) this step
@@ -237,6 +241,7 @@ class Engine:
             y = self._only_on_line(x)
             if y is not None and y in measured[b] and self._only_on_line(y) == x:
                 self.partners[x], self.partners[y] = y, x
+                self.pairings.append((x, y, self._lines[x][y][0], int(frames[a][0])))
 
     def _only_on_line(self, key):
         """The one track of the other view that never left `key`'s line over PAIR_MIN_FRAMES frames, every

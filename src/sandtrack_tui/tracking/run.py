@@ -6,7 +6,8 @@
 - `seed_marker(project, marker, camera, frame, x, y, w, h)`: one operator seed (a click).
 - `track_project(project, ...)`: track forward or backward from the seeds (or from any frame:
   re-tracking after a correction is tracking from that frame), writing results to the store
-  as they are made, in chunks, inside one undoable edit.
+  as they are made, in chunks, inside one undoable edit; touching lookalikes seeded in one view
+  each that the run tells to be one bead (Engine._pair_crowd) become one marker in that edit.
 
 Frame indices are each camera's own. The cameras are stepped together on the first camera's
 clock ("side"): side frame i pairs with the front frame nearest to side time t - sync_offset_s
@@ -22,6 +23,7 @@ import time
 import numpy as np
 import pandas as pd
 
+from ..corrections import MARKER_CAMERA_SETTINGS, merge_in_edit
 from ..errors import SandtrackError
 from ..video import camera_offsets as video_offsets
 from . import identity
@@ -39,8 +41,7 @@ __all__ = ["auto_seed", "accept_seeds", "seed_marker", "track_project", "snap_to
 SEED_COLUMNS = ["marker", "camera", "frame", "x_px", "y_px", "w", "h", "epipolar_px"]
 # auto-seed matches blobs to markers known this many frames before or after the seeded frame
 MATCH_WINDOW_FRAMES = 500
-BOXES_KEY = "tracking_boxes"
-KINDS_KEY = "tracking_models"
+BOXES_KEY, KINDS_KEY = MARKER_CAMERA_SETTINGS  # {"MARKER/CAMERA": box [w, h] px}, {...: appearance model kind}
 _USABLE = (MANUAL, TRACKED, "interpolated", "imported")
 # Frame cache per camera when track_project opens the videos itself: tracking reads each frame
 # once, in either direction (decoding.py reads backward group by group), so the cache only spares
@@ -332,13 +333,39 @@ def _find_seeds(project, points: pd.DataFrame, markers, cams, sources, offsets, 
     return seeds, problems, sorted(one_camera)
 
 
+def _merge_pairs(project, ed, engine: Engine, problems: list) -> list[dict]:
+    """The crowd tracks the engine paired across the views (Engine.pairings: beads seeded in one view
+    each) made one marker, in the run's edit `ed`: the first camera's marker keeps its id, the other
+    view's points (and its box and appearance model) move to it (corrections.merge_in_edit). Two markers
+    that both have points in one camera (placed there before this run) are left apart, with a problem
+    line. Returns [{marker, from, camera, frames_on_line, frame}] of the merges made."""
+    if not engine.pairings:
+        return []
+    points = project.points()
+    cams_of = points.groupby("marker")["camera"].agg(set).to_dict()
+    out = []
+    for (keep, _), (drop, cam), together, frame in engine.pairings:
+        shared = cams_of.get(keep, set()) & cams_of.get(drop, set())
+        if shared:
+            problems.append(f"marker {keep} and marker {drop} ({cam}) are one bead by their tracks, but both have "
+                            f"points in {', '.join(sorted(shared))}: left apart (merge them by hand if right)")
+            continue
+        out.append({"marker": int(keep), "from": int(drop), "camera": cam, "frames_on_line": int(together),
+                    "frame": int(frame)})
+    if out:
+        merge_in_edit(project, ed, [(p["marker"], p["from"]) for p in out])
+    return out
+
+
 def track_project(project, markers=None, start: int | None = None, stop: int | None = None,
                   direction: str = "forward", progress=None, should_stop=None, sources: dict | None = None,
                   params: TrackParams | None = None, chunk_steps: int = 25, epipolar_px: float = 2.0,
                   band_px: float = 3.0) -> dict:
     """Track markers from their seeds (or from frame `start`, first camera's index) to `stop`
     (inclusive; default: the end in that direction). Results go to the store as they are made.
-    Returns a summary dict (counts per marker and camera, stereo flags, ambiguities, problems)."""
+    Markers of one camera each whose tracks the engine paired across the views (one bead: Engine._pair_crowd)
+    are merged into the first camera's marker at the end, as part of the same edit (`paired_across_views`).
+    Returns a summary dict (counts per marker and camera, stereo flags, ambiguities, problems, pairs)."""
     if direction not in ("forward", "backward"):
         raise SandtrackError(f"direction must be forward or backward, not {direction!r}")
     dirn = 1 if direction == "forward" else -1
@@ -368,7 +395,7 @@ def track_project(project, markers=None, start: int | None = None, stop: int | N
             raise SandtrackError(f"unknown marker(s): {', '.join(map(str, unknown))}")
         seeds, problems, one_camera = _find_seeds(project, points, markers, cams, sources, offsets, ref, start, dirn)
         summary = {"direction": direction, "cameras": cams, "markers": markers, "problems": problems,
-                   "one_camera_markers": one_camera,
+                   "one_camera_markers": one_camera, "paired_across_views": [],
                    "stereo": False, "rows_written": 0, "stopped": False, "per_marker": {}}
         for c in cams:
             if getattr(sources[c], "truncated", False):
@@ -463,14 +490,21 @@ def track_project(project, markers=None, start: int | None = None, stop: int | N
                     progress(k + 1, len(steps))
             if buf:
                 summary["rows_written"] += ed.write(buf)
+            paired = _merge_pairs(project, ed, engine, problems)
         elapsed = time.perf_counter() - t0
+        renamed = {(p["from"], p["camera"]): p["marker"] for p in paired}
+        summary["paired_across_views"] = paired
+        merged = {p["marker"] for p in paired} | {p["from"] for p in paired}
+        summary["one_camera_markers"] = [m for m in one_camera if m not in merged]
+        for event in engine.stereo_flags + engine.ambiguous:
+            event["marker"] = renamed.get((event["marker"], event["camera"]), event["marker"])
         per = {}
         for (m, c), t in engine.tracks.items():
-            per.setdefault(str(m), {})[c] = {
+            per.setdefault(str(renamed.get((m, c), m)), {})[c] = {
                 "tracked": t.counts[TRACKED], "occluded": t.counts[OCCLUDED], "lost": t.counts[LOST],
                 "reacquired": t.reacquisitions, "at_rest": t.rest_frames, "last_status": t.status,
                 "appearance": t.model.describe()}
-        never = [f"marker {m} {c}" for (m, c), t in engine.tracks.items()
+        never = [f"marker {renamed.get((m, c), m)} {c}" for (m, c), t in engine.tracks.items()
                  if t.counts[TRACKED] == 0 and (t.counts[OCCLUDED] + t.counts[LOST]) > 0]
         summary.update(
             frames=len(steps), first_frame=a, last_frame=b,

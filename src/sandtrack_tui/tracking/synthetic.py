@@ -224,3 +224,46 @@ def render_stereo(n_frames: int, size=(360, 480), seed: int = 0, tool: dict | No
         clips[name] = render(paths, n_frames, size, seed=seed + 10 * k, noise=noise,
                              tool=None if tool is None else tool.get(name))
     return cal, clips
+
+
+BEAD_BGR = (22.0, 22.0, 25.0)  # black beads of a dense layer
+
+
+def render_stereo_crowd(centres_mm: np.ndarray, radius_mm: float = 4.0, size=(360, 480), seed: int = 0,
+                        shine=(-0.25, -0.3), noise: float = 3.0):
+    """Identical black beads (a dense layer: touching lookalikes) seen by both cameras of `stereo_rig`.
+    centres_mm: (n_frames, n_beads, 3) bead centres in the rig frame (mm); bead k is marker k + 1 in
+    both views' truth. Each bead is a disc of its projected radius (focal length x radius / depth),
+    the farther ones drawn first, with a highlight `shine` radii from its centre (a light and views
+    that stay put). Returns (calibration, {camera: Clip})."""
+    cal = stereo_rig(size)
+    centres_mm = np.asarray(centres_mm, float)
+    n_frames, n_beads, _ = centres_mm.shape
+    clips = {}
+    for k, (name, cam) in enumerate(cal.cameras.items()):
+        flat = centres_mm.reshape(-1, 3)
+        xy = cam.project(flat).reshape(n_frames, n_beads, 2)
+        depth = ((cam.R @ flat.T).T + cam.tvec)[:, 2].reshape(n_frames, n_beads)
+        r_px = cam.matrix[0, 0] * radius_mm / depth.mean(axis=0)
+        order = np.argsort(-depth.mean(axis=0), kind="stable")
+        paths = [MarkerPath(int(i) + 1, xy[:, i], radius=float(r_px[i])) for i in order]
+        clip = render(paths, n_frames, size, seed=seed + 10 * k, noise=noise, marker_bgr=BEAD_BGR)
+        clip.frames = [_with_highlights(f, xy[j], r_px, shine) for j, f in enumerate(clip.frames)]
+        clips[name] = clip
+    return cal, clips
+
+
+def _with_highlights(img: np.ndarray, centres: np.ndarray, r_px: np.ndarray, shine) -> np.ndarray:
+    """A small highlight on each bead, `shine` radii from its centre, within its disc."""
+    out = img.astype(np.float32)
+    h, w = img.shape[:2]
+    for (cx, cy), r in zip(centres, r_px, strict=True):
+        x0, x1 = max(int(cx - r - 2), 0), min(int(cx + r + 3), w)
+        y0, y1 = max(int(cy - r - 2), 0), min(int(cy + r + 3), h)
+        if x1 <= x0 or y1 <= y0:
+            continue
+        yy, xx = np.mgrid[y0:y1, x0:x1].astype(np.float32)
+        disc = np.clip(r + 0.5 - np.hypot(xx - cx, yy - cy), 0, 1)
+        spot = np.exp(-((xx - cx - shine[0] * r) ** 2 + (yy - cy - shine[1] * r) ** 2) / 2.0)
+        out[y0:y1, x0:x1] += (60.0 * disc * spot)[..., None]
+    return np.clip(out, 0, 255).astype(np.uint8)

@@ -260,6 +260,13 @@ class SeedingMixin:
             text += " (stereo check on)"
         if result.get("stopped"):
             text += "; cancelled"
+        paired = result.get("paired_across_views") or []
+        if paired:
+            text += f"; {len(paired)} bead(s) seen in one view each made one marker with both views (u undoes the run)"
+            renamed = {p["from"]: p["marker"] for p in paired}
+            if self.selected in renamed:
+                self.selected = renamed[self.selected]
+                self.refresh_all()
         problems = result.get("problems") or []
         if problems:
             text += f"; {len(problems)} problem(s): " + "; ".join(map(str, problems[:3]))
