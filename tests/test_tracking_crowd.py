@@ -209,7 +209,7 @@ class _Lost(SimpleNamespace):
 
 
 def test_a_lost_crowd_bead_is_given_back_on_the_other_views_line_only_when_no_other_bead_lies_there():
-    from sandtrack_tui.tracking.engine import _Proposal
+    from sandtrack_tui.tracking.matcher import Proposal
 
     cal = synthetic.stereo_rig()
     r = 6.0
@@ -227,7 +227,7 @@ def test_a_lost_crowd_bead_is_given_back_on_the_other_views_line_only_when_no_ot
         eng.tracks = {(4, "front"): lost, (1, "side"): SimpleNamespace(camera="side", model=SimpleNamespace(radius=r))}
         eng.partners = {(4, "front"): (1, "side"), (1, "side"): (4, "front")}
         eng._crowd_seen = {(4, "front"): {0: tuple(f0)}, (1, "side"): {0: tuple(s)}}  # last measured together
-        props = {(1, "side"): _Proposal(Match(*s, 0.95, 5.0, 1.0))}  # the side view measures it, not moved
+        props = {(1, "side"): Proposal(Match(*s, 0.95, 5.0, 1.0))}  # the side view measures it, not moved
         taken = {}
         eng._unexplained_beads = lambda *args, **kw: np.array(beads, float).reshape(-1, 2)
         eng._give_back = lambda cam, img, found, props: taken.update(found) or len(found)

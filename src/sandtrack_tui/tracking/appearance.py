@@ -377,6 +377,23 @@ def _spread(v: np.ndarray) -> float:
     return float(1.4826 * np.median(np.abs(v - np.median(v)))) if len(v) else float("nan")
 
 
+def marker_level(p_in: np.ndarray, sand_mid: float) -> float:
+    """The level that splits a seed box's inner pixels, projected on the marker-vs-sand direction
+    (`p_in`, larger = more like the marker), into marker and sand: 2-means started halfway between
+    the 95th percentile and the sand ring's median `sand_mid`, the sand side's mean pulled halfway to
+    that median."""
+    t = 0.5 * (np.percentile(p_in, 95) + sand_mid)
+    for _ in range(10):
+        hi, lo = p_in[p_in >= t], p_in[p_in < t]
+        if len(hi) == 0 or len(lo) == 0:
+            break
+        t_new = 0.5 * (hi.mean() + 0.5 * (lo.mean() + sand_mid))
+        if abs(t_new - t) < 1e-6:
+            break
+        t = t_new
+    return t
+
+
 @dataclass
 class SeedPatch:
     """The pixels around a seed box: `bgr` (N, 3) float64, masks `inner` (the box) and `ring` (sand

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .appearance import BRIGHT, DARK, MIN_SEPARATION, TEXTURE, AppearanceModel, SeedPatch
+from .appearance import BRIGHT, DARK, MIN_SEPARATION, TEXTURE, AppearanceModel, SeedPatch, marker_level
 from .chroma import LUMA_BGR
 
 OUTLIER_Z = 3.0  # pixels this many robust deviations of the sand away count towards the polarity
@@ -100,15 +100,7 @@ def learn_brightness(seed: SeedPatch, sign: float | None = None) -> tuple[Appear
     mu_s = float(np.median(sand))
     p_in = sign * (inside - mu_s)
     sand_mid = np.median(sign * (sand - mu_s))
-    t = 0.5 * (np.percentile(p_in, 95) + sand_mid)
-    for _ in range(10):
-        hi, lo = p_in[p_in >= t], p_in[p_in < t]
-        if len(hi) == 0 or len(lo) == 0:
-            break
-        t_new = 0.5 * (hi.mean() + 0.5 * (lo.mean() + sand_mid))
-        if abs(t_new - t) < 1e-6:
-            break
-        t = t_new
+    t = marker_level(p_in, sand_mid)
     chosen, others = seed.centre_component(p_in >= t, sand_around=sand_around)
     if chosen.sum() < 3:
         return None, float("nan")

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .appearance import COLOUR, MIN_SEPARATION, AppearanceModel
+from .appearance import COLOUR, MIN_SEPARATION, AppearanceModel, marker_level
 
 EPS = 3.0  # added to B + G + R: keeps the chromaticity of near-black pixels finite
 MIN_LUMA_FRACTION = 0.25  # a marker darker than this share of the sand's brightness is left to brightness
@@ -96,15 +96,7 @@ def learn_colour(seed) -> tuple[AppearanceModel | None, float]:
         d0 = clean_dir
     p_in = (patch[inner] - mu_s) @ d0
     sand_mid = np.median((sand - mu_s) @ d0)
-    t = 0.5 * (np.percentile(p_in, 95) + sand_mid)
-    for _ in range(10):
-        hi, lo = p_in[p_in >= t], p_in[p_in < t]
-        if len(hi) == 0 or len(lo) == 0:
-            break
-        t_new = 0.5 * (hi.mean() + 0.5 * (lo.mean() + sand_mid))
-        if abs(t_new - t) < 1e-6:
-            break
-        t = t_new
+    t = marker_level(p_in, sand_mid)
     chosen, others = seed.centre_component(p_in >= t)
     disc = patch[inner][chosen]
     if len(disc) < 3:

@@ -41,6 +41,15 @@ class Match:
     line: bool = False  # measured on the other view's epipolar line, its outline found all round (Engine._on_line)
 
 
+@dataclass
+class Proposal:
+    """The match a track proposes for this step (Engine collects them before any commits)."""
+
+    match: Match
+    reattach: bool = False
+    jump: bool = False  # re-attached beyond the gate: the marker's velocity starts from that move
+
+
 STREAK_MIN_SPEED = 4.0  # px per frame from which a marker may be smeared into a streak
 STREAK_EXPOSURES = (0.5, 1.0)  # exposures tried, in frames
 
