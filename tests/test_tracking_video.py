@@ -272,6 +272,48 @@ def test_a_lost_white_marker_is_found_again_by_the_pattern_kept_from_before_it_w
     assert lost_track().pattern_return(far, 7) is None
 
 
+def test_a_white_marker_found_again_far_away_with_weak_colour_is_placed_by_its_kept_pattern():
+    """A lost white marker carried while hidden far beyond its radius of its prediction, whose colour match at
+    the blob re-acquisition gave it covers less than min_colour and fits its template less than min_score
+    (its chroma contrast weakened), but stands out (PSR): its brightness pattern, kept from before the miss,
+    places it within 0.15 px of its centre and its chain goes on from there; half covered, or with a colour
+    peak that does not stand out, it is not taken."""
+    from types import SimpleNamespace
+
+    from sandtrack_tui.tracking.matcher import Match
+    from sandtrack_tui.tracking.tracker import LOST, SHORT_MISS, MarkerTrack, TrackParams
+
+    sand = synthetic.sand_texture(80, 80, np.random.default_rng(5)).astype(float)
+    r, (ax, ay), offset = 4.4, (30.3, 40.6), (0.3, -0.2)
+    bx, by = ax + 5 * r, ay - 1.3  # (carried far from where it was lost: pattern_return does not see it)
+
+    def lost_track():
+        t = MarkerTrack.__new__(MarkerTrack)
+        t.model = SimpleNamespace(luma_follows=False, radius=r, has_blob=True)
+        t.params, t.intra = TrackParams(), np.array([False])
+        t._pattern = LumaPattern(_white_sphere_on_sand(sand, ax, ay, r), ax, ay, r)
+        t._offset, t._anchor_luma, t.status, t.held, t.misses = offset, (ax, ay), LOST, False, SHORT_MISS
+        t.kf = SimpleNamespace(xy=(ax + offset[0], ay + offset[1]), vxy=(0.0, 0.0), d2=lambda x, y: 50.0)
+        t._follow_pattern_chain(None, None, False)  # (the chain broken by the miss)
+        t.misses = 40
+        return t
+
+    p = TrackParams()
+    weak = Match(bx + offset[0] + 1.2, by + offset[1] - 0.6, 0.9 * p.min_score, 2 * p.min_psr, 0.8 * p.min_colour)
+    back = _white_sphere_on_sand(sand, bx, by, r)
+    t = lost_track()
+    assert t.pattern_return(back, 7) is None
+    m = t._whole_by_pattern(back, weak, 1.0)
+    assert m is not None and np.hypot(m.x - offset[0] - bx, m.y - offset[1] - by) < 0.15
+    t._follow_pattern_chain(back, m, reattach=True)
+    assert t._pattern is not None and t._kept is None  # (followed on by its pattern)
+    half = back.copy()
+    half[int(by):, :] = np.round(sand[int(by):, :]).astype(np.uint8)
+    assert lost_track()._whole_by_pattern(half, weak, 1.0) is None
+    flat = Match(weak.x, weak.y, weak.score, 0.5 * p.min_psr, weak.colour_frac)
+    assert lost_track()._whole_by_pattern(back, flat, 1.0) is None
+
+
 def test_a_creeping_white_marker_is_carried_by_its_brightness_pattern_not_its_stale_colour(tmp_path):
     """A white marker creeping over beige sand (its colour model has a contrast of ~5 sand spreads, its
     brightness no dark edge), in H.264: between intra frames its colour stays behind; followed by its

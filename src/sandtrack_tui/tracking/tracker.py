@@ -323,18 +323,54 @@ class MarkerTrack:
             return None
         pattern, offset, anchor = self._kept
         px, py = self.kf.xy
-        r = self.model.radius
-        found = pattern.find(frame_bgr, px - offset[0], py - offset[1])
-        if found is None or math.hypot(found[0] + offset[0] - px, found[1] + offset[1] - py) > r:
+        placed = self._one_place(frame_bgr, pattern, offset, px, py)
+        if placed is None:
             return None
-        fit = pattern.fit
-        for dx, dy in ((r, 0.0), (-r, 0.0), (0.0, r), (0.0, -r)):  # (one place, not one of several)
-            other = pattern.find(frame_bgr, found[0] + 0.5 * dx, found[1] + 0.5 * dy)
-            if other is not None and math.hypot(other[0] - found[0], other[1] - found[1]) > LOST_PLACE_PX:
-                return None
+        found, fit = placed
         self._pattern, self._offset, self._anchor_luma, self._kept = pattern, offset, anchor, None
         x, y = found[0] + offset[0], found[1] + offset[1]
         return Match(x, y, fit, float("nan"), float("nan"), self.kf.d2(x, y), True, found)
+
+    def _one_place(self, frame_bgr, pattern: LumaPattern, offset: tuple, x: float, y: float) -> tuple | None:
+        """((x, y), fit): where `pattern` (its centre `offset` from the marker's) registers from around (x, y),
+        when it fits (LumaPattern.MIN_NCC) within the marker's radius of there and at one place, not one of
+        several (found again alike from half a radius either side); else None."""
+        r = self.model.radius
+        found = pattern.find(frame_bgr, x - offset[0], y - offset[1])
+        if found is None or math.hypot(found[0] + offset[0] - x, found[1] + offset[1] - y) > r:
+            return None
+        fit = pattern.fit
+        for dx, dy in ((r, 0.0), (-r, 0.0), (0.0, r), (0.0, -r)):
+            other = pattern.find(frame_bgr, found[0] + 0.5 * dx, found[1] + 0.5 * dy)
+            if other is not None and math.hypot(other[0] - found[0], other[1] - found[1]) > LOST_PLACE_PX:
+                return None
+        return found, fit
+
+    def _whole_by_pattern(self, frame_bgr, m: Match, relax: float) -> Match | None:
+        """A marker with no dark silhouette, found again where a blob of its colour was (re-acquisition), whose
+        colour's peak stands out there (PSR) but covers less of its seed disc than min_colour, or fits its
+        template less than min_score. Its colour alone cannot tell a part of it from the whole of it: a white
+        marker back in sight in a furrow of disturbed sand shows about half its seed disc's chroma contrast
+        while its brightness is unchanged (the white twin: coverage 0.41-0.68 and template NCC 0.59-0.80 on
+        markers seen whole, the colour's centre 0.5-1.9 px off them); the template is a colour template, and
+        fits less for the same reason. Its brightness pattern, the live chain's or the one kept from before it
+        was lost, says which: a whole marker fits it (LumaPattern.MIN_NCC, closer than any template's
+        min_score), a part does not (what hides it is in its disc). Found so, within its radius of the colour's
+        centre and at one place, the marker is there, placed as its pattern puts it (0.1-0.4 px off on those
+        frames); its chain goes on from there. None otherwise."""
+        p = self.params
+        if self.model.luma_follows or not self.model.has_blob or (math.isfinite(m.psr) and m.psr < p.min_psr * relax):
+            return None
+        pattern, offset, anchor = self._kept or (self._pattern, self._offset, self._anchor_luma)
+        if pattern is None or offset is None:
+            return None
+        placed = self._one_place(frame_bgr, pattern, offset, m.x, m.y)
+        if placed is None:
+            return None
+        found = placed[0]
+        self._pattern, self._offset, self._anchor_luma, self._kept = pattern, offset, anchor, None
+        x, y = found[0] + offset[0], found[1] + offset[1]
+        return Match(x, y, m.score, m.psr, m.colour_frac, self.kf.d2(x, y), True, found)
 
     def _pattern_match(self, frame_bgr, frame_index: int | None) -> Match | None:
         """A marker with no dark silhouette whose colour match failed (between intra frames its colour is
@@ -464,6 +500,8 @@ class MarkerTrack:
                 self._offset = self._anchor_luma = self._pattern = None  # the chain is broken
             # (else unseen a frame or two: the chain is kept, to find the marker by its pattern: pattern_return)
             return
+        if reattach and m.luma is not None and self._pattern is not None:
+            return  # (found again by its chain's pattern: _whole_by_pattern; the chain goes on)
         if reattach:
             self._offset = self._anchor_luma = self._pattern = None
             if m.colour_frac >= self.params.confident_colour:
@@ -535,11 +573,16 @@ class MarkerTrack:
             steps = abs(frame_index - last[0])
             velocity = ((x - last[1]) / steps, (y - last[2]) / steps)
         m = self.matcher.match(frame_bgr, x, y, 2.0, 2.0, velocity=velocity)
+        if m is None:
+            return None
         # Back after a frame or two (half hidden still), a marker may match its template less well;
         # after a longer absence a blob must look as much like it as a tracked marker does: by then
         # where it is says little, and a lookalike nearby may be taken for it.
-        if m is None or not self.acceptable(m, relax=0.9 if self.misses <= SHORT_MISS else 1.0):
-            return None
+        relax = 0.9 if self.misses <= SHORT_MISS else 1.0
+        if not self.acceptable(m, relax):
+            m = self._whole_by_pattern(frame_bgr, m, relax)
+            if m is None:
+                return None
         if self.model.has_blob and m.colour_frac > MERGED_COVERAGE:
             return None  # the candidate is this marker merged with another: who is who is not clear
         if self.cut_by_border(frame_bgr, m) or self._pattern_denies(frame_bgr, m, frame_index):
