@@ -576,7 +576,7 @@ class MarkerTrack:
         m = self.matcher.match(frame_bgr, x, y, 2.0, 2.0)
         if m is None or self.cut_by_border(frame_bgr, m):
             return None
-        h = crowd_rules.highlight(frame_bgr, x + off[0], y + off[1], 0.5 * self.model.radius)
+        h = crowd_rules.highlight(frame_bgr, x + off[0], y + off[1], self._highlight_reach())
         if h is None:
             return None
         cx, cy = h[0] - off[0], h[1] - off[1]
@@ -624,7 +624,14 @@ class MarkerTrack:
         point found there is then its own highlight, not the sand between the beads; never under
         CARRIED_AGREE_PX."""
         off = self.highlight_offset
-        return max(CARRIED_AGREE_PX, 0.5 * self.model.radius - math.hypot(*off) - 1.0)
+        return max(CARRIED_AGREE_PX, self.model.radius - 1.0 - math.hypot(*off) - self._highlight_reach())
+
+    def _highlight_reach(self) -> float:
+        """How far from where a carried crowd bead's highlight should be it is looked for (confirm_carried):
+        half a radius, but no farther than keeps the search on the bead's body, a pixel's blur inside its rim,
+        were the bead where it was carried (a bead whose highlight sits far from its centre, as in a slanted
+        view, would otherwise reach its rim and the sand beyond, brighter than the highlight, and find none)."""
+        return min(0.5 * self.model.radius, self.model.radius - 1.0 - math.hypot(*self.highlight_offset))
 
     def _learn_highlight(self, frame_bgr, m: Match) -> None:
         """Where this crowd bead's highlight sits from its centre, from a frame that measured its outline
