@@ -404,7 +404,7 @@ class CrowdPasses:
             if (t.marker, cam) in props or not t.carried:
                 continue
             m = t.confirm_carried(img, float(x), float(y))
-            if m is None or any(math.hypot(m.x - a, m.y - b) < t.model.radius for a, b in taken):
+            if m is None or any(math.hypot(m.x - a, m.y - b) <= 0.5 * t.model.radius for a, b in taken):
                 continue
             props[(t.marker, cam)] = Proposal(m, reattach=True)
             taken.append((m.x, m.y))
