@@ -367,3 +367,37 @@ def test_a_pair_whose_markers_both_have_points_in_one_view_is_left_apart_and_sai
     pts = proj.points()
     assert sorted(proj.markers()["id"]) == [2, 3, 14] and set(pts[pts.marker == 2].camera) == {"side", "front"}
     assert len(pts[pts.marker == 14]) == 4
+
+
+def _under_tool(img: np.ndarray, x0: float, seed: int = 9) -> np.ndarray:
+    """The tool over the frame from column x0 on: a flat grey surface with the camera's noise."""
+    out = img.astype(np.float32)
+    noise = np.random.default_rng(seed).normal(0.0, 1.5, out.shape[:2])
+    out[:, int(x0):] = (95.0 + noise[:, int(x0):])[..., None]
+    return np.clip(out, 0, 255).astype(np.uint8)
+
+
+def test_a_carried_bead_half_under_the_tool_is_measured_by_its_highlight_and_a_hidden_one_is_not():
+    model, k = _layer_model(), 5
+    loose = _packing(2.4)
+    frames = [_beads(loose + (0.6 * f, 0.3 * f)) for f in range(5)]
+    t = MarkerTrack(2, "cam", frames[0], 0, loose[k, 0] + 0.3, loose[k, 1] - 0.2, 22, 22, kind=model.kind,
+                    like=model)
+    eng = Engine()
+    eng.add(t, 0)
+    for f, img in enumerate(frames):
+        eng.step({"cam": (f, img, 0.0)})
+    assert t.highlight_contrast > 20.0  # learned with its offset, where its outline was seen all round
+    x, y = loose[k] + (2.4, 1.2)
+    # Carried 1.7 px off (farther than the highlight alone vouches for), its right side under the tool: its
+    # outline is not found all round, its highlight (up and left of its centre) stands out of its body.
+    half = _under_tool(frames[-1], x + 4.0)
+    assert t.matcher.silhouette(half, x, y, strict=True) is None
+    m = t.confirm_carried(half, x + 1.2, y + 1.2)
+    assert m is not None and math.hypot(m.x - x, m.y - y) < 0.3
+    # Wholly under the tool: the brightest point of its flat surface is no highlight.
+    assert t.confirm_carried(_under_tool(frames[-1], x - 2.0 * R), x + 1.2, y + 1.2) is None
+    assert t.confirm_carried(_under_tool(frames[-1], x - 2.0 * R), x + 0.3, y + 0.2) is None
+    # A highlight of this bead's look but that stands out of its body by the noise only is not its own.
+    flat = crowd.highlight_contrast(_under_tool(frames[-1], x - 2.0 * R), x + SHINE[0] * R, y + SHINE[1] * R, x, y, R)
+    assert abs(flat) < 5.0 and crowd.highlight_contrast(frames[-1], x + SHINE[0] * R, y + SHINE[1] * R, x, y, R) > 20.0

@@ -40,7 +40,10 @@ MERGED_COVERAGE = 1.4  # marker coverage (in seed discs) above which a blob is t
 HELD_MEAS_PX = 1.0  # measurement noise of a held marker's template peak (no outline), px
 CARRIED_AGREE_PX = 1.0  # a carried crowd marker's outline centre this near its carried position re-confirms it
 HIGHLIGHT_ALPHA = 0.2  # share of a new measurement in a crowd bead's highlight offset (and contrast)
-HIGHLIGHT_CONTRAST_SHARE = 0.5  # share of a crowd bead's own highlight contrast a highlight found must reach
+# Share of a crowd bead's own highlight contrast (learned with its offset) a highlight found must reach: the
+# brightest point of a flat surface (the tool over a hidden bead) reaches its noise only (0.02-0.07 of it on the
+# dense twin), a bead's own highlight, partly hidden or read across a neighbour's rim, 0.4-1.2.
+HIGHLIGHT_CONTRAST_SHARE = 0.25
 # A crowd bead's highlight is first looked for this far from its centre, in radii: anywhere on its body but
 # its rim (a pixel's blur inside it: beyond, the bright sand or gap bleeds in, and a brightest point on
 # the search's edge is no highlight).
@@ -652,8 +655,8 @@ class MarkerTrack:
         """The highlight `h` stands out of the body of a bead centred at `centre` (crowd.highlight_contrast)
         by at least HIGHLIGHT_CONTRAST_SHARE of what this bead's own highlight did where its outline was seen
         all round it: the brightest point of the tool over a hidden bead stands out by its noise only (1-3
-        grey levels on the dense twin, against 41-47 of the beads' own highlights found there). True while
-        no contrast is learned, or near the image's edge."""
+        grey levels on the dense twin, against 41-47 of the beads' own highlights beside it). True while no
+        contrast is learned, or near the image's edge."""
         k = self.highlight_contrast
         if k is None:
             return True
