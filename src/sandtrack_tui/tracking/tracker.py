@@ -42,7 +42,7 @@ CARRIED_AGREE_PX = 1.0  # a carried crowd marker's outline centre this near its 
 HIGHLIGHT_ALPHA = 0.2  # share of a new measurement in a crowd bead's highlight offset (and contrast)
 # Share of a crowd bead's own highlight contrast (learned with its offset) a highlight found must reach: the
 # brightest point of a flat surface (the tool over a hidden bead) reaches its noise only (0.02-0.07 of it on the
-# dense twin), a bead's own highlight, partly hidden or read across a neighbour's rim, 0.4-1.2.
+# dense twin), a bead's own highlight, partly hidden or read across a neighbour's rim, 0.40-1.07.
 HIGHLIGHT_CONTRAST_SHARE = 0.25
 # A crowd bead's highlight is first looked for this far from its centre, in radii: anywhere on its body but
 # its rim (a pixel's blur inside it: beyond, the bright sand or gap bleeds in, and a brightest point on
