@@ -500,6 +500,7 @@ class CrowdPasses:
         has jumped to a neighbour's outline or a gap, and coasts instead (flagged). Where the motion is
         not clear the match stands."""
         prev = self._crowd_prev.get(cam)
+        self._flow_refused = {k for k in self._flow_refused if k[1] != cam}
         if prev is None:
             return
         keys, start, found = [], [], []
@@ -519,6 +520,7 @@ class CrowdPasses:
         for key, d in zip(keys, off, strict=True):
             if d > FLOW_AGREE_PX:  # (NaN: the motion is not clear, the match stands)
                 del props[key]
+                self._flow_refused.add(key)
 
 
 def _patches(points: np.ndarray, link: float) -> list[list[int]]:
