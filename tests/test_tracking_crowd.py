@@ -454,3 +454,24 @@ def test_a_hidden_patch_is_registered_again_from_the_frame_the_most_beads_around
     assert {group[i]: beads[b] for i, b in agreed.items()} == {k: k for k in shown}
     # No frame with more anchors than the first try had: not tried again.
     assert eng._register_pinned("cam", patch, now[beads], len(anchors), props, {}) == (None, {})
+
+
+def test_a_crowd_match_the_image_motion_refused_is_not_given_back_by_the_blob_search():
+    model, k = _layer_model(), 5
+    loose = _packing(2.4)
+    frames = [_beads(loose + (0.6 * f, 0.3 * f)) for f in range(4)]
+    t = MarkerTrack(2, "cam", frames[0], 0, loose[k, 0] + 0.3, loose[k, 1] - 0.2, 22, 22, kind=model.kind,
+                    like=model)
+    eng = Engine()
+    eng.add(t, 0)
+    for f, img in enumerate(frames[:3]):
+        eng.step({"cam": (f, img, 0.0)})
+    t.predict()
+    step = {"cam": (3, frames[3], 0.0)}
+    # Missed this step, its bead in its gate: the blob search gives it back...
+    props: dict = {}
+    assert eng._reacquire("cam", frames[3], [t], props, {}, step) == 1 and (2, "cam") in props
+    # ... but not when its own match was refused by the flow check this step (that blob is that match).
+    props = {}
+    eng._flow_refused = {(2, "cam")}
+    assert eng._reacquire("cam", frames[3], [t], props, {}, step) == 0 and not props
