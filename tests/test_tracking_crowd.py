@@ -11,7 +11,7 @@ import numpy as np
 from crowd_synth import CLICKED, crowd_project, layer_mm, turned
 from sandtrack_tui.tracking import crowd, synthetic
 from sandtrack_tui.tracking.engine import Engine
-from sandtrack_tui.tracking.matcher import Match
+from sandtrack_tui.tracking.matcher import Match, Proposal
 from sandtrack_tui.tracking.stereo import StereoCheck
 from sandtrack_tui.tracking.tracker import MarkerTrack, Observation
 
@@ -27,15 +27,15 @@ def _packing(gap: float, at=(60.0, 60.0), cols: int = 4, rows: int = 4) -> np.nd
                      for j in range(rows) for c in range(cols)])
 
 
-def _beads(centres: np.ndarray, seed: int = 4, dull=()) -> np.ndarray:
-    """Black beads on sand, each with a highlight at SHINE radii from its centre (but those of `dull`)."""
+def _beads(centres: np.ndarray, seed: int = 4, dull=(), shine=SHINE) -> np.ndarray:
+    """Black beads on sand, each with a highlight at `shine` radii from its centre (but those of `dull`)."""
     paths = [synthetic.MarkerPath(i + 1, np.array([c]), radius=R) for i, c in enumerate(centres)]
     img = synthetic.render(paths, 1, SIZE, seed=seed, marker_bgr=BLACK).frames[0].astype(np.float32)
     yy, xx = np.mgrid[0:SIZE[0], 0:SIZE[1]].astype(np.float32)
     for i, (cx, cy) in enumerate(centres):
         if i not in dull:
             disc = np.clip(R + 0.5 - np.hypot(xx - cx, yy - cy), 0, 1)
-            spot = np.exp(-((xx - cx - SHINE[0] * R) ** 2 + (yy - cy - SHINE[1] * R) ** 2) / 2.0)
+            spot = np.exp(-((xx - cx - shine[0] * R) ** 2 + (yy - cy - shine[1] * R) ** 2) / 2.0)
             img += (60.0 * disc * spot)[..., None]
     return np.clip(img, 0, 255).astype(np.uint8)
 
@@ -367,3 +367,111 @@ def test_a_pair_whose_markers_both_have_points_in_one_view_is_left_apart_and_sai
     pts = proj.points()
     assert sorted(proj.markers()["id"]) == [2, 3, 14] and set(pts[pts.marker == 2].camera) == {"side", "front"}
     assert len(pts[pts.marker == 14]) == 4
+
+
+def _under_tool(img: np.ndarray, x0: float, seed: int = 9) -> np.ndarray:
+    """The tool over the frame from column x0 on: a flat grey surface with the camera's noise."""
+    out = img.astype(np.float32)
+    noise = np.random.default_rng(seed).normal(0.0, 1.5, out.shape[:2])
+    out[:, int(x0):] = (95.0 + noise[:, int(x0):])[..., None]
+    return np.clip(out, 0, 255).astype(np.uint8)
+
+
+def test_a_carried_bead_half_under_the_tool_is_measured_by_its_highlight_and_a_hidden_one_is_not():
+    model, k = _layer_model(), 5
+    loose = _packing(2.4)
+    frames = [_beads(loose + (0.6 * f, 0.3 * f)) for f in range(5)]
+    t = MarkerTrack(2, "cam", frames[0], 0, loose[k, 0] + 0.3, loose[k, 1] - 0.2, 22, 22, kind=model.kind,
+                    like=model)
+    eng = Engine()
+    eng.add(t, 0)
+    for f, img in enumerate(frames):
+        eng.step({"cam": (f, img, 0.0)})
+    assert t.highlight_contrast > 20.0  # learned with its offset, where its outline was seen all round
+    x, y = loose[k] + (2.4, 1.2)
+    # Carried 1.7 px off (farther than the highlight alone vouches for), its right side under the tool: its
+    # outline is not found all round, its highlight (up and left of its centre) stands out of its body.
+    half = _under_tool(frames[-1], x + 4.0)
+    assert t.matcher.silhouette(half, x, y, strict=True) is None
+    m = t.confirm_carried(half, x + 1.2, y + 1.2)
+    assert m is not None and math.hypot(m.x - x, m.y - y) < 0.3
+    # Wholly under the tool: the brightest point of its flat surface is no highlight.
+    assert t.confirm_carried(_under_tool(frames[-1], x - 2.0 * R), x + 1.2, y + 1.2) is None
+    assert t.confirm_carried(_under_tool(frames[-1], x - 2.0 * R), x + 0.3, y + 0.2) is None
+    # A highlight of this bead's look but that stands out of its body by the noise only is not its own.
+    flat = crowd.highlight_contrast(_under_tool(frames[-1], x - 2.0 * R), x + SHINE[0] * R, y + SHINE[1] * R, x, y, R)
+    assert abs(flat) < 5.0 and crowd.highlight_contrast(frames[-1], x + SHINE[0] * R, y + SHINE[1] * R, x, y, R) > 20.0
+
+
+def test_a_carried_bead_whose_highlight_sits_far_off_its_centre_is_measured_by_it():
+    # A slanted view sees a bead's highlight 0.45 radii off its centre: a search of half a radius around it
+    # would reach the bead's rim and the brighter sand beyond, and find no highlight.
+    model, k, shine = _layer_model(), 5, (-0.3, -0.34)
+    loose = _packing(2.4)
+    frames = [_beads(loose + (0.6 * f, 0.3 * f), shine=shine) for f in range(5)]
+    t = MarkerTrack(2, "cam", frames[0], 0, loose[k, 0] + 0.3, loose[k, 1] - 0.2, 22, 22, kind=model.kind,
+                    like=model)
+    eng = Engine()
+    eng.add(t, 0)
+    for f, img in enumerate(frames):
+        eng.step({"cam": (f, img, 0.0)})
+    assert np.hypot(*(np.array(t.highlight_offset) - np.array(shine) * R)) < 0.3
+    x, y = loose[k] + (2.4, 1.2)
+    assert t._highlight_reach() + math.hypot(*t.highlight_offset) <= R - 1.0  # on the bead's body
+    m = t.confirm_carried(frames[-1], x + 0.4, y - 0.3)
+    assert m is not None and math.hypot(m.x - x, m.y - y) < 0.3
+
+
+def test_a_hidden_patch_is_registered_again_from_the_frame_the_most_beads_around_it_were_measured():
+    cols = 8
+    layer = _packing(2.0, at=(100.0, 80.0), cols=cols, rows=6)
+    now = _carry(layer)
+
+    def row(j: int) -> list:
+        return list(range(j * cols, (j + 1) * cols))
+
+    # A row's six beads were hidden together and four show again beside a row of lookalikes no track follows.
+    # The beads around them were measured with them at frame 8, not at frame 10 (the tool passed over them),
+    # and are measured now.
+    group, anchors, lookalikes = row(2)[1:7], row(1) + [row(2)[0], row(2)[7]], row(3)
+    shown = group[:2] + group[3:5]
+    beads = shown + lookalikes
+    eng = Engine()
+    crowd_bead = SimpleNamespace(crowd=True, radius=R)
+    tracks = {k: SimpleNamespace(marker=k, model=crowd_bead) for k in group + anchors}
+    eng.tracks = {(k, "cam"): t for k, t in tracks.items()}
+    for k in group:
+        eng._crowd_seen[(k, "cam")] = {8: tuple(layer[k]), 10: tuple(layer[k] + (0.5, 0.3))}
+    for k in anchors:
+        eng._crowd_seen[(k, "cam")] = {8: tuple(layer[k])}
+    props = {(k, "cam"): Proposal(Match(*now[k], 0.9, 3.0, 1.0)) for k in anchors}
+    patch = [tracks[k] for k in group]
+    # From frame 10, with no bead around them measured then, the patch fits the lookalikes' row as well.
+    at, agreed = crowd.register(layer[group] + (0.5, 0.3), now[beads], R, 6 * R)
+    assert all(beads[b] in lookalikes for b in agreed.values())
+    # From frame 8, its anchors pin it: each shown bead its own.
+    at, agreed = eng._register_pinned("cam", patch, now[beads], 0, props, {})
+    assert {group[i]: beads[b] for i, b in agreed.items()} == {k: k for k in shown}
+    # No frame with more anchors than the first try had: not tried again.
+    assert eng._register_pinned("cam", patch, now[beads], len(anchors), props, {}) == (None, {})
+
+
+def test_a_crowd_match_the_image_motion_refused_is_not_given_back_by_the_blob_search():
+    model, k = _layer_model(), 5
+    loose = _packing(2.4)
+    frames = [_beads(loose + (0.6 * f, 0.3 * f)) for f in range(4)]
+    t = MarkerTrack(2, "cam", frames[0], 0, loose[k, 0] + 0.3, loose[k, 1] - 0.2, 22, 22, kind=model.kind,
+                    like=model)
+    eng = Engine()
+    eng.add(t, 0)
+    for f, img in enumerate(frames[:3]):
+        eng.step({"cam": (f, img, 0.0)})
+    t.predict()
+    step = {"cam": (3, frames[3], 0.0)}
+    # Missed this step, its bead in its gate: the blob search gives it back...
+    props: dict = {}
+    assert eng._reacquire("cam", frames[3], [t], props, {}, step) == 1 and (2, "cam") in props
+    # ... but not when its own match was refused by the flow check this step (that blob is that match).
+    props = {}
+    eng._flow_refused = {(2, "cam")}
+    assert eng._reacquire("cam", frames[3], [t], props, {}, step) == 0 and not props

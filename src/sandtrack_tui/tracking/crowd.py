@@ -36,6 +36,8 @@ import cv2
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+BODY_RING = 0.6  # radii: a bead's body is read on this circle around its centre (inside its rim's blur)
+BODY_RING_SAMPLES = 16
 MIN_NEIGHBOURS = 2  # measured neighbours a missed marker's carried position needs
 FLOW_BACK_PX = 0.3  # a bead's image motion is trusted when tracking it back lands within this of its start
 FLOW_MAX_MOVE = 1.0  # a bead's move per frame, in radii, beyond which the image motion is not the layer's
@@ -115,6 +117,26 @@ def highlight(frame_bgr: np.ndarray, x: float, y: float, reach: float) -> tuple[
     dx = 0.5 * (l - r_) / (l - 2 * c + r_) if l - 2 * c + r_ < 0 else 0.0
     dy = 0.5 * (u - d) / (u - 2 * c + d) if u - 2 * c + d < 0 else 0.0
     return ix - m + px + float(dx), iy - m + py + float(dy)
+
+
+def highlight_contrast(frame_bgr: np.ndarray, hx: float, hy: float, cx: float, cy: float, radius: float
+                       ) -> float:
+    """How far a highlight at (hx, hy) stands out of the body of a bead centred at (cx, cy): its brightness
+    (smoothed over a pixel) less the median brightness on the circle of BODY_RING radii around the centre
+    (the bead's dark body, away from its rim). A bead's own highlight stands far out of its body; the
+    brightest point of a surface with no highlight on it (the tool over a hidden bead) stands out by its
+    noise only. NaN near the image's edge."""
+    H, W = frame_bgr.shape[:2]
+    R = int(math.ceil(radius)) + 3
+    ix, iy = int(round(cx)), int(round(cy))
+    if ix - R < 0 or iy - R < 0 or ix + R + 1 > W or iy + R + 1 > H or abs(hx - cx) > R - 2 or abs(hy - cy) > R - 2:
+        return float("nan")
+    g = cv2.GaussianBlur(_grey(frame_bgr[iy - R:iy + R + 1, ix - R:ix + R + 1]).astype(np.float32), (0, 0), 1.0)
+    a = np.linspace(0.0, 2.0 * math.pi, BODY_RING_SAMPLES, endpoint=False)
+    rx = np.rint(cx - ix + R + BODY_RING * radius * np.cos(a)).astype(int)
+    ry = np.rint(cy - iy + R + BODY_RING * radius * np.sin(a)).astype(int)
+    peak = g[int(round(hy)) - iy + R, int(round(hx)) - ix + R]
+    return float(peak - np.median(g[ry, rx]))
 
 
 def _grey(bgr: np.ndarray) -> np.ndarray:

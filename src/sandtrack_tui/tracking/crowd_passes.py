@@ -208,6 +208,9 @@ class CrowdPasses:
             anchors = self._anchors_at(cam, f0, old[patch], ANCHOR_REACH * r, props, forced)
             at, agreed = crowd_rules.register(old[patch], beads, r, reach, anchors=anchors)
             if at is None:
+                at, agreed = self._register_pinned(cam, [group[i] for i in patch], beads, len(anchors[0]), props,
+                                                   forced)
+            if at is None:
                 continue
             pairs, ambiguous = crowd_rules.assign(at, beads, 0.5 * r, 0.5 * r)
             for i in ambiguous:
@@ -215,6 +218,23 @@ class CrowdPasses:
             n += self._give_back(cam, img, {group[patch[i]]: beads[b] for i, b in pairs.items()
                                             if agreed.get(i) == b}, props)
         return n
+
+    def _register_pinned(self, cam, patch: list, beads: np.ndarray, pinned_by: int, props, forced) -> tuple:
+        """A hidden patch's registration (crowd.register) from the frame that measured, with all of the patch,
+        the most beads around it still measured now (anchors: a map shifted by a bead misplaces each of them),
+        when that is more than the `pinned_by` anchors of the frame tried first; (None, {}) otherwise."""
+        seen = [self._crowd_seen.get((t.marker, cam), {}) for t in patch]
+        frames = sorted(set(seen[0]).intersection(*seen[1:]), reverse=self.direction > 0)
+        r = max(t.model.radius for t in patch)
+        best = None
+        for f in frames:
+            old = np.array([s[f] for s in seen], float)
+            anchors = self._anchors_at(cam, f, old, ANCHOR_REACH * r, props, forced)
+            if len(anchors[0]) > pinned_by and (best is None or len(anchors[0]) > len(best[1][0])):
+                best = (old, anchors)
+        if best is None:
+            return None, {}
+        return crowd_rules.register(best[0], beads, r, REGROUP_REACH * r, anchors=best[1])
 
     def _crowd_rejoin(self, cam, img, j: int, tracks, props, forced) -> int:
         """Crowd markers unseen for more than SHORT_MISS frames, or missed and carried by no motion (where
@@ -404,7 +424,7 @@ class CrowdPasses:
             if (t.marker, cam) in props or not t.carried:
                 continue
             m = t.confirm_carried(img, float(x), float(y))
-            if m is None or any(math.hypot(m.x - a, m.y - b) < t.model.radius for a, b in taken):
+            if m is None or any(math.hypot(m.x - a, m.y - b) <= 0.5 * t.model.radius for a, b in taken):
                 continue
             props[(t.marker, cam)] = Proposal(m, reattach=True)
             taken.append((m.x, m.y))
@@ -480,6 +500,7 @@ class CrowdPasses:
         has jumped to a neighbour's outline or a gap, and coasts instead (flagged). Where the motion is
         not clear the match stands."""
         prev = self._crowd_prev.get(cam)
+        self._flow_refused = {k for k in self._flow_refused if k[1] != cam}
         if prev is None:
             return
         keys, start, found = [], [], []
@@ -499,6 +520,7 @@ class CrowdPasses:
         for key, d in zip(keys, off, strict=True):
             if d > FLOW_AGREE_PX:  # (NaN: the motion is not clear, the match stands)
                 del props[key]
+                self._flow_refused.add(key)
 
 
 def _patches(points: np.ndarray, link: float) -> list[list[int]]:

@@ -69,6 +69,7 @@ class Engine(CrowdPasses, LineSearch):
     # key in one camera -> {key in the other: [frames both measured, frames off each other's lines]} (both ways)
     _lines: dict = field(default_factory=dict)
     _searched: dict = field(default_factory=dict)  # camera -> (windows searched, keys measured on a line) this step
+    _flow_refused: set = field(default_factory=set)  # crowd track keys whose match the flow check refused this step
 
     def add(self, track: MarkerTrack, start_frame: int) -> None:
         self.tracks[(track.marker, track.camera)] = track
@@ -331,8 +332,10 @@ class Engine(CrowdPasses, LineSearch):
             key = (t.marker, cam)
             if key in props:
                 continue
-            if t.model.crowd and t.misses > SHORT_MISS:
-                continue  # (unseen a while among touching lookalikes: which is which is not known any more)
+            if t.model.crowd and (t.misses > SHORT_MISS or key in self._flow_refused):
+                # (unseen a while among touching lookalikes: which is which is not known any more; or its match
+                # this step left where the image motion took it: the blob there is that match again)
+                continue
             px, py = t.kf.xy
             hx, hy = t.search_halfsize()
             band_from = None
