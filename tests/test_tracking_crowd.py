@@ -48,16 +48,24 @@ def _layer_model():
     return t.model
 
 
-def test_a_crowd_bead_is_centred_by_its_highlight_where_its_outline_does_not_measure_it():
+def _tracked_bead(n_frames: int, steps: int | None = None, **render) -> tuple:
+    """Bead 5 of a loose packing moving (0.6, 0.3) px a frame over `n_frames` frames, its crowd track stepped
+    by an Engine through the first `steps` of them (all by default); (packing, frames, track, engine)."""
     model, k = _layer_model(), 5
     loose = _packing(2.4)
-    frames = [_beads(loose + (0.6 * f, 0.3 * f)) for f in range(5)]
+    frames = [_beads(loose + (0.6 * f, 0.3 * f), **render) for f in range(n_frames)]
     t = MarkerTrack(2, "cam", frames[0], 0, loose[k, 0] + 0.3, loose[k, 1] - 0.2, 22, 22, kind=model.kind,
                     like=model)
     eng = Engine()
     eng.add(t, 0)
-    for f, img in enumerate(frames):
+    for f, img in enumerate(frames[:steps]):
         eng.step({"cam": (f, img, 0.0)})
+    return loose, frames, t, eng
+
+
+def test_a_crowd_bead_is_centred_by_its_highlight_where_its_outline_does_not_measure_it():
+    k = 5
+    loose, frames, t, eng = _tracked_bead(5)
     assert np.hypot(*(np.array(t.highlight_offset) - np.array(SHINE) * R)) < 0.3  # learned from its outline
     x, y = loose[k] + (2.4, 1.2)
     img = frames[-1]
@@ -132,20 +140,26 @@ def _map_of(old: np.ndarray, at: np.ndarray) -> np.ndarray:
     return crowd._fit_map(np.c_[old, np.ones(len(old))], at)
 
 
-def test_a_registration_shifted_onto_lookalikes_no_track_follows_is_refused_by_the_beads_around_it():
+def _hidden_row() -> tuple:
+    """A packed layer (8 x 6) and where it was carried; six beads of its third row hidden together
+    (`group`), four of them shown again (`shown`), the beads around them (`anchors`: the rows above and
+    the ends of their own), and the next row down (`lookalikes`); `beads`: the shown and the lookalikes."""
     cols = 8
     layer = _packing(2.0, at=(100.0, 80.0), cols=cols, rows=6)
-    now = _carry(layer)
 
     def row(j: int) -> list:
         return list(range(j * cols, (j + 1) * cols))
 
+    group, anchors, lookalikes = row(2)[1:7], row(1) + [row(2)[0], row(2)[7]], row(3)
+    shown = group[:2] + group[3:5]
+    return layer, _carry(layer), group, anchors, lookalikes, shown, shown + lookalikes
+
+
+def test_a_registration_shifted_onto_lookalikes_no_track_follows_is_refused_by_the_beads_around_it():
     # Six beads of a row were hidden together and four show again; the beads around them are tracked
     # (anchors), but those of the next row down are followed by no track: lookalikes, unexplained as the
     # lost ones are.
-    group, anchors, lookalikes = row(2)[1:7], row(1) + [row(2)[0], row(2)[7]], row(3)
-    shown = group[:2] + group[3:5]
-    beads = shown + lookalikes
+    layer, now, group, anchors, lookalikes, shown, beads = _hidden_row()
     ends = (layer[anchors], now[anchors])
     # On the beads alone the group fits the row of lookalikes as well, shifted by a row (and pairs more of
     # it): every bead measured around the patch then lies a row off where that map puts it.
@@ -378,15 +392,8 @@ def _under_tool(img: np.ndarray, x0: float, seed: int = 9) -> np.ndarray:
 
 
 def test_a_carried_bead_half_under_the_tool_is_measured_by_its_highlight_and_a_hidden_one_is_not():
-    model, k = _layer_model(), 5
-    loose = _packing(2.4)
-    frames = [_beads(loose + (0.6 * f, 0.3 * f)) for f in range(5)]
-    t = MarkerTrack(2, "cam", frames[0], 0, loose[k, 0] + 0.3, loose[k, 1] - 0.2, 22, 22, kind=model.kind,
-                    like=model)
-    eng = Engine()
-    eng.add(t, 0)
-    for f, img in enumerate(frames):
-        eng.step({"cam": (f, img, 0.0)})
+    k = 5
+    loose, frames, t, eng = _tracked_bead(5)
     assert t.highlight_contrast > 20.0  # learned with its offset, where its outline was seen all round
     x, y = loose[k] + (2.4, 1.2)
     # Carried 1.7 px off (farther than the highlight alone vouches for), its right side under the tool: its
@@ -406,15 +413,8 @@ def test_a_carried_bead_half_under_the_tool_is_measured_by_its_highlight_and_a_h
 def test_a_carried_bead_whose_highlight_sits_far_off_its_centre_is_measured_by_it():
     # A slanted view sees a bead's highlight 0.45 radii off its centre: a search of half a radius around it
     # would reach the bead's rim and the brighter sand beyond, and find no highlight.
-    model, k, shine = _layer_model(), 5, (-0.3, -0.34)
-    loose = _packing(2.4)
-    frames = [_beads(loose + (0.6 * f, 0.3 * f), shine=shine) for f in range(5)]
-    t = MarkerTrack(2, "cam", frames[0], 0, loose[k, 0] + 0.3, loose[k, 1] - 0.2, 22, 22, kind=model.kind,
-                    like=model)
-    eng = Engine()
-    eng.add(t, 0)
-    for f, img in enumerate(frames):
-        eng.step({"cam": (f, img, 0.0)})
+    k, shine = 5, (-0.3, -0.34)
+    loose, frames, t, eng = _tracked_bead(5, shine=shine)
     assert np.hypot(*(np.array(t.highlight_offset) - np.array(shine) * R)) < 0.3
     x, y = loose[k] + (2.4, 1.2)
     assert t._highlight_reach() + math.hypot(*t.highlight_offset) <= R - 1.0  # on the bead's body
@@ -423,19 +423,10 @@ def test_a_carried_bead_whose_highlight_sits_far_off_its_centre_is_measured_by_i
 
 
 def test_a_hidden_patch_is_registered_again_from_the_frame_the_most_beads_around_it_were_measured():
-    cols = 8
-    layer = _packing(2.0, at=(100.0, 80.0), cols=cols, rows=6)
-    now = _carry(layer)
-
-    def row(j: int) -> list:
-        return list(range(j * cols, (j + 1) * cols))
-
     # A row's six beads were hidden together and four show again beside a row of lookalikes no track follows.
     # The beads around them were measured with them at frame 8, not at frame 10 (the tool passed over them),
     # and are measured now.
-    group, anchors, lookalikes = row(2)[1:7], row(1) + [row(2)[0], row(2)[7]], row(3)
-    shown = group[:2] + group[3:5]
-    beads = shown + lookalikes
+    layer, now, group, anchors, lookalikes, shown, beads = _hidden_row()
     eng = Engine()
     crowd_bead = SimpleNamespace(crowd=True, radius=R)
     tracks = {k: SimpleNamespace(marker=k, model=crowd_bead) for k in group + anchors}
@@ -457,15 +448,7 @@ def test_a_hidden_patch_is_registered_again_from_the_frame_the_most_beads_around
 
 
 def test_a_crowd_match_the_image_motion_refused_is_not_given_back_by_the_blob_search():
-    model, k = _layer_model(), 5
-    loose = _packing(2.4)
-    frames = [_beads(loose + (0.6 * f, 0.3 * f)) for f in range(4)]
-    t = MarkerTrack(2, "cam", frames[0], 0, loose[k, 0] + 0.3, loose[k, 1] - 0.2, 22, 22, kind=model.kind,
-                    like=model)
-    eng = Engine()
-    eng.add(t, 0)
-    for f, img in enumerate(frames[:3]):
-        eng.step({"cam": (f, img, 0.0)})
+    loose, frames, t, eng = _tracked_bead(4, 3)
     t.predict()
     step = {"cam": (3, frames[3], 0.0)}
     # Missed this step, its bead in its gate: the blob search gives it back...

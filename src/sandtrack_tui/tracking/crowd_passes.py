@@ -307,9 +307,7 @@ class CrowdPasses:
             key = (t.marker, cam)
             if not t.model.crowd or t.misses <= SHORT_MISS or key in props or key in forced:
                 continue
-            other = self._other_view(key)
-            band_from = None if other is None or other[1] not in frames else \
-                self._point_at(other, frames, props, forced)
+            other, band_from = self._line_from_other_view(key, frames, props, forced)
             if band_from is None:
                 continue
             reach = self._line_reach(key, other, band_from)
@@ -333,6 +331,14 @@ class CrowdPasses:
             bead = beads[int(np.argmax(inside))]
             n += self._give_back(cam, img, {t: bead}, props)
         return n
+
+    def _line_from_other_view(self, key, frames, props, forced) -> tuple:
+        """(the other view's key, its point this step) for a crowd track whose bead the other view sees
+        (the same marker's, or its paired track's point: the epipolar line's source); (None, None)."""
+        other = self._other_view(key)
+        if other is None or other[1] not in frames:
+            return None, None
+        return other, self._point_at(other, frames, props, forced)
 
     def _line_reach(self, key, other, other_now) -> float | None:
         """How far (px) a crowd marker unseen a while may be from where it was last measured: its radius,
@@ -398,9 +404,7 @@ class CrowdPasses:
             carried = self._crowd_carried.get(key)
             if not t.model.crowd or not t.carried or key in props or key in forced or carried is None:
                 continue
-            other = self._other_view(key)
-            band_from = None if other is None or other[1] not in frames else \
-                self._point_at(other, frames, props, forced)
+            other, band_from = self._line_from_other_view(key, frames, props, forced)
             if band_from is None:
                 continue
             foot = self.stereo.onto_line(other[1], band_from, cam, carried)
