@@ -32,6 +32,7 @@ import bench_tracking as bt  # noqa: E402
 from sandtrack_tui.store import Project, _Edit  # noqa: E402
 from sandtrack_tui.tracking import run as tracking_run  # noqa: E402
 from sandtrack_tui.tracking.engine import Engine  # noqa: E402
+from sandtrack_tui.tracking.line_search import LineSearch  # noqa: E402
 from sandtrack_tui.tracking.matcher import TemplateMatcher  # noqa: E402
 from sandtrack_tui.tracking.rest import RestReference  # noqa: E402
 from sandtrack_tui.tracking.run import accept_seeds, track_project  # noqa: E402
@@ -46,7 +47,7 @@ STAGES = {  # name -> (class, method)
     "rest_shift": (RestReference, "shift"),
     "luma_carry": (MarkerTrack, "_carry"),
     "reacquire": (Engine, "_reacquire"),
-    "band_search": (Engine, "_band_blobs"),
+    "band_search": (LineSearch, "_band_blobs"),
     "apply": (MarkerTrack, "apply"),
     "stereo_check": (Engine, "_stereo_check"),
 }
