@@ -367,15 +367,14 @@ class Project:
 
     def set(self, key: str, value, description: str | None = None) -> None:
         """Set a setting (JSON-serialisable) as one undoable edit."""
-        before = self.conn.execute("SELECT value FROM settings WHERE key=?", (key,)).fetchone()
         after = json.dumps(value)
+        self._write(lambda: self._set_logged(self._new_edit("setting", description or f"set {key}"), 0, key, after))
 
-        def fn():
-            eid = self._new_edit("setting", description or f"set {key}")
-            self._log_row(eid, 0, "settings", key, before[0] if before else None, after)
-            self.conn.execute("INSERT OR REPLACE INTO settings VALUES (?, ?)", (key, after))
-
-        self._write(fn)
+    def _set_logged(self, edit_id: int, seq: int, key: str, after: str) -> None:
+        """Inside a write: a setting's new JSON value, its old one logged in edit `edit_id` (row `seq`)."""
+        before = self.conn.execute("SELECT value FROM settings WHERE key=?", (key,)).fetchone()
+        self._log_row(edit_id, seq, "settings", key, before[0] if before else None, after)
+        self.conn.execute("INSERT OR REPLACE INTO settings VALUES (?, ?)", (key, after))
 
     @property
     def sync_offset_s(self) -> float:
@@ -693,16 +692,13 @@ class _Edit:
 
     def set(self, key: str, value) -> None:
         """Set a setting (JSON-serialisable) as part of this edit (undone with it)."""
-        conn = self.project.conn
         after = json.dumps(value)
 
         def fn():
             if self.edit_id is None:
                 self.edit_id = self.project._new_edit(self.kind, self.description)
-            before = conn.execute("SELECT value FROM settings WHERE key=?", (key,)).fetchone()
-            self.project._log_row(self.edit_id, self.seq, "settings", key, before[0] if before else None, after)
+            self.project._set_logged(self.edit_id, self.seq, key, after)
             self.seq += 1
-            conn.execute("INSERT OR REPLACE INTO settings VALUES (?, ?)", (key, after))
 
         self.project._write(fn)
 

@@ -326,20 +326,19 @@ class MarkerTrack:
             return self._pattern_match(frame_bgr, frame_index) or self._look_return(frame_bgr)
         if self.status != LOST or self._kept is None or self.model.luma_follows:
             return None
-        pattern, offset, anchor = self._kept
-        px, py = self.kf.xy
-        placed = self._one_place(frame_bgr, pattern, offset, px, py)
+        placed = self._resume_chain(frame_bgr, self._kept, *self.kf.xy)
         if placed is None:
             return None
-        found, fit = placed
-        self._pattern, self._offset, self._anchor_luma, self._kept = pattern, offset, anchor, None
-        x, y = found[0] + offset[0], found[1] + offset[1]
+        x, y, found, fit = placed
         return Match(x, y, fit, float("nan"), float("nan"), self.kf.d2(x, y), True, found)
 
-    def _one_place(self, frame_bgr, pattern: LumaPattern, offset: tuple, x: float, y: float) -> tuple | None:
-        """((x, y), fit): where `pattern` (its centre `offset` from the marker's) registers from around (x, y),
-        when it fits (LumaPattern.MIN_NCC) within the marker's radius of there and at one place, not one of
-        several (found again alike from half a radius either side); else None."""
+    def _resume_chain(self, frame_bgr, chain: tuple, x: float, y: float) -> tuple | None:
+        """(x, y, pattern's place, fit) of the marker where the brightness pattern of `chain` ((pattern, its
+        centre's offset from the marker's, anchor luma)) registers from around (x, y), when it fits
+        (LumaPattern.MIN_NCC) within the marker's radius of there and at one place, not one of several (found
+        again alike from half a radius either side): the chain goes on from there (it becomes the live one).
+        Else None, the chain left as it was."""
+        pattern, offset, anchor = chain
         r = self.model.radius
         found = pattern.find(frame_bgr, x - offset[0], y - offset[1])
         if found is None or math.hypot(found[0] + offset[0] - x, found[1] + offset[1] - y) > r:
@@ -349,7 +348,8 @@ class MarkerTrack:
             other = pattern.find(frame_bgr, found[0] + 0.5 * dx, found[1] + 0.5 * dy)
             if other is not None and math.hypot(other[0] - found[0], other[1] - found[1]) > LOST_PLACE_PX:
                 return None
-        return found, fit
+        self._pattern, self._offset, self._anchor_luma, self._kept = pattern, offset, anchor, None
+        return found[0] + offset[0], found[1] + offset[1], found, fit
 
     def _whole_by_pattern(self, frame_bgr, m: Match, relax: float) -> Match | None:
         """A marker with no dark silhouette, found again where a blob of its colour was (re-acquisition), whose
@@ -366,15 +366,13 @@ class MarkerTrack:
         p = self.params
         if self.model.luma_follows or not self.model.has_blob or (math.isfinite(m.psr) and m.psr < p.min_psr * relax):
             return None
-        pattern, offset, anchor = self._kept or (self._pattern, self._offset, self._anchor_luma)
-        if pattern is None or offset is None:
+        chain = self._kept or (self._pattern, self._offset, self._anchor_luma)
+        if chain[0] is None or chain[1] is None:
             return None
-        placed = self._one_place(frame_bgr, pattern, offset, m.x, m.y)
+        placed = self._resume_chain(frame_bgr, chain, m.x, m.y)
         if placed is None:
             return None
-        found = placed[0]
-        self._pattern, self._offset, self._anchor_luma, self._kept = pattern, offset, anchor, None
-        x, y = found[0] + offset[0], found[1] + offset[1]
+        x, y, found, _fit = placed
         return Match(x, y, m.score, m.psr, m.colour_frac, self.kf.d2(x, y), True, found)
 
     def _pattern_match(self, frame_bgr, frame_index: int | None) -> Match | None:
