@@ -73,3 +73,30 @@ def test_a_method_asked_by_name_still_refuses(tmp_path, capsys):
     assert main(["export", str(path), "-o", str(tmp_path / "t.csv"), "--method", "triangulation"]) == 1
     err = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
     assert len(err) == 1 and "no calibration" in err[0] and not (tmp_path / "t.csv").exists()
+
+
+def test_the_ui_export_writes_the_pixels_and_says_why(tmp_path):
+    from conftest import POLL_LIMIT_S
+    from sandtrack_tui.tui.app import SandtrackApp
+    from test_tui_app import aio, settle
+
+    path, _ = _project(tmp_path, ("side",))
+    out = tmp_path / "ui.csv"
+
+    @aio
+    async def run():
+        app = SandtrackApp(path)
+        async with app.run_test(size=(100, 30)) as pilot:
+            await settle(pilot, app)
+            app.clear_notifications()
+            await pilot.press("e")
+            await pilot.pause()
+            app.screen.query_one("#path").value = str(out)
+            await pilot.press("ctrl+r")
+            await settle(pilot, app, lambda: app.bg_task is None and out.exists(), timeout=POLL_LIMIT_S)
+            await pilot.pause()
+            return [n.message for n in app._notifications]
+
+    notes = run()
+    assert any("pixel trajectories only" in n and "without a scale" in n for n in notes), notes
+    assert set(pd.read_csv(out)["method"]) == {"pixels"}
