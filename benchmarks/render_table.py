@@ -30,7 +30,6 @@ import argparse
 import datetime
 import json
 import re
-import subprocess
 import sys
 from pathlib import Path
 
@@ -185,16 +184,6 @@ def update(doc: dict, fresh: dict, date: str, commit: str) -> list[str]:
     return taken
 
 
-def _commit() -> str:
-    try:
-        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT,
-                               capture_output=True, text=True).stdout.strip()
-        return out.stdout.strip() + ("+changes" if dirty else "") if out.returncode == 0 else "unknown"
-    except OSError:
-        return "unknown"
-
-
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--readme", action="store_true", help="write the table into README.md")
@@ -204,7 +193,8 @@ def main(argv: list[str]) -> int:
     doc = load()
     if args.update:
         fresh = json.loads(Path(args.update).read_text(encoding="utf-8"))
-        taken = update(doc, fresh, datetime.date.today().isoformat(), _commit())
+        when = fresh.pop("_measured", None) or {"date": datetime.date.today().isoformat(), "commit": "unknown"}
+        taken = update(doc, fresh, when["date"], when["commit"])
         print("\n".join(taken) or "no figure of the table in that run", file=sys.stderr)
         RESULTS.write_text(dump(doc), encoding="utf-8")
     bad = problems(doc)
