@@ -31,7 +31,7 @@ class FrameRequest:
 
     @property
     def key(self):
-        return (self.index, self.tf, self.boost, self.cell_px, id(self.look), self.markers)
+        return (self.index, self.tf, self.boost, self.cell_px, self.markers, id(self.look))
 
 
 @dataclass
