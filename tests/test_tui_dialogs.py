@@ -48,25 +48,25 @@ def _cut(screen, width: int) -> list[str]:
             if w.region.width and (w.region.right > w.parent.content_region.right or w.region.right > width)]
 
 
-@pytest.mark.parametrize("size", SIZES, ids=lambda s: f"{s[0]}x{s[1]}")
-def test_every_dialog_wraps_its_text_to_its_width(tmp_path, size):
+def test_every_dialog_wraps_its_text_to_its_width(tmp_path):
     project = make_project(tmp_path)
 
     @aio
     async def run():
         app = SandtrackApp(project)
-        async with app.run_test(size=size) as pilot:
-            await settle(pilot, app)
-            for name, show in _dialogs(app).items():
-                show()
-                await pilot.pause()
-                assert _cut(app.screen, size[0]) == [], f"{name} at {size}"
-                if name == "sync first":  # the whole prompt is on screen, every line of it
-                    shown = " ".join(str(w.render()) for w in app.screen.query(Static) if w.region.height)
-                    assert "track anyway (cameras that start together)" in shown and "escape" in shown
-                    assert all(w.size.height >= 1 for w in app.screen.query(Static))
-                app.pop_screen()
-                await pilot.pause()
+        async with app.run_test(size=SIZES[0]) as pilot:
+            for size in SIZES:
+                await pilot.resize_terminal(*size)
+                await settle(pilot, app, lambda s=size: (app.size.width, app.size.height) == s)
+                for name, show in _dialogs(app).items():
+                    show()
+                    await pilot.pause()
+                    assert _cut(app.screen, size[0]) == [], f"{name} at {size}"
+                    if name == "sync first":  # the whole prompt is on screen, every line of it
+                        shown = " ".join(str(w.render()) for w in app.screen.query(Static) if w.region.height)
+                        assert "track anyway (cameras that start together)" in shown and "escape" in shown
+                    app.pop_screen()
+                    await pilot.pause()
 
     run()
     project.close()
