@@ -1,5 +1,5 @@
 """The operator's session: id placement in crowds, auto-seed identities, four views stepping, the
-first run of the sample project, XYZ at an instant from three cameras.
+first run of the sample project, XYZ at an instant from three cameras, a dense scene.
 
 - labels: `draw_overlays` on a 100 x 30-cell view of a 1080p frame, n touching 10 px beads in a
   square cluster, at 1x, 4x and 16x zoom: CPU ms, ids placed of those in view, overlapping ids
@@ -10,6 +10,8 @@ first run of the sample project, XYZ at an instant from three cameras.
 - first run: `sample_project` made afresh (audio sync of the sample, calibration, the network's
   metrics read from its file).
 - xyz: `xyz.xyz_at_frame` for 20 markers seen by three cameras.
+- dense: a flume's packed bed of 300 beads (tests/dense_synth.py): what the marker boost paints, ids of
+  300 markers, a step of the app with 300 tracked markers (`dense_figures`).
 
 Wall times depend on how busy the machine is; CPU times are printed beside them.
 """
