@@ -32,7 +32,7 @@ def test_real_four_cameras_beat_caliscope_and_aniposelib():
     assert r["corners_detected"] > 1400
     # camera 1 sees the back of the double-sided board: found by the mirrored search
     assert r["per_camera"]["cam_1"]["mirrored_views"] > 30
-    # webcam focal lengths in a plausible range and consistent with Caliscope's own intrinsics (+-5 %)
+    # webcam focal lengths consistent with Caliscope's own intrinsics (measured within 2.8 %)
     ref_fx = {"cam_0": 894.5, "cam_1": 704.0, "cam_2": 637.2, "cam_3": 640.4}
     for n, fx in ref_fx.items():
-        assert abs(res.calibration.cameras[n].matrix[0, 0] / fx - 1) < 0.05
+        assert abs(res.calibration.cameras[n].matrix[0, 0] / fx - 1) < 0.042
