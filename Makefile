@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.install-stamp
 
-.PHONY: run test lint fuzz bench install sample sample-model clean
+.PHONY: run test lint fuzz bench figures install sample sample-model clean
 
 $(BIN)/python:
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "Python 3.11 is needed (set PYTHON=...)"; exit 1; }
@@ -40,6 +40,11 @@ fuzz: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run_all.py
 	$(MAKE) fuzz
+
+# The figures of the last `make bench` (benchmarks/out/results.json) into benchmarks/results.json, the others
+# kept, and README's performance table written from it.
+figures: $(STAMP)
+	$(BIN)/python benchmarks/render_table.py --update
 
 sample: $(STAMP)
 	$(BIN)/sandtrack sample sample_data --preset small

@@ -1,5 +1,5 @@
 """The operator's session: id placement in crowds, auto-seed identities, four views stepping, the
-first run of the sample project, XYZ at an instant from three cameras.
+first run of the sample project, XYZ at an instant from three cameras, a dense scene.
 
 - labels: `draw_overlays` on a 100 x 30-cell view of a 1080p frame, n touching 10 px beads in a
   square cluster, at 1x, 4x and 16x zoom: CPU ms, ids placed of those in view, overlapping ids
@@ -10,6 +10,8 @@ first run of the sample project, XYZ at an instant from three cameras.
 - first run: `sample_project` made afresh (audio sync of the sample, calibration, the network's
   metrics read from its file).
 - xyz: `xyz.xyz_at_frame` for 20 markers seen by three cameras.
+- dense: a flume's packed bed of 300 beads (tests/dense_synth.py): what the marker boost paints, ids of
+  300 markers, a step of the app with 300 tracked markers (`dense_figures`).
 
 Wall times depend on how busy the machine is; CPU times are printed beside them.
 """
@@ -183,6 +185,71 @@ def multiview_figures(tmp: Path, n: int = 20) -> dict:
             "xyz_three_cameras_max_error_mm": float(f"{err.max():.2g}")}
 
 
+def dense_figures(tmp: Path, tracked: int = 20, steps: int = 10) -> dict:
+    """A flume's packed bed of 300 black beads (tests/dense_synth.py), a 98 x 27-cell view (the boost's look
+    from a bead, as after a click): the share of the picture that looks like markers, what the boost paints
+    with every bead tracked and with `tracked` of them, its CPU; the ids of 300 markers (placed of those in
+    view, overlapping, CPU); and a step of the running app with 300 tracked markers (100 x 30, half-blocks)."""
+    import cv2
+
+    from dense_synth import HEIGHT, WIDTH, bead_centres, dense_frame, write_frames
+    from sandtrack_tui.store import Project
+    from sandtrack_tui.tracking.run import marker_look
+    from sandtrack_tui.tui.frame_view import BOOST_RGB, render
+
+    centres = bead_centres()
+    bgr = cv2.cvtColor(dense_frame(centres), cv2.COLOR_GRAY2BGR)
+    look = marker_look(bgr, *centres[int(np.argmin(np.hypot(*(centres - (640, 300)).T)))])
+    marks = [MarkerMark(k + 1, str(k + 1), x, y, "tracked", half_size_px=12.0) for k, (x, y) in enumerate(centres)]
+    out: dict = {"dense_beads": len(centres), "dense_look": look.kind if look is not None else None}
+    for zoom in (1, 4):
+        tf = ViewTransform.make(WIDTH, HEIGHT, 98, 27, zoom, (640, 280))
+        for label, where in (("all", centres), (str(tracked), centres[:: len(centres) // tracked])):
+            _wall, cpu, res = _cpu_ms(lambda tf=tf, where=where: render(bgr, tf, True, look, where), 7)
+            out[f"dense_boost_{zoom}x_{label}_tracked_painted_pct"] = round(
+                100 * float(np.all(res.pixels == BOOST_RGB, axis=2).mean()), 2)
+            out[f"dense_boost_{zoom}x_{label}_tracked_cpu_ms"] = round(cpu, 2)
+        out[f"dense_boost_{zoom}x_looks_like_markers_pct"] = round(100 * res.marker_share, 1)
+        _wall, cpu, _ = _cpu_ms(lambda tf=tf: render(bgr, tf, False), 7)
+        out[f"dense_render_{zoom}x_without_boost_cpu_ms"] = round(cpu, 2)
+        rgb = np.zeros((54, 98, 3), np.uint8)
+        _wall, cpu, labels = _cpu_ms(lambda tf=tf, rgb=rgb: draw_overlays(rgb, tf, Overlays(marks=marks)), 3)
+        shown = [m.label for m in marks if tf.contains(m.x, m.y)]
+        runs = _runs(labels)
+        out[f"dense_ids_{zoom}x_placed"] = f"{sum(r in shown for r in runs)}/{len(shown)}"
+        out[f"dense_ids_{zoom}x_overlapping"] = sum(r not in shown for r in runs)
+        out[f"dense_ids_{zoom}x_cpu_ms"] = round(cpu, 1)
+    write_frames(tmp / "bed", n_frames=steps + 1)
+    with Project.create(tmp / "bed.sandtrack", {"side": tmp / "bed"}) as proj:
+        proj.set_points([(f, "side", k + 1, float(x), float(y), "tracked") for f in range(steps + 1)
+                         for k, (x, y) in enumerate(centres)], "beads")
+    latencies, cpu = asyncio.run(_steps(tmp / "bed.sandtrack", steps, (100, 30)))
+    out["dense_step_300_markers_ms_median"] = round(statistics.median(latencies), 1)
+    out["dense_step_300_markers_cpu_ms"] = round(cpu, 1)
+    return out
+
+
+async def _steps(path: Path, steps: int, size: tuple[int, int]) -> tuple[list[float], float]:
+    """Key -> every view decoded, rendered and composed in the running app (ms), and CPU ms per step."""
+    from sandtrack_tui.tui.app import SandtrackApp
+
+    app = SandtrackApp(path)
+    async with app.run_test(size=size) as pilot:
+        for _ in range(300):
+            await pilot.pause(0.02)
+            if app.views_ready():
+                break
+        app.step_latencies_ms.clear()
+        c0 = time.process_time()
+        for _ in range(steps):
+            await pilot.press("right")
+            t0 = time.perf_counter()
+            while not app.views_ready() and time.perf_counter() - t0 < 5:
+                await pilot.pause(0.002)
+            await pilot.pause(0.05)  # the user's pace
+        return list(app.step_latencies_ms), (time.process_time() - c0) * 1000 / steps
+
+
 def run() -> dict:
     figures = {**label_figures(), **identity_figures()}
     with tempfile.TemporaryDirectory() as tmp:
@@ -191,6 +258,7 @@ def run() -> dict:
         figures.update(multiview_figures(tmp / "mv"))
         figures.update(first_run_figures(tmp))
         figures.update(four_view_figures(tmp))
+        figures.update(dense_figures(tmp))
     figures["step_target_ms"] = 100
     return figures
 

@@ -6,8 +6,10 @@ Each `bench_*.py` module exposes `run() -> dict` of figures. Run a subset with
 
 from __future__ import annotations
 
+import datetime
 import importlib
 import json
+import subprocess
 import sys
 import time
 import traceback
@@ -15,6 +17,18 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
+
+
+def commit() -> str:
+    """The checkout's commit, "+changes" when tracked files differ from it (what the figures were measured at)."""
+    def git(*args: str) -> str:
+        return subprocess.run(["git", *args], cwd=HERE, capture_output=True, text=True).stdout.strip()
+
+    try:
+        head = git("rev-parse", "--short", "HEAD")
+        return (head + ("+changes" if git("status", "--porcelain", "--untracked-files=no") else "")) or "unknown"
+    except OSError:
+        return "unknown"
 
 
 def main(names: list[str]) -> int:
@@ -36,7 +50,8 @@ def main(names: list[str]) -> int:
         results[name.removeprefix("bench_")] = figures
     out = HERE / "out"
     out.mkdir(exist_ok=True)
-    (out / "results.json").write_text(json.dumps(results, indent=2, default=str))
+    measured = {"date": datetime.date.today().isoformat(), "commit": commit()}
+    (out / "results.json").write_text(json.dumps({"_measured": measured, **results}, indent=2, default=str))
     print("| benchmark | figure | value |")
     print("| --- | --- | --- |")
     for bench, figures in results.items():

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import json
 import os
 from fractions import Fraction
+from functools import cache
 from pathlib import Path
 
 import av
@@ -31,6 +33,30 @@ def examples(n: int) -> int:
 
 SAMPLE_DATA = Path(__file__).resolve().parents[1] / "sample_data"
 SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+RESULTS = Path(__file__).resolve().parents[1] / "benchmarks" / "results.json"
+
+
+@cache
+def _claims() -> dict:
+    return {row["id"]: row["figures"] for row in json.loads(RESULTS.read_text(encoding="utf-8"))["rows"]}
+
+
+def claimed(row: str, figure: str) -> float:
+    """A figure README's performance table states (benchmarks/results.json: the row's id, the figure's name),
+    in the table's units. A test that runs the same measurement holds it to about 1.5 x that."""
+    fig = _claims()[row][figure]
+    return float(fig["value"]) * fig.get("scale", 1)
+
+
+def within(measured: float, claim: float, factor: float = 1.5) -> bool:
+    """An error (or a share missed) no worse than `factor` x what is claimed for it."""
+    return measured <= factor * claim
+
+
+def pct_within(measured_pct: float, claim_pct: float, factor: float = 1.5) -> bool:
+    """A percentage claimed near 100 (hidden frames flagged, ...): what it misses no more than `factor` x
+    the claimed miss."""
+    return 100.0 - measured_pct <= factor * (100.0 - claim_pct) + 1e-9
 
 
 def numbered_frame(i: int, width: int = 320, height: int = 240) -> np.ndarray:

@@ -88,7 +88,7 @@ def test_hint_window_search_never_loses_corners_when_the_board_moved():
         full = det._detect_full(img)
         found = det.detect(img, hint)
         assert full is not None and found is not None and len(found) == len(full)
-        assert np.abs(found.corners - full.corners).max() < 0.05
+        assert np.abs(found.corners - full.corners).max() < 1e-4
     det.detect(images[1], hint)
     assert det.hint_hit()  # a small move is settled inside the window
     det.detect(images[2], hint)

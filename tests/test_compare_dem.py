@@ -68,14 +68,14 @@ def test_distances_known_values():
 def test_recovers_shift_and_flags_drifting_particles(shift, drift, seed):
     exp, dem = make_case(shift_s=shift, drift=drift, seed=seed)
     c = C.compare(exp, dem, fps=FPS)
-    assert abs(c.time_shift_s - shift) * FPS < 1.0  # within one frame (in practice ~0.02 frame)
-    assert abs(c.time_shift_s - shift) < 0.004
+    assert abs(c.time_shift_s - shift) < 0.00065  # s; measured up to 0.00043 s (0.02 frame)
     assert sorted(c.summary["flagged_markers"]) == sorted(drift)
     ok = c.per_particle[~c.per_particle["flagged"]]
-    assert ok["rmse_3d_mm"].max() < 1.0  # the others agree to the experiment's noise (0.3 mm per axis)
+    assert ok["rmse_3d_mm"].max() < 0.81  # the others agree to the experiment's noise (measured 0.54 mm)
     if drift:
         worst = max(drift, key=drift.get)
-        assert c.per_particle.set_index("marker").loc[worst, "drift_mm_per_s"] == pytest.approx(drift[worst], rel=0.2)
+        rate = c.per_particle.set_index("marker").loc[worst, "drift_mm_per_s"]
+        assert rate == pytest.approx(drift[worst], rel=0.16)  # measured within 11 %
 
 
 def test_rows_built_on_predictions_are_left_out():
@@ -91,8 +91,8 @@ def test_rows_built_on_predictions_are_left_out():
     kept_all = C.compare(exp.drop(columns=["status_side", "status_front"]), dem, fps=FPS)
     assert kept_all.summary["flagged_markers"] and kept_all.per_particle["rmse_3d_mm"].max() > 2.0
     c = C.compare(exp, dem, fps=FPS)
-    assert abs(c.time_shift_s - 0.137) < 0.004
-    assert c.per_particle["rmse_3d_mm"].max() < 1.0 and not c.summary["flagged_markers"]
+    assert abs(c.time_shift_s - 0.137) < 0.00054  # measured 0.00036 s
+    assert c.per_particle["rmse_3d_mm"].max() < 0.81 and not c.summary["flagged_markers"]  # 0.54 mm
 
 
 def test_matching_by_nearest_start_and_tool_onset():
@@ -103,9 +103,9 @@ def test_matching_by_nearest_start_and_tool_onset():
     dem_tool = exp_tool.assign(time_s=exp_tool["time_s"] - 0.2)
     c = C.compare(exp, dem, fps=FPS, exp_tool=exp_tool, dem_tool=dem_tool)
     assert c.onset["source"] == "tool"
-    assert abs(c.onset["initial_shift_s"] - 0.2) < 0.01
+    assert abs(c.onset["initial_shift_s"] - 0.2) < 1e-6
     assert c.pairs == {m: m + 100 for m in range(1, 11)}
-    assert abs(c.time_shift_s - 0.2) < 0.004
+    assert abs(c.time_shift_s - 0.2) < 0.0001  # measured 0.00004 s
 
 
 def test_ranking_prefers_the_closer_run():
@@ -146,7 +146,7 @@ def test_cli_compare_csv_dump_plots_json(tmp_path, capsys):
     assert rc == 0
     out = json.loads(capsys.readouterr().out)
     run = out["runs"][0]
-    assert abs(run["time_shift_s"] - 0.137) < 0.004
+    assert abs(run["time_shift_s"] - 0.137) < 0.0016  # measured 0.0011 s
     assert run["summary"]["flagged_markers"] == [3]
     assert (plots / "run_a_error_over_time.png").is_file() and (plots / "run_a_marker3.png").is_file()
     # run b: only with the right axis mapping do the small vertical motions agree
@@ -181,7 +181,7 @@ def test_tool_file_columns_and_explicit_dem_onset(tmp_path):
     # DEM clock: the tool starts at DEM time 1.0 - 0.25
     c = C.compare(exp, dem, fps=FPS, exp_tool=tool, dem_onset_s=0.75)
     assert c.onset["source"] == "tool" and abs(c.onset["initial_shift_s"] - 0.25) < 0.02
-    assert abs(c.time_shift_s - 0.25) < 0.004
+    assert abs(c.time_shift_s - 0.25) < 0.00075  # measured 0.0005 s
     (tmp_path / "bad.csv").write_text("time_s,speed\n0,1\n")
     with pytest.raises(Exception, match="position columns"):
         C.read_tool(tmp_path / "bad.csv")

@@ -1,4 +1,9 @@
-"""The end-to-end regression test: `sandtrack demo --fast` on the bundled sample, scored against truth."""
+"""The end-to-end regression test: `sandtrack demo --fast` on the bundled sample, scored against truth.
+
+Its sync, calibration, tracking, XYZ and DEM-comparison stages run the measurements of README's performance
+table on the same data (the sample: its videos, its calibration session), so they are held to about 1.5 x
+the figures the table states (benchmarks/results.json). Its network is trained for a few epochs only (the
+table's regression row trains the study's network on 44,130 points): held to 1.5 x what this test measures."""
 
 import json
 import subprocess
@@ -6,7 +11,7 @@ import sys
 
 import pytest
 
-from conftest import SAMPLE_DATA
+from conftest import SAMPLE_DATA, claimed, pct_within, within
 
 pytestmark = pytest.mark.skipif(not (SAMPLE_DATA / "ground_truth" / "cameras.toml").is_file(),
                                 reason="sample_data not rendered")
@@ -18,17 +23,37 @@ def test_demo_fast_end_to_end(tmp_path):
     assert out.returncode == 0, out.stderr[-2000:]
     stages = json.loads(out.stdout)["stages"]
     assert set(stages) == {"sync", "calibration", "regression", "tracking", "xyz", "export", "compare"}
-    assert stages["sync"]["offset_error_ms"] <= 1.0
+    assert within(stages["sync"]["offset_error_ms"], claimed("sync", "sample"))
+
     cal = stages["calibration"]
-    assert cal["reprojection_rmse_px"] < 1.0 and cal["focal_error_pct"] < 0.5 and cal["corner_error_mm"] < 1.0
+    assert cal["sync_methods"] == {"front": "audio"}  # the calibration videos synced from their clap
+    for figure, key in (("focal", "focal_error_pct"), ("pp", "principal_point_error_px"),
+                        ("rot", "rotation_error_deg"), ("trans", "translation_error_mm")):
+        assert within(cal[key], claimed("calibration_sample", figure)), (key, cal[key])
+    # measured here: reprojection 0.098 px, board 0.033 mm, true corners triangulated 0.044 / 0.074 mm (p95)
+    assert cal["reprojection_rmse_px"] < 0.15 and cal["board_rmse_mm"] < 0.05
+    assert cal["corner_error_mm"] < 0.066 and cal["corner_p95_error_mm"] < 0.11 and cal["corners_scored"] > 8000
+
     reg = stages["regression"]
-    # few epochs on the small preset: far from the study's figure, but a real fit
-    assert reg["points"] > 1000 and reg["mlp_mean_error_mm"] < 40 and reg["triangulation_mean_error_mm"] < 1.0
+    # a few epochs on the sample's 9,037 points (measured: MLP 1.57 mm, triangulation and residual 0.049 mm)
+    assert reg["points"] > 9000 and reg["mlp_mean_error_mm"] < 2.4
+    assert reg["triangulation_mean_error_mm"] < 0.075 and reg["residual_mean_error_mm"] < 0.075
+
     trk = stages["tracking"]
-    assert trk["markers_matched"] == 8 and trk["false_locks"] == 0
-    assert trk["mean_error_px"] < 0.5 and trk["hidden_flagged_pct"] > 90
-    assert stages["xyz"]["mean_error_mm"] < 2.0
+    assert trk["markers_matched"] == 8 and trk["false_locks"] == claimed("tracking_sample", "locks") == 0
+    assert within(trk["mean_error_px"], claimed("tracking_sample", "mean"))
+    assert within(trk["p95_error_px"], claimed("tracking_sample", "p95"))
+    assert pct_within(trk["hidden_flagged_pct"], claimed("tracking_flags", "hidden"))
+    assert pct_within(trk["flagged_truly_hidden_pct"], claimed("tracking_flags", "truly"))
+    assert trk["reappearances"] == claimed("tracking_flags", "reappearances")
+    assert pct_within(trk["reacquired_within_3_frames_pct"], claimed("tracking_flags", "reacquired"))
+
+    xyz = stages["xyz"]
+    assert within(xyz["mean_error_mm"], claimed("demo", "xyz"))
+    assert within(xyz["p95_error_mm"], claimed("demo", "xyz_p95"))
+    assert xyz["mlp_mean_error_mm"] < 4.7  # the few-epoch network (measured 3.1 mm)
+
     cmp = stages["compare"]
-    assert cmp["particles"] == 8 and cmp["shift_error_frames"] <= 0.5
+    assert cmp["particles"] == 8 and within(cmp["shift_error_frames"], claimed("compare", "tracked"))
     assert cmp["flagged_particles"] == cmp["drifting_particles"]
     assert (tmp_path / "trajectories.csv").stat().st_size > 0

@@ -60,7 +60,7 @@ def test_export_compare_chain(project, tmp_path, capsys):
     good = df.dropna(subset=["X_mm"])
     truth = np.concatenate([position(m, g["time_s"].to_numpy()) for m, g in good.groupby("marker")])
     err = np.linalg.norm(good.sort_values(["marker", "frame"])[["X_mm", "Y_mm", "Z_mm"]].to_numpy() - truth, axis=1)
-    assert np.median(err) < 0.5  # mm: the exported XYZ is the true motion
+    assert np.median(err) < 0.005  # mm: the exported XYZ is the true motion (measured 0.0033)
 
     # DLTdv export: side pixels of point 2 (= marker 2) as stored, y flipped by the video height
     assert main(["export", str(project), "-o", str(tmp_path / "trial"), "--format", "dltdv",
@@ -89,7 +89,7 @@ def test_export_compare_chain(project, tmp_path, capsys):
     D.write_exchange_csv(pd.concat(rows), tmp_path / "dem.csv", units="m")
     assert main(["compare", str(out), str(tmp_path / "dem.csv"), "--json", "--flag-mm", "1"]) == 0
     res = json.loads(capsys.readouterr().out)["runs"][0]
-    assert abs(res["time_shift_s"] - SHIFT_S) * FPS < 0.2
+    assert abs(res["time_shift_s"] - SHIFT_S) * FPS < 0.061  # frames, measured 0.041
     assert res["summary"]["flagged_markers"] == [3]
     # the project itself as EXPERIMENT gives the same alignment
     assert main(["compare", str(project), str(tmp_path / "dem.csv"), "--method", "triangulation", "--json",

@@ -178,8 +178,8 @@ def test_sigkill_while_tracking_loses_nothing_and_resumes(media):
         e = errors_px(pts, truth)
         assert len(e) == 2 * markers * N
         ok = e[e.status.isin(["tracked", "manual"])]
-        assert len(ok) / len(e) > 0.97
-        assert ok.err.mean() < 0.5 and ok.err.max() < 3.0, ok.err.describe()
+        assert len(ok) / len(e) > 0.995  # measured 1200 of 1200
+        assert ok.err.mean() < 0.13 and ok.err.max() < 3.0, ok.err.describe()  # measured 0.085 px mean
 
 
 # -- read-only project, full disk -------------------------------------------------------------
@@ -294,4 +294,4 @@ def test_truncated_video_tracks_up_to_where_it_ends(media, capsys):
     assert (per["min"] == 0).all() and (per["max"] == decodable - 1).all() and (per["count"] == decodable).all()
     e = errors_px(pts, truth)
     ok = e[e.status.isin(["tracked", "manual"])]
-    assert len(ok) == len(e) and ok.err.mean() < 0.5, ok.err.describe()
+    assert len(ok) == len(e) and ok.err.mean() < 0.14, ok.err.describe()  # measured 0.090 px

@@ -69,10 +69,10 @@ def test_training_learns_the_mapping(trained, points):
     assert m["points"] == len(points) and m["test_points"] > 500
     # far below predicting the mean (~180 mm), and within a few mm of the exact XYZ
     assert m["baseline_mean_error_mm"] > 100
-    assert m["mlp_mean_error_mm"] < 8
-    assert min(m["r2_x"], m["r2_y"], m["r2_z"]) > 0.99
+    assert m["mlp_mean_error_mm"] < 4.2  # measured 2.76 mm
+    assert min(m["r2_x"], m["r2_y"], m["r2_z"]) > 0.9994  # measured 0.99961
     # triangulation with the true rig is near the noise floor; the residual variant does not spoil it
-    assert m["triangulation_mean_error_mm"] < 0.6
+    assert m["triangulation_mean_error_mm"] < 0.52  # measured 0.35 mm
     assert m["residual_mean_error_mm"] < m["triangulation_mean_error_mm"] + 0.3
     assert m["test_outside_bounds"] == 0
     # progress came once per epoch over both phases, with a decreasing validation error
@@ -86,7 +86,7 @@ def test_predict_matches_truth_on_unseen_poses(trained, rig):
     fresh = calibration_points(rig, n_points=800, seed=99, volume_mm=((-120, 120), (30, 120), (-150, 150)))
     truth = fresh[["X_mm", "Y_mm", "Z_mm"]].to_numpy()
     pred = predict(model, fresh["xs"], fresh["ys"], fresh["xf"], fresh["yf"])
-    assert np.linalg.norm(pred - truth, axis=1).mean() < 8
+    assert np.linalg.norm(pred - truth, axis=1).mean() < 3.9  # measured 2.6 mm
     res = predict(model, fresh[["xs", "ys", "xf", "yf"]].to_numpy(), method="residual")
     tri, _ = triangulate(rig, {"side": fresh[["xs", "ys"]].to_numpy(), "front": fresh[["xf", "yf"]].to_numpy()})
     assert np.linalg.norm(res - truth, axis=1).mean() < np.linalg.norm(tri - truth, axis=1).mean() + 0.3
@@ -165,7 +165,7 @@ def test_cli_train_json_and_project(tmp_path, rig, capsys):
     for key in ("points", "mlp_mean_error_mm", "mlp_sd_mm", "r2_x", "r2_y", "r2_z", "triangulation_mean_error_mm",
                 "residual_mean_error_mm", "train_seconds"):
         assert key in out
-    assert out["points"] == 2500 and out["triangulation_mean_error_mm"] < 0.6
+    assert out["points"] == 2500 and out["triangulation_mean_error_mm"] < 0.57  # measured 0.38
     with Project.open(tmp_path / "p.sandtrack") as proj:
         stored = proj.get("model")
     assert stored["path"] == str((tmp_path / "m.pt").resolve())

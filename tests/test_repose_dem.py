@@ -15,7 +15,8 @@ from sandtrack_tui.repose.particles import measure_particles
 from sandtrack_tui.twin.heap import Heap
 from sandtrack_tui.twin.heap_particles import heap_particles, write_exchange_csv, write_liggghts_dump
 
-TARGET_DEG = 0.5
+TARGET_DEG = 0.5  # README's target
+DUMP_DEG = 0.37  # 1.5 x the largest error measured on these dumps (0.25 deg; README: 0.31 over 24 of them)
 
 
 def _heap(angle_left, angle_right=None, height=55.0):
@@ -29,14 +30,14 @@ def test_dump_and_exchange_csv_within_half_a_degree(tmp_path, capsys, angle, see
     write_liggghts_dump(tmp_path / "heap.liggghts", [(50000, P, rad)])
     assert main(["repose", str(tmp_path / "heap.liggghts"), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
-    assert abs(out["angle_deg"] - angle) < TARGET_DEG
-    assert abs(out["cone_angle_deg"] - angle) < TARGET_DEG
+    assert abs(out["angle_deg"] - angle) < DUMP_DEG
+    assert abs(out["cone_angle_deg"] - angle) < DUMP_DEG
     assert out["up_axis"] == "+z" and 4 <= len(out["slices"]) <= 16  # about 30 surface particles each
     assert out["diameter_mm"] == pytest.approx(2 * np.median(rad), rel=0.01)  # from the radius column
     assert 45.0 < out["height_mm"] < 55.0  # particle centres: a radius and a gap under the surface
     write_exchange_csv(tmp_path / "heap.csv", 1.0, P)  # no radius column: spacing from nearest neighbours
     res = measure_path(tmp_path / "heap.csv", slices=12)
-    assert abs(res.angle_deg - angle) < TARGET_DEG and len(res.slices) == 12
+    assert abs(res.angle_deg - angle) < DUMP_DEG and len(res.slices) == 12
 
 
 def test_any_up_axis_and_particle_types(tmp_path):
@@ -55,7 +56,7 @@ def test_any_up_axis_and_particle_types(tmp_path):
     res = measure_path(path, types=[1])
     assert res.up_axis == "-y" and res.particles == len(P)
     # the same within the grid cells' placement (another horizontal frame)
-    assert abs(res.angle_deg - base.angle_deg) < 0.2 and abs(res.angle_deg - 33.0) < TARGET_DEG
+    assert abs(res.angle_deg - base.angle_deg) < 0.01 and abs(res.angle_deg - 33.0) < DUMP_DEG  # 0.004, 0.19
     assert measure_path(path, types=[1], up="-y").angle_deg == pytest.approx(res.angle_deg)
     with pytest.raises(SandtrackError, match="type"):
         measure_path(path, types=[7])
@@ -74,7 +75,7 @@ def test_settling_series_and_its_settled_value(tmp_path, capsys):
     assert out["time_unit"] == "s"
     assert [s["time"] for s in out["samples"]] == pytest.approx([0.0, 0.5, 1.0, 1.5, 2.0])
     assert np.max(np.abs(np.array([s["angle_deg"] for s in out["samples"]]) - angles)) < TARGET_DEG
-    assert abs(out["settled"]["angle_deg"] - 33.0) < TARGET_DEG
+    assert abs(out["settled"]["angle_deg"] - 33.0) < 0.12  # measured 0.078 deg
     assert out["settled"]["from_s"] in (1.0, 1.5)
 
 
@@ -84,7 +85,7 @@ def test_asymmetric_heap_shows_in_the_slices():
     by_az = {round(s.azimuth_deg): s.angle_deg for s in res.slices}
     right = [a for az, a in by_az.items() if az < 45 or az > 315]  # +X: the 38 deg flank
     left = [a for az, a in by_az.items() if 135 < az < 225]
-    assert abs(np.mean(right) - 38.0) < 1.0 and abs(np.mean(left) - 28.0) < 1.0
+    assert abs(np.mean(right) - 38.0) < 0.48 and abs(np.mean(left) - 28.0) < 0.48  # measured 0.32, 0.01
     assert res.sd_deg > 3.0  # the spread over the slices reports the asymmetry
 
 

@@ -32,7 +32,8 @@ def test_repose_preset_writes_photos_dumps_video_and_truth(tmp_path):
     assert len(photos) == 6 and max(photos) - min(photos) > 14  # 25 to 40 deg, jittered by the seed
     assert (tmp_path / "repose" / "README.md").read_text().startswith("# Heaps of known angle")
     dump = next(e for e in truth if e["file"].endswith("heap_03.liggghts"))
-    assert abs(measure_path(tmp_path / dump["file"]).angle_deg - dump["angle_deg"]) < 2.0  # coarse particles
+    # coarse particles (measured 0.17 deg)
+    assert abs(measure_path(tmp_path / dump["file"]).angle_deg - dump["angle_deg"]) < 0.25
 
 
 def aio(fn):
@@ -70,7 +71,7 @@ async def test_repose_screen_measures_a_dump_and_ranks_a_sweep(tmp_path):
         await pilot.pause(0.2)
         text = await _run(pilot, app, str(tmp_path / "heap.liggghts"))
         angle = float(re.search(r"angle of repose ([\d.]+) deg", text).group(1))
-        assert abs(angle - 35.0) < 0.5
+        assert abs(angle - 35.0) < 0.23  # measured 0.15
         text = await _run(pilot, app, str(tmp_path / "runs.csv"), target="31.5")
         ranked = [ln.split()[1] for ln in text.splitlines() if re.match(r"\s*\d+(\.0+)?\s+[a-f]\s", ln)]
         assert ranked[0] == "b" and "suggested parameters" in text

@@ -48,7 +48,7 @@ def test_angle_only_sweep_ranks_by_error_and_suggests_a_set_on_the_target(tmp_pa
     assert (np.diff(err) >= 0).all() and res.table["rank"].tolist() == list(range(1, 16))
     sg = res.suggestion
     assert sg["predicted"]["angle_deg"] == pytest.approx(31.0, abs=0.01)
-    assert abs(true_angle(sg["params"]["e"], sg["params"]["mu"], 0.25) - 31.0) < 0.3
+    assert abs(true_angle(sg["params"]["e"], sg["params"]["mu"], 0.25) - 31.0) < 0.001
     assert "many parameter sets" in sg["note"]
 
 
@@ -70,10 +70,11 @@ def test_sweep_of_dem_runs_ranks_fits_and_suggests(synthetic_sweep, capsys, tmp_
     assert table["rank"].tolist() == list(range(1, len(table) + 1))
     # the best run is the one nearest the experiment's parameters (0.45, 0.22, 0.25) on this grid
     assert table.iloc[0]["rolling_friction"] in (0.15, 0.3)
-    assert out["surfaces"]["angle_deg"]["r2"] > 0.97
+    assert out["surfaces"]["angle_deg"]["r2"] > 0.999  # measured 0.99934
     sg = out["suggestion"]["params"]
-    assert abs(sg["rolling_friction"] - 0.22) < 0.06
-    assert abs(true_angle(sg["restitution"], sg["rolling_friction"], sg["poisson"]) - target) < 1.0
+    assert abs(sg["rolling_friction"] - 0.22) < 0.0063  # measured 0.0042
+    # the suggestion's true angle: measured 0.016 deg from the target
+    assert abs(true_angle(sg["restitution"], sg["rolling_friction"], sg["poisson"]) - target) < 0.024
     assert pd.read_csv(tmp_path / "ranked.csv")["run"].tolist() == table["run"].tolist()
     assert (tmp_path / "sweep.png").stat().st_size > 10_000
 

@@ -36,7 +36,7 @@ def test_the_model_is_chosen_from_what_stands_out(marker, sand, kind):
     img = _scene(marker, sand)
     model = learn(img, 40.3, 39.6, 14, 14)
     assert model.kind == kind
-    assert abs(model.radius - 4.5) < 0.35 and model.contrast > 4
+    assert abs(model.radius - 4.5) < 0.26 and model.contrast > 4  # radius measured within 0.17 px
     d = model.describe()
     assert d["model"] == kind and d["contrast"] == pytest.approx(model.contrast, abs=0.06)
     grey = to_bgr8(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
@@ -71,7 +71,7 @@ def test_a_glossy_bead_in_a_box_of_its_size_is_one_marker():
         img = _scene(SMOKED_GLASS, synthetic.SAND_BGR, r=r).copy()
         img[38:40, 40:42] = 235
         m = learn(img, 41.8, 38.6, 2 * r + 3, 2 * r + 3)
-        assert m.kind == "dark" and not m.crowd and abs(m.radius - r) < 0.35
+        assert m.kind == "dark" and not m.crowd and abs(m.radius - r) < 0.15  # measured 0.10 px
 
 
 @pytest.mark.parametrize("shade", [0.45, 0.6])
@@ -88,7 +88,7 @@ def test_a_dark_bead_crossed_by_a_shadows_edge_is_one_marker_centred(shade):
         img[int(cy) + edge:] *= shade
         m = matcher.match(img.astype(np.uint8), cx, cy, 4, 4)
         assert m is not None and m.score > 0.8 and 0.8 < m.colour_frac < 1.2
-        assert np.hypot(m.x - cx, m.y - cy) < 0.1
+        assert np.hypot(m.x - cx, m.y - cy) < 0.052  # measured up to 0.035 px
 
 
 def _clip(marker, sand, n=40, seed=4, **kw):
@@ -133,8 +133,9 @@ def test_dark_markers_in_grey_8_and_16_bit_image_folders(tmp_path):
         assert {t.model.kind for t in eng.tracks.values()} == {"dark"}
         m = _errors(df, clip.truth)
         apart = m[m.visible & (m.frame > 0) & m.marker.isin([1, 2, 3])]
-        assert (apart.status == "tracked").mean() > 0.95
-        assert apart[apart.status == "tracked"].err.mean() < 0.1 and apart[apart.status == "tracked"].err.max() < 0.5
+        assert (apart.status == "tracked").mean() > 0.99  # measured all
+        ok = apart[apart.status == "tracked"].err
+        assert ok.mean() < 0.052 and ok.max() < 0.11  # measured 0.035 / 0.073 px
         assert m[m.status == "tracked"].err.max() < 3.0  # no false lock, also while two markers overlap
         # Markers 4 and 5 end up overlapping (identical, 8.7 px apart for 9.6 px discs): who is who is
         # not guessed, it is flagged for the operator.
@@ -152,8 +153,8 @@ def test_a_dark_marker_whose_body_lightens_stays_tracked():
     df, eng = _track(frames, dark.seeds)
     m = _errors(df, dark.truth)
     apart = m[m.visible & (m.frame > 0) & m.marker.isin([1, 2, 3])]
-    assert (apart.status == "tracked").mean() > 0.8  # (0.5 with the seed's level kept)
-    assert apart[apart.status == "tracked"].err.mean() < 0.1
+    assert (apart.status == "tracked").mean() > 0.95  # measured all (0.5 with the seed's level kept)
+    assert apart[apart.status == "tracked"].err.mean() < 0.064  # measured 0.042 px
     assert m[m.status == "tracked"].err.max() < 3.0
     still = eng.tracks[(1, "cam")].model
     assert still.levels[0] > still.describe()["marker_level"] + 15  # followed; the report keeps the seed's
@@ -165,14 +166,14 @@ def test_snap_and_find_markers_that_are_not_blue(marker, sand):
     img = _scene(marker, sand, centres=centres, size=100)
     for cx, cy in centres:
         s = snap_to_marker(img, cx + 5, cy - 4)
-        assert s is not None and np.hypot(s[0] - cx, s[1] - cy) < 0.3
+        assert s is not None and np.hypot(s[0] - cx, s[1] - cy) < 0.063  # measured up to 0.042 px
         box = marker_box(img, *s)
         assert box is not None and 10 <= box[0] <= 16
     model = learn(img, *centres[0], 14, 14)
     det = detect_markers(img, model=model)
     assert len(det) == 3
     for cx, cy in centres:
-        assert np.hypot(det.x_px - cx, det.y_px - cy).min() < 0.3
+        assert np.hypot(det.x_px - cx, det.y_px - cy).min() < 0.065  # measured up to 0.043 px
     assert snap_to_marker(img, 90, 90) is None  # plain sand
 
 
@@ -184,7 +185,7 @@ def test_touching_identical_markers_are_found_one_by_one():
     det = detect_markers(img, model=model)
     assert len(det) == len(centres)
     err = [np.hypot(det.x_px - cx, det.y_px - cy).min() for cx, cy in centres]
-    assert max(err) < 0.5 and np.mean(err) < 0.25
+    assert max(err) < 0.21 and np.mean(err) < 0.093  # measured 0.14 / 0.062 px
 
 
 def test_fast_smeared_markers_are_followed():
@@ -199,8 +200,8 @@ def test_fast_smeared_markers_are_followed():
     df, eng = _track(clip.frames, clip.seeds)
     m = _errors(df, clip.truth)
     moving = m[(m.marker == 1) & m.visible & (m.frame > 0)]
-    assert (moving.status == "tracked").mean() > 0.9
-    assert moving[moving.status == "tracked"].err.max() < 1.5  # no false lock, smeared or not
+    assert (moving.status == "tracked").mean() > 0.99  # measured all
+    assert moving[moving.status == "tracked"].err.max() < 0.47  # smeared or not (measured 0.31 px)
     assert eng.tracks[(1, "cam")].reacquisitions <= 3
 
 
@@ -239,7 +240,8 @@ def test_a_carried_layer_of_touching_identical_beads_keeps_every_identity():
                                                        "psr", "colour_frac"])
     m = _errors(df[df.frame > 0], clip.truth)
     tracked = m[m.status == "tracked"]
-    assert len(tracked) >= 0.6 * len(m) and tracked.err.max() < 1.0  # each on its own bead, never a neighbour
+    # each on its own bead, never a neighbour (measured: 86 % of bead-frames tracked, 0.31 px at most)
+    assert len(tracked) >= 0.78 * len(m) and tracked.err.max() < 0.46
     assert tracked[tracked.frame >= 20].marker.nunique() >= 10  # most beads still followed after the move
     # A tight box among touching beads holding no disc of the seeded bead's own: one clear error at most.
     img = _scene((30.0, 30.0, 30.0), centres=lattice, r=r, size=160, seed=4)
@@ -278,7 +280,7 @@ def test_a_coloured_sphere_lit_from_one_side_is_centred_on_its_outline():
     model = learn(img, cx, cy, 14, 14)
     assert model.kind == "colour"
     x, y, _ = MarkerTrack(1, "cam", img, 0, cx + 1.0, cy - 0.8, 14, 14).matcher.refine_at(img, cx + 1.0, cy - 0.8)
-    assert abs(x - cx) < 0.08 and abs(y - cy) < 0.08
+    assert abs(x - cx) < 0.041 and abs(y - cy) < 0.041  # measured 0.010 / 0.027 px
 
 
 def test_learning_helpers_equal_the_library_calls_they_replace():

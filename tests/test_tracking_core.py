@@ -62,20 +62,21 @@ def dusty_clip():
 def test_clean_markers_subpixel_and_occlusion_flagged(clean_clip):
     m, eng = _run(clean_clip)
     f = _figures(m)
-    assert f["mean"] < 0.1 and f["p95"] < 0.3 and f["max"] < 1.0, f
-    assert f["tracked_visible"] > 0.97, f
-    assert f["n_hidden"] >= 10 and f["hidden_flagged"] >= 0.95, f
-    assert f["flag_precision"] >= 0.8, f
+    # measured: 0.033 / 0.062 / 0.78 px, every visible frame tracked, every hidden one (15) flagged, no other
+    assert f["mean"] < 0.05 and f["p95"] < 0.093 and f["max"] < 1.0, f
+    assert f["tracked_visible"] > 0.99, f
+    assert f["n_hidden"] >= 10 and f["hidden_flagged"] >= 0.99, f
+    assert f["flag_precision"] >= 0.99, f
     # Markers 5 and 6 pass ~14 px apart: neither may swap onto the other.
     near = m[m.marker.isin([5, 6]) & (m.status == "tracked")]
-    assert near.err.max() < 1.0
+    assert near.err.max() < 0.14  # measured 0.091 px
 
 
 def test_dusty_markers_still_tracked(dusty_clip):
     m, _ = _run(dusty_clip)
     f = _figures(m)
-    assert f["tracked_visible"] > 0.95, f
-    assert f["mean"] < 0.3 and f["max"] < 3.0, f
+    assert f["tracked_visible"] > 0.992, f  # measured 99.5 %
+    assert f["mean"] < 0.23 and f["max"] < 0.53, f  # measured 0.15 / 0.35 px
 
 
 def test_reacquired_soon_after_reappearing(clean_clip):
@@ -115,7 +116,7 @@ def test_colour_model_marker_size_does_not_grow_with_the_seed_box():
     img = _disc_on_sand(40.3, 39.6, 4.5)
     radii = [appearance.learn(img, 40, 40, w, w).radius for w in (10, 14, 18, 22)]
     assert max(radii) - min(radii) < 0.03  # (before: 0.056, the sand's clipped noise counted as marker)
-    assert abs(np.mean(radii) - 4.5) < 0.25
+    assert abs(np.mean(radii) - 4.5) < 0.18  # measured 0.12 px
 
 
 def test_rest_shift_measures_a_subpixel_creep_and_refuses_other_changes():
@@ -172,7 +173,7 @@ def test_snap_and_detect_find_marker_centres(clean_clip):
     assert len(det) == len(truth)
     for r in truth.itertuples():
         s = snap_to_marker(img, r.x_px + 6, r.y_px - 5)
-        assert s is not None and np.hypot(s[0] - r.x_px, s[1] - r.y_px) < 0.3
+        assert s is not None and np.hypot(s[0] - r.x_px, s[1] - r.y_px) < 0.047  # measured up to 0.031 px
     assert snap_to_marker(img, 20, 340) is None  # plain sand
     assert snap_to_marker(img, -3, 5) is None
 
@@ -261,7 +262,7 @@ def test_marker_resting_at_the_image_edge_is_tracked(x):
         obs += eng.step({"cam": (f, clip.frames[f], 0.0)})
     tracked = [o for o in obs if o.status == "tracked"]
     assert len(tracked) == n - 1
-    assert max(np.hypot(o.x_px - x, o.y_px - 200.0) for o in tracked) < 0.5
+    assert max(np.hypot(o.x_px - x, o.y_px - 200.0) for o in tracked) < 0.036  # measured 0.024 px
 
 
 def test_missed_crowd_markers_are_carried_by_neighbours_and_given_back_only_when_unambiguous():
@@ -310,7 +311,7 @@ def test_a_hidden_patch_of_the_layer_is_registered_as_a_whole_only_where_its_out
     at, agreed = crowd.register(patch, beads, r, 6 * r)
     assert len(agreed) >= 0.75 * len(shown)
     assert all(b < len(shown) and shown[b] == i for i, b in agreed.items())  # every pair its own bead
-    assert np.hypot(*(at[shown] - moved[shown]).T).max() < 0.5 * r
+    assert np.hypot(*(at[shown] - moved[shown]).T).max() < 1.9  # px, measured 1.25 (a bead's radius 7)
     # The same patch amid a packing of lookalikes carried alike: shifted by a bead it fits as well,
     # so who is who is not known and nothing is paired.
     assert crowd.register(patch, carry(packing(6, 9, (186.0, 100.0 - 2 * math.sqrt(3) * r))), r, 6 * r) == (None, {})
@@ -354,7 +355,7 @@ def test_missed_crowd_markers_are_carried_by_the_image_motion_around_them_where_
                          borderMode=cv2.BORDER_REFLECT)
     points = np.array([[40.0, 50.0], [70.0, 60.0], [130.0, 60.0], [np.nan, np.nan]])
     where = crowd.flowed(prev, cur, points, 5.0)
-    assert np.abs(where[:2] - points[:2] - move).max() < 0.1
+    assert np.abs(where[:2] - points[:2] - move).max() < 0.083  # measured 0.055 px
     assert np.isnan(where[2:]).all()
     # A bead's highlight (the light's reflection, a fixed offset from its centre) is found to a tenth of a
     # pixel; a bead with none shows its brightest point on the search's edge: no highlight.
@@ -363,7 +364,7 @@ def test_missed_crowd_markers_are_carried_by_the_image_motion_around_them_where_
     bead = np.where(np.hypot(xx - cx, yy - cy) <= r, 25.0, 170.0)
     shine = bead + 60.0 * np.exp(-((xx - cx - 0.6) ** 2 + (yy - cy + 0.9) ** 2) / (2 * 1.2**2))
     hx, hy = crowd.highlight(cv2.cvtColor(shine.astype(np.uint8), cv2.COLOR_GRAY2BGR), cx, cy, 0.5 * r)
-    assert abs(hx - cx - 0.6) < 0.1 and abs(hy - cy + 0.9) < 0.1
+    assert abs(hx - cx - 0.6) < 0.024 and abs(hy - cy + 0.9) < 0.024  # measured 0.016 / 0.016 px
     assert crowd.highlight(cv2.cvtColor(bead.astype(np.uint8), cv2.COLOR_GRAY2BGR), cx, cy, 0.5 * r) is None
 
 
@@ -475,10 +476,10 @@ def test_a_bead_unseen_in_both_views_is_placed_by_its_looks_only_where_they_agre
         return {k[1]: math.hypot(q.match.x - truth[k[1]][0], q.match.y - truth[k[1]][1]) for k, q in props.items()}
 
     both = placed()
-    assert set(both) == {"side", "front"} and max(both.values()) < 0.1
+    assert set(both) == {"side", "front"} and max(both.values()) < 0.04  # measured 0.026 px
     assert placed(side_off=(0.0, 1.5)) == {}
     alone = placed(tool="side")
-    assert set(alone) == {"front"} and alone["front"] < 0.1
+    assert set(alone) == {"front"} and alone["front"] < 0.037  # measured 0.025 px
     assert placed(bead=False) == {}
 
 
@@ -558,7 +559,7 @@ def test_updated_template_competes_only_when_the_seed_template_is_not_confident(
     for frame in (clear[1], synthetic.render(path, 2, (80, 80), seed=3, dusty=0.25).frames[1]):
         tops.clear()
         m = track.matcher.match(frame, cx, cy, 4, 4, *gate)
-        assert len(tops) == 1 and m.score >= confident and math.hypot(m.x - cx, m.y - cy) < 0.2
+        assert len(tops) == 1 and m.score >= confident and math.hypot(m.x - cx, m.y - cy) < 0.17  # 0.11
     dusty = synthetic.render(path, 2, (80, 80), seed=3, dusty=0.6).frames[1]
     track.matcher.template = track.matcher._cut(dusty, cx, cy)
     tops.clear()

@@ -93,11 +93,11 @@ def test_track_project_accuracy_occlusion_and_undo(stereo_data, tmp_path):
         pts["marker"] = pts.marker.map(ids)
         e = _errors(pts, clips)
         vis = e[e.visible & (e.status == "tracked")]
-        assert vis.err.mean() < 0.3 and vis.err.max() < 3.0
-        assert (e[e.visible].status.isin(["tracked", "manual"])).mean() > 0.9
+        assert vis.err.mean() < 0.066 and vis.err.max() < 3.0  # measured 0.044 px mean
+        assert (e[e.visible].status.isin(["tracked", "manual"])).mean() > 0.99  # measured all
         hidden = e[~e.visible]
         assert len(hidden) > 10
-        assert hidden.status.isin(["occluded", "lost"]).mean() >= 0.95
+        assert hidden.status.isin(["occluded", "lost"]).mean() >= 0.99  # measured all
         assert proj.undo() is not None
         assert set(proj.points().status) == {"manual"}
 
@@ -126,7 +126,7 @@ def test_retrack_from_a_frame_and_backward(stereo_data, tmp_path):
         assert side.frame.max() == 30
         assert side.query("frame == 20").status.iloc[0] == "manual"
         e = _errors(side.assign(marker=2), {"side": clips["side"]})
-        assert e.query("status == 'tracked'").err.max() < 1.0
+        assert e.query("status == 'tracked'").err.max() < 0.11  # measured 0.075 px
 
 
 def test_single_camera_project_tracks_in_2d(stereo_data, tmp_path):
@@ -202,7 +202,7 @@ def test_auto_seed_finds_markers_like_a_seeded_dark_one_and_track_reports_the_mo
         assert seeds[seeds.existing].marker.tolist() == [1] and (~seeds.existing).sum() == 3  # the seeded one is known
         t = clip.truth.query("frame == 0")
         for r in seeds.itertuples():
-            assert np.hypot(t.x_px - r.x_px, t.y_px - r.y_px).min() < 0.3
+            assert np.hypot(t.x_px - r.x_px, t.y_px - r.y_px).min() < 0.057  # measured up to 0.038 px
         accept_seeds(proj, seeds)
     rc = main(["track", str(tmp_path / "exp.sandtrack"), "--json"])
     out = json.loads(capsys.readouterr().out)

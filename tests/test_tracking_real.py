@@ -37,4 +37,5 @@ def test_board_squares_tracked_honestly_in_colour_and_grey_16_bit(tmp_path):
         assert f["within_3px_pct"] == 100.0  # (not one lookalike taken for a square lost)
         assert set(df.attrs["models"].values()) == {"bright"}
         assert f["flagged_with_truth"] > 0  # the board leaves and turns: flagged, not guessed
-    assert abs(b.figures(colour)["square"]["mean_error_px"] - b.figures(grey)["square"]["mean_error_px"]) < 0.3
+    # the same in grey (measured 0.015 px apart)
+    assert abs(b.figures(colour)["square"]["mean_error_px"] - b.figures(grey)["square"]["mean_error_px"]) < 0.023

@@ -49,16 +49,17 @@ def test_sample_stretch_with_occlusions(tmp_path):
         p = pts[(pts.camera == cam) & (pts.status != "manual")].merge(t, on=["frame", "marker"], suffixes=("", "_t"))
         p["err"] = np.hypot(p.x_px - p.x_px_t, p.y_px - p.y_px_t)
         vis = p[p.visible == 1]
-        assert (vis.status == "tracked").mean() > 0.97
+        assert (vis.status == "tracked").mean() > 0.991  # measured 99.4 % side, 99.9 % front
         errs.append(vis[vis.status == "tracked"].err.to_numpy())
         hidden_flagged.append(p[p.visible == 0].status.isin(["occluded", "lost"]).to_numpy())
         flagged_hidden.append((p[p.status.isin(["occluded", "lost"])].visible == 0).to_numpy())
     e = np.concatenate(errs)
     hf, fh = np.concatenate(hidden_flagged), np.concatenate(flagged_hidden)
     assert e.max() < 3.0, "false lock"
-    # The busiest stretch (markers pushed and rolling): the whole clip does better (see the benchmark).
-    assert e.mean() < 0.55 and np.percentile(e, 95) < 1.3
-    assert len(hf) > 100 and hf.mean() >= 0.95
-    assert fh.mean() >= 0.9
+    # The busiest stretch (markers pushed and rolling): the whole clip does better (README's 0.198 / 0.498 px).
+    # Measured here: 0.349 / 0.770 px, hidden frames flagged 99.7 % (1 of 340 missed), flags truly hidden 98.3 %.
+    assert e.mean() < 0.52 and np.percentile(e, 95) < 1.15
+    assert len(hf) > 300 and 1 - hf.mean() <= 1.5 * 0.003
+    assert 1 - fh.mean() <= 1.5 * 0.0174
     for s in sources.values():
         s.close()

@@ -65,7 +65,8 @@ def test_luma_carry_costs_nothing_on_clean_or_dusty_video(tmp_path, dusty, tool)
     with FrameSource(video, cache_mb=8) as src:
         assert np.flatnonzero(intra_frames(src)).tolist() == list(range(0, N, KEYINT))
     off, on = _track(video, clip, tmp_path, False), _track(video, clip, tmp_path, True)
-    assert len(on) == len(off) > 0.9 * clip.truth.visible.sum()  # the carry never changes what is tracked
+    # the carry never changes what is tracked (measured 98.1 % / 98.7 % of the visible frames)
+    assert len(on) == len(off) > 0.97 * clip.truth.visible.sum()
     assert on.max() < 3.0  # no false lock
     assert on.mean() <= off.mean() + 0.03 and np.percentile(on, 95) <= np.percentile(off, 95) + 0.05
 
@@ -80,7 +81,7 @@ def test_edge_centre_finds_a_dark_disc_and_refuses_flat_sand():
     cov = sub.mean(axis=(2, 3))[..., None]
     img = (img * (1 - cov) + np.array([175, 95, 35]) * 0.6 * cov).astype(np.uint8)
     x, y = edge_centre(img, cx + 0.7, cy - 0.5, r)
-    assert np.hypot(x - cx, y - cy) < 0.1
+    assert np.hypot(x - cx, y - cy) < 0.077  # measured 0.051 px
     assert edge_centre(np.full((60, 60, 3), 128, np.uint8), 30, 30, r) is None
     r = 5.0  # pressed by three beads like it (the gaps closed): their outlines lie outside its circle; with the
     # beads' known radius they are left out of the fit, a free circle is drawn off by them.
@@ -159,7 +160,7 @@ def test_luma_pattern_follows_a_white_marker_that_has_no_dark_silhouette():
         covered = b.copy()
         covered[25:55, 25:55] = (96, 100, 104)
         assert pattern.find(covered, ax, ay) is None
-    assert max(new) < 0.15 and np.mean(new) < 0.25 * np.mean(old)
+    assert max(new) < 0.13 and np.mean(new) < 0.25 * np.mean(old)  # measured 0.086 px
 
 
 def test_luma_pattern_finds_a_fast_white_marker_smeared_by_the_exposure():
@@ -375,4 +376,5 @@ def test_tracking_backward_through_video_matches_the_truth(tmp_path):
         p = p.merge(clip.truth, on=["frame", "marker"], suffixes=("", "_t"))
         p = p[(p.status == "tracked") & p.visible]
         err = np.hypot(p.x_px - p.x_px_t, p.y_px - p.y_px_t)
-        assert len(p) > 0.9 * clip.truth.visible.sum() and err.max() < 3.0 and err.mean() < 0.5
+        # measured: 444 of 450 visible frames, 0.28 / 0.31 px mean
+        assert len(p) > 0.98 * clip.truth.visible.sum() and err.max() < 3.0 and err.mean() < 0.46

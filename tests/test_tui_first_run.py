@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from conftest import SAMPLE_DATA
+from conftest import SAMPLE_DATA, claimed, within
 from sandtrack_tui.cli.cmd_tui import sample_project
 from sandtrack_tui.store import Project
 from sandtrack_tui.tracking.run import seed_marker
@@ -25,7 +25,8 @@ async def test_sample_project_shows_both_xyz_columns_on_first_run(tmp_path):
     path = sample_project(SAMPLE_DATA, tmp_path / "sample.sandtrack")
     truth = json.loads((SAMPLE_DATA / "ground_truth" / "sync.json").read_text())["offset_s"]
     with Project.open(path) as proj:
-        assert abs(proj.sync_offset_s - truth) < 0.002  # the audio sync, to the mp4's millisecond rounding
+        # the audio sync, to the mp4's millisecond rounding: README's figure for the sample
+        assert within(1000 * abs(proj.sync_offset_s - truth), claimed("sync", "sample"))
         assert proj.calibration() is not None and proj.get("model")["path"].endswith("model.pt")
     side = pd.read_csv(SAMPLE_DATA / "ground_truth" / "markers_side.csv")
     front = pd.read_csv(SAMPLE_DATA / "ground_truth" / "markers_front.csv")
@@ -53,5 +54,5 @@ async def test_sample_project_shows_both_xyz_columns_on_first_run(tmp_path):
         await settle(pilot, app, shown)
         row = next(r for r in app.table_rows() if r.marker == marker)
         true = xyz[(xyz.frame == first) & (xyz.marker == marker)][["X_mm", "Y_mm", "Z_mm"]].to_numpy()[0]
-        assert np.linalg.norm(np.array(row.xyz_tri) - true) < 1.0
-        assert np.linalg.norm(np.array(row.xyz_net) - true) < 3.0
+        assert np.linalg.norm(np.array(row.xyz_tri) - true) < 0.045  # measured 0.030 mm
+        assert np.linalg.norm(np.array(row.xyz_net) - true) < 1.2  # the sample's network: measured 0.80 mm

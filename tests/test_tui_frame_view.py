@@ -50,7 +50,7 @@ def test_area_average_keeps_mean_colour():
     px = render_pixels(img, tf, boost=False).astype(float)
     shown = px[px.sum(axis=2) > 0]  # letterbox rows are black
     np.testing.assert_allclose(shown.mean(axis=0), img.reshape(-1, 3)[:, ::-1].mean(axis=0), atol=2.0)
-    assert shown.std(axis=0).max() < 8  # noise averaged away, no aliasing
+    assert shown.std(axis=0).max() < 1.2  # noise averaged away, no aliasing (measured 0.81)
 
 
 def test_cell_mapping_round_trip_and_zoom():

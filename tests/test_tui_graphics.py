@@ -66,7 +66,7 @@ def test_decoded_stream_is_the_frame(mode):
     assert not np.all(screen == UNSET, axis=2).any()  # every pixel of the view was drawn
     # against what the view meant to show: only the palette's error (256 colours for noisy sand)
     err = np.abs(screen - compose(px, tf, CELL, Overlays())).max(axis=2)
-    assert err.mean() < 5 and np.percentile(err, 99) <= 12 and err.max() <= 24
+    assert err.mean() < 5 and np.percentile(err, 99) <= 12 and err.max() <= 21  # measured 4.1, 10, 14
     # against the frame resampled by OpenCV on its own
     err = np.abs(screen - reference(frame, tf)).max(axis=2)
     assert err.mean() < 5 and np.percentile(err, 99) <= 12

@@ -142,7 +142,7 @@ async def test_auto_seed_again_keeps_the_markers_ids(tmp_path, frames):
         assert sorted(app.screen.markers) == [1, 2, 3]
         for r in seeds[seeds.camera == "side"].itertuples():  # each id on the bead it was tracked on
             tracked = project.points(marker=r.marker, camera="side", frame=20).iloc[0]
-            assert math.dist((r.x_px, r.y_px), (tracked.x_px, tracked.y_px)) < 1.0
+            assert math.dist((r.x_px, r.y_px), (tracked.x_px, tracked.y_px)) < 0.01  # measured 0.002 px
         await pilot.press("escape")
 
 
@@ -246,10 +246,11 @@ async def test_three_cameras_in_a_grid_with_epipolar_curves_from_every_other_vie
         for curve, _ in curves:
             a, b = curve[:-1], curve[1:]
             t = np.clip(np.sum((np.array([tx, ty]) - a) * (b - a), 1) / np.sum((b - a) ** 2, 1), 0, 1)
-            assert np.hypot(*(a + t[:, None] * (b - a) - [tx, ty]).T).min() < 1.0
+            assert np.hypot(*(a + t[:, None] * (b - a) - [tx, ty]).T).min() < 0.041  # measured 0.028 px
         await click_source(pilot, app, "top", tx, ty)
         row = next(r for r in app.table_rows() if r.marker == 2)
-        assert np.linalg.norm(np.array(row.xyz_tri) - true_xyz(2, 0)) < 1.0 and row.residual_px < 1.0
+        # measured 0.060 mm, 0.039 px
+        assert np.linalg.norm(np.array(row.xyz_tri) - true_xyz(2, 0)) < 0.09 and row.residual_px < 0.058
         await pilot.press("tab")
         assert app.active == "side"  # tab goes round every camera
         await pilot.press("t")

@@ -10,6 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from conftest import claimed, within
 from sandtrack_tui.board import load_board
 from sandtrack_tui.camera import Calibration
 from sandtrack_tui.groundtruth import board_detection
@@ -30,7 +31,7 @@ def test_marker_pixels_are_projections_of_xyz(camera):
     df = pd.read_csv(SAMPLE / "ground_truth" / f"markers_{camera}.csv")
     px = cal.project_world(camera, df[["X_mm", "Y_mm", "Z_mm"]].to_numpy())
     err = np.abs(px - df[["x_px", "y_px"]].to_numpy()).max()
-    assert err <= 0.01
+    assert err <= 0.0003  # measured 0.0002 px
     # the markers' true trajectories are shared by both files (same scene clock)
     traj = pd.read_csv(SAMPLE / "ground_truth" / "trajectories.csv")
     side = pd.read_csv(SAMPLE / "ground_truth" / "markers_side.csv")
@@ -42,7 +43,7 @@ def test_calibration_corner_pixels_are_projections(camera):
     cal = _cal()
     df = pd.read_csv(SAMPLE / "ground_truth" / f"calibration_corners_{camera}.csv")
     px = cal.project_world(camera, df[["X_mm", "Y_mm", "Z_mm"]].to_numpy())
-    assert np.abs(px - df[["x_px", "y_px"]].to_numpy()).max() <= 0.01
+    assert np.abs(px - df[["x_px", "y_px"]].to_numpy()).max() <= 0.0006  # measured 0.0004 px
 
 
 def _blue_mask(img):
@@ -82,7 +83,8 @@ def test_visible_markers_show_a_blue_blob_at_the_true_pixel(camera):
                 hidden_blue.append(int((win & near).sum()))
     errors = np.array(errors)
     assert len(errors) > 100
-    assert np.median(errors) < 0.5 and np.percentile(errors, 95) < 1.0 and errors.max() < 2.5, (
+    # measured: median 0.26 / 0.32 px, p95 0.71 / 0.75, max 0.93 / 1.35 (side / front)
+    assert np.median(errors) < 0.48 and np.percentile(errors, 95) < 1.0 and errors.max() < 2.0, (
         np.median(errors), np.percentile(errors, 95), errors.max())
     assert n_hidden > 0
     # hidden markers leave (almost) no blue around their true pixel
@@ -104,8 +106,9 @@ def test_some_markers_are_hidden_for_a_while_and_reappear():
 @pytest.mark.parametrize("camera", ["side", "front"])
 def test_charuco_detected_in_most_calibration_frames(camera):
     rate, errs = board_detection(SAMPLE, camera, step=7)
-    assert rate >= 0.8, rate
-    assert np.median(errs) < 0.3, np.median(errs)
+    assert rate >= 0.845, rate  # measured 89.7 % side, 100 % front
+    # README's peer figure for corner pixels (OpenCV's own refinement, 0.19 px): measured 0.17 / 0.18 px
+    assert within(np.median(errs), claimed("calibration_corners", "opencv")), np.median(errs)
 
 
 def test_reference_pose_matches_the_world_frame():
@@ -122,7 +125,7 @@ def test_reference_pose_matches_the_world_frame():
         cc, ids, _, _ = cv2.aruco.CharucoDetector(board.cv_board()).detectBoard(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
         assert ids is not None and len(ids) == board.n_corners
         expected = cal.project_world(camera, world[ids.ravel()])
-        assert np.abs(cc.reshape(-1, 2) - expected).max() < 1.0
+        assert np.abs(cc.reshape(-1, 2) - expected).max() < 0.52  # measured 0.35 px
 
 
 def _audio(path):
@@ -147,7 +150,7 @@ def test_clap_in_both_audio_tracks_gives_the_true_offset():
     sync = json.loads((SAMPLE / "ground_truth" / "sync.json").read_text())
     t0s, xs, rate, cs = _clap_time(SAMPLE / "experiment" / "side.mp4")
     t0f, xf, _, cf = _clap_time(SAMPLE / "experiment" / "front.mp4")
-    assert abs(cs - sync["clap_time_side_s"]) < 0.01 and abs(cf - sync["clap_time_front_s"]) < 0.01
+    assert abs(cs - sync["clap_time_side_s"]) < 0.0018 and abs(cf - sync["clap_time_front_s"]) < 0.0018  # 0.0012
     # refine: cross-correlate 0.2 s windows around the claps (pts-based times)
     w = int(0.2 * rate)
     ks, kf = int((cs - t0s) * rate), int((cf - t0f) * rate)
@@ -160,7 +163,7 @@ def test_clap_in_both_audio_tracks_gives_the_true_offset():
     frac = 0.5 * (y0 - y2) / (y0 - 2 * y1 + y2)
     lag = lag + frac if lag < n // 2 else lag + frac - n
     offset = (t0s + ks / rate) - (t0f + kf / rate) + lag / rate
-    assert abs(offset - sync["offset_s"]) < 0.0005, offset
+    assert abs(offset - sync["offset_s"]) < 0.00027, offset  # measured 0.00018 s
 
 
 def test_dem_file_differs_from_truth_exactly_as_documented():

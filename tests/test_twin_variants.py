@@ -46,7 +46,7 @@ def test_black_beads_through_a_window_of_the_side_camera(tmp_path):
     info = render_variant(excerpt("black", 4.9, 2, cameras=("side",)), tmp_path)
     assert info["frames"] == 2 and (tmp_path / "experiment" / "side.mp4").is_file()
     n, found, errs = _found(tmp_path, "side", "dark", [0, 1])
-    assert n >= 12 and found == n and np.median(errs) < 0.4
+    assert n >= 12 and found == n and np.median(errs) < 0.37  # measured 0.25 px
 
 
 def test_a_shaken_panned_view_moves_its_truth_with_it(tmp_path):
@@ -58,7 +58,7 @@ def test_a_shaken_panned_view_moves_its_truth_with_it(tmp_path):
     moved = truth.pivot(index="frame", columns="marker", values="x_px").diff().abs().min(axis=1).iloc[1:]
     assert (moved > 0.3).all()
     n, found, errs = _found(tmp_path, "side", "bright", [0, 1, 2])  # (blurred and shaken: 0.3-0.5 px)
-    assert found >= 0.9 * n and np.median(errs) < 0.6
+    assert found >= 0.9 * n and np.median(errs) < 0.56  # measured 0.37 px
 
 
 def test_dense_identical_beads_in_16_bit_grey_tiff(tmp_path):

@@ -50,7 +50,7 @@ def test_two_cameras_with_pass_through_columns(stereo, tmp_path, capsys):
     assert list(res["note"]) == list(table["note"]) and set(res["method"]) == {"triangulation"}
     err = np.linalg.norm(res[["X_mm", "Y_mm", "Z_mm"]].to_numpy() - table[["X_mm", "Y_mm", "Z_mm"]].to_numpy(), axis=1)
     seen = table["xf"].notna().to_numpy()
-    assert err[seen].max() < 1e-3 and res["residual_px"][seen].max() < 1e-3
+    assert err[seen].max() < 1.2e-4 and res["residual_px"][seen].max() < 1e-6  # measured 7.8e-5 mm, 0 px
     assert res.loc[~seen, "X_mm"].isna().all()
     # without -o the table goes to stdout
     assert main(["xyz", str(csv), "--calibration", str(folder / "calibration.toml"), "--method",
@@ -95,7 +95,8 @@ def test_any_number_of_cameras_named_after_the_calibration(tmp_path, capsys):
     capsys.readouterr()
     res = pd.read_csv(tmp_path / "o.csv")
     err = np.linalg.norm(res[["X_mm", "Y_mm", "Z_mm"]].to_numpy() - POINTS, axis=1)
-    assert np.nanmax(err) < 2e-4 and np.isnan(err[100:150]).all()  # written to 0.1 um and np.isfinite(err[150:]).all()
+    # written to 0.1 um (measured 8e-5 mm); the rows without a second camera empty, the others all solved
+    assert np.nanmax(err) < 1.2e-4 and np.isnan(err[100:150]).all() and np.isfinite(err[150:]).all()
 
 
 def test_bad_input_one_line(stereo, tmp_path, capsys):

@@ -79,8 +79,8 @@ def test_triangulation_rows_match_the_true_positions(project):
     good = good.sort_values(["marker", "frame"])
     err = np.linalg.norm(good[["X_mm", "Y_mm", "Z_mm"]].to_numpy() - truth, axis=1)
     # markers move 4-5 mm per frame; taking the nearest front frame instead would err by ~1.5 mm
-    assert err.max() < 0.05
-    assert good["residual_px"].max() < 0.05
+    assert err.max() < 0.0021  # measured 0.0014 mm
+    assert good["residual_px"].max() < 0.0018  # measured 0.0012 px
     # every side frame from 1 on has an interpolated front point unless a status says otherwise
     assert len(good) == len(START) * (N_FRAMES - 1) - 2 - 1
 
@@ -115,7 +115,7 @@ def test_mlp_rows_beside_triangulation_and_outside_flag(project, model_file):
     truth = np.concatenate([position(m, g["time_s"].to_numpy()) for m, g in inside.groupby("marker")])
     inside = inside.sort_values(["marker", "frame"])
     err = np.linalg.norm(inside[["X_mm", "Y_mm", "Z_mm"]].to_numpy() - truth, axis=1)
-    assert err.mean() < 20  # a small, briefly trained net; the marker layout spans ~200 mm
+    assert err.mean() < 5.4  # a small, briefly trained net; the marker layout spans ~200 mm (measured 3.6)
     assert inside["residual_px"].notna().all()
     nan_policy = compute_xyz(project, method="mlp", outside="nan")
     assert set(nan_policy["method"]) == {"mlp"} and nan_policy.loc[nan_policy["marker"] == 4, "X_mm"].isna().all()
@@ -204,7 +204,8 @@ def test_three_cameras_and_one_camera_end_to_end(tmp_path, capsys):
     assert table["status_front"].tolist() == ["missing", "tracked", "tracked", "tracked"]  # frame 0: before it
     truth = np.array([true_xyz(2, f) for f in table["frame"]])
     err = np.linalg.norm(table[["X_mm", "Y_mm", "Z_mm"]].to_numpy() - truth, axis=1)
-    assert err.max() < 0.01 and table["residual_px"].max() < 0.01  # frame 0 from side and top only
+    # frame 0 from side and top only (measured 0.0005 mm, 0.0001 px)
+    assert err.max() < 0.00077 and table["residual_px"].max() < 0.00015
     assert main(["export", path, "-o", str(tmp_path / "t.parquet")]) == 0
     assert list(pd.read_parquet(tmp_path / "t.parquet").columns) == xyz_columns(cams)
     assert main(["export", path, "-o", str(tmp_path / "trial"), "--format", "dltdv"]) == 0

@@ -123,8 +123,9 @@ def _stage_calibration(ctx) -> dict:
     ctx["points_csv"] = points_csv
     r = res.report
     score = score_calibration(res.calibration, ctx["cal_truth"])
+    sync = {cam: info.get("method") for cam, info in (r.get("sync") or {}).items() if isinstance(info, dict)}
     return {"reprojection_rmse_px": r.get("reprojection_rmse_px"), "board_rmse_mm": r.get("board_rmse_mm"),
-            "views_used": r.get("views_used"), "points": int(len(res.points)), **score}
+            "views_used": r.get("views_used"), "points": int(len(res.points)), "sync_methods": sync, **score}
 
 
 def _stage_regression(ctx) -> dict:

@@ -8,6 +8,10 @@ Export
     interpolated to the reference frame's time through the sync offset; pixels in the OpenCV
     convention, origin at the top-left pixel's centre, y down).
 
+    Pixels always leave: where no method gives millimetres (one camera without a scale, cameras
+    without a calibration or network), `export_table` gives the pixel trajectories (method
+    ``pixels``, the mm columns empty) and says why.
+
     DLTdv/Argus (``PREFIX-xypts.csv``, ``-xyzpts.csv``, ``-xyzres.csv``, ``-offsets.csv``): one row
     per reference frame (row 1 = frame 0), NaN where missing; ``ptN_camM_X/Y`` with camM = the M-th
     camera of the table (cam1 = side, cam2 = front in a side/front project), point N = the N-th
@@ -38,7 +42,7 @@ import numpy as np
 import pandas as pd
 
 from .errors import SandtrackError
-from .xyz import XYZ_COLUMNS, pixel_columns, xyz_columns
+from .xyz import XYZ_COLUMNS, NoXYZ, pixel_columns, xyz_columns
 
 TIDY_COLUMNS = XYZ_COLUMNS  # a side/front project's; others: xyz.xyz_columns(cameras)
 FORMATS = ("csv", "parquet", "dltdv")
@@ -55,6 +59,20 @@ def trajectory_table(project, method: str = "both") -> pd.DataFrame:
         raise SandtrackError("3D positions are not available in this version yet (no xyz module)") from None
     df = compute_xyz(project, method=method)
     return check_tidy(df)
+
+
+def export_table(project, method: str = "both") -> tuple[pd.DataFrame, str | None]:
+    """The table to export, and None, or, when no method can give millimetres and `method` is "both" or
+    "all", the pixel trajectories (method "pixels", X_mm, Y_mm, Z_mm empty) and one line saying why."""
+    try:
+        return trajectory_table(project, method), None
+    except NoXYZ as exc:
+        if method not in ("both", "all"):
+            raise
+        from .xyz import compute_pixels
+
+        why = f"pixel trajectories only (x, y in px; X_mm, Y_mm, Z_mm empty): {exc}"
+        return check_tidy(compute_pixels(project)), why
 
 
 def table_cameras(df: pd.DataFrame) -> list[str]:

@@ -36,6 +36,10 @@ from av.video.reformatter import VideoReformatter
 from .errors import SandtrackError
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
+# Each video file's packet index (its frames' and key frames' timestamps, the last group of pictures decoded
+# once to find frames that do not decode), by (path, size, mtime): a session opens one video many times (views,
+# tracking, sync), and reading the index costs ~0.25 s at 1080p.
+_INDEX: dict[tuple, tuple[np.ndarray, np.ndarray, bool]] = {}
 
 
 def bit_depth_scale(images) -> float:
@@ -169,21 +173,14 @@ class FrameSource:
                 raise SandtrackError(f"{self.path}: no video stream")
             stream = container.streams.video[0]
             self.time_base = stream.time_base
-            pts, key_pts = [], []
-            try:
-                for packet in container.demux(stream):
-                    if packet.pts is not None and packet.size > 0:
-                        pts.append(packet.pts)
-                        if packet.is_keyframe:
-                            key_pts.append(packet.pts)
-            except (av.error.InvalidDataError, av.error.FFmpegError):
-                pass  # truncated file: keep the frames before the damage
-            if not pts:
-                raise SandtrackError(f"{self.path}: video holds no frames")
-            self._pts = np.array(sorted(pts), dtype=np.int64)
-            self._trim_undecodable_tail(container, stream, max(key_pts) if key_pts else int(self._pts[0]))
-            # Per frame: True where the packet is a key (intra-coded) frame, as listed by the demuxer.
-            self.keyframes = np.isin(self._pts, np.array(key_pts, dtype=np.int64))
+            st = Path(self.path).stat()
+            key = (str(Path(self.path).resolve()), st.st_size, st.st_mtime_ns)
+            if key not in _INDEX:
+                if len(_INDEX) > 64:
+                    _INDEX.clear()
+                _INDEX[key] = self._read_index(container, stream)
+            self._pts, self.keyframes, self.truncated = (v.copy() if isinstance(v, np.ndarray) else v
+                                                         for v in _INDEX[key])
             self.width = stream.codec_context.width
             self.height = stream.codec_context.height
             rate = stream.average_rate or stream.guessed_rate
@@ -199,23 +196,38 @@ class FrameSource:
         # Verify the first frame decodes: catches files whose packets are garbage.
         self.frame(0)
 
-    def _trim_undecodable_tail(self, container, stream, last_key_pts: int) -> None:
-        """Decode the last GOP once: a truncated file lists packets that cannot be decoded."""
+    def _read_index(self, container, stream) -> tuple[np.ndarray, np.ndarray, bool]:
+        """The frames' timestamps, True where a frame is a key (intra-coded) frame as the demuxer lists it, and
+        whether the file is cut short. The last GOP is decoded: a truncated file lists packets that cannot
+        be decoded, and only the frames before the first of those are kept."""
+        pts, key_pts = [], []
+        try:
+            for packet in container.demux(stream):
+                if packet.pts is not None and packet.size > 0:
+                    pts.append(packet.pts)
+                    if packet.is_keyframe:
+                        key_pts.append(packet.pts)
+        except (av.error.InvalidDataError, av.error.FFmpegError):
+            pass  # truncated file: keep the frames before the damage
+        if not pts:
+            raise SandtrackError(f"{self.path}: video holds no frames")
+        pts = np.array(sorted(pts), dtype=np.int64)
+        last_key = max(key_pts) if key_pts else int(pts[0])
         decoded = set()
         try:
-            container.seek(int(last_key_pts), stream=stream, backward=True, any_frame=False)
+            container.seek(int(last_key), stream=stream, backward=True, any_frame=False)
             for frame in container.decode(stream):
                 if frame.pts is not None:
                     decoded.add(int(frame.pts))
         except (av.error.InvalidDataError, av.error.FFmpegError, EOFError):
             pass
-        tail = self._pts[self._pts >= last_key_pts]
-        missing = [p for p in tail if int(p) not in decoded]
+        missing = [p for p in pts[pts >= last_key] if int(p) not in decoded]
+        truncated = bool(missing)
         if missing:
-            self._pts = self._pts[self._pts < min(missing)]
-            self.truncated = True
-        if len(self._pts) == 0:
+            pts = pts[pts < min(missing)]
+        if len(pts) == 0:
             raise SandtrackError(f"{self.path}: no frame of the video can be decoded")
+        return pts, np.isin(pts, np.array(key_pts, dtype=np.int64)), truncated
 
     # -- access --------------------------------------------------------------------------------
     def __len__(self) -> int:

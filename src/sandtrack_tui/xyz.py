@@ -22,7 +22,9 @@ side/front project), marker and method, with the columns `xyz_columns(cameras)`:
   ``outside="keep"`` they are left unflagged. The network reads the side and front pixels, as it
   was trained. A project with one camera has "scale" rows instead: X_mm, Y_mm are the pixel
   (undistorted when the camera is calibrated) times the camera's mm-per-px scale (`scale.py`), in
-  the image's axes; Z_mm is NaN.
+  the image's axes; Z_mm is NaN. Where no method can give millimetres (one camera without a scale,
+  cameras without a calibration or network: `NoXYZ`), `compute_pixels` gives the same table with
+  method "pixels" and X_mm, Y_mm, Z_mm NaN: the pixel trajectories alone.
 - ``residual_px``: RMS reprojection error of the XYZ through the calibration (px); a large value
   means the views do not agree (a bad track or a poor model). NaN without a calibration.
 
@@ -52,6 +54,10 @@ _SEVERITY = {"manual": 0, "tracked": 1, "imported": 2, "interpolated": 3, "occlu
              "missing": 6}
 _EPS = 1e-6
 _KEY = 1 << 32  # (marker, frame) -> one int64 key
+
+
+class NoXYZ(SandtrackError):
+    """No method can turn these cameras' pixels into millimetres (no scale, calibration or network)."""
 
 
 def pixel_columns(camera: str) -> tuple[str, str]:
@@ -197,6 +203,17 @@ def compute_xyz(project, method: str = "both", frames=None, model=None, calibrat
     return _solve(obs, timeline.cameras, methods, model, calibration, outside, refine)
 
 
+def compute_pixels(project, frames=None, times: dict | None = None) -> pd.DataFrame:
+    """The table of `compute_xyz` with the pixels only: method "pixels", X_mm, Y_mm, Z_mm and residual_px NaN."""
+    timeline = Timeline.from_project(project, times)
+    if not timeline.cameras:
+        raise SandtrackError("the project has no videos")
+    obs = _observations(project, timeline, frames)
+    n = len(obs["frame"])
+    return _table(obs, timeline.cameras, [(np.full((n, 3), np.nan), np.full(n, np.nan),
+                                           np.full(n, "pixels", dtype=object))])
+
+
 def xyz_at_frame(project, frame: int, method: str = "both", **kw) -> pd.DataFrame:
     """The rows of one reference frame (fast: reads only that frame's points; the model is cached)."""
     return compute_xyz(project, method=method, frames=[int(frame)], **kw)
@@ -229,7 +246,7 @@ def resolve_methods(method: str, calibration, model, cameras, needs: dict[str, s
     """The methods of `method` that can run with this calibration, model and cameras. A method asked
     for by name that cannot run raises SandtrackError with the reason (`needs` words the missing
     calibration, model and "nothing" for the caller: a project, or the command line's options);
-    "both" and "all" keep what can run and raise only when nothing can."""
+    "both" and "all" keep what can run and raise NoXYZ only when nothing can."""
     strict = method in METHODS
     out, reasons = [], []
     for m in wanted_methods(method):
@@ -241,7 +258,7 @@ def resolve_methods(method: str, calibration, model, cameras, needs: dict[str, s
         elif reason not in (needs["calibration"], needs["model"].format(method=m)):
             reasons.append(reason)  # an input was given but does not fit
     if not out:
-        raise SandtrackError("; ".join(reasons) if reasons else needs["nothing"])
+        raise NoXYZ("; ".join(reasons) if reasons else needs["nothing"])
     return out
 
 
@@ -375,8 +392,8 @@ def _solve_scaled(project, obs: dict, camera: str, calibration) -> pd.DataFrame:
 
     found = project_scale(project, camera, calibration)
     if found is None:
-        raise SandtrackError(f"one camera ({camera}): set its scale first (a known length in the TUI, or a "
-                             "calibration of the camera), then its pixels give x, y in mm")
+        raise NoXYZ(f"one camera ({camera}) without a scale: set one (a known length in the TUI, or a "
+                    "calibration of the camera), then its pixels give x, y in mm")
     cam = calibration.cameras.get(camera) if calibration is not None else None
     n = len(obs["frame"])
     xyz = np.full((n, 3), np.nan)

@@ -23,7 +23,7 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from ..store import Project
-    from ..trajectories import export, trajectory_table
+    from ..trajectories import export, export_table
 
     with Project.open(args.project) as proj:
         vids = proj.videos()
@@ -31,10 +31,12 @@ def run(args) -> int:
             raise SandtrackError(f"{args.project}: the project has no videos")
         heights = {c: float(v.height) for c, v in vids.items()}
         log(f"export: computing 3D positions ({args.method})")
-        df = trajectory_table(proj, method=args.method)
-    method = None if args.method == "both" else args.method
+        df, pixels_only = export_table(proj, method=args.method)
+    if pixels_only:
+        log(f"export: {pixels_only}")
+    method = None if args.method in ("both", "all") or pixels_only else args.method
     paths = export(df, Path(args.output), fmt=args.format, heights=heights, method=method)
     result = {"files": [str(p) for p in paths], "rows": int(len(df)), "markers": int(df["marker"].nunique()),
-              "frames": int(df["frame"].nunique())}
+              "frames": int(df["frame"].nunique()), "pixels_only": pixels_only}
     emit(result, args.json, text="\n".join(f"wrote {p}" for p in paths))
     return 0

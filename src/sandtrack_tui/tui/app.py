@@ -32,7 +32,7 @@ from ..video import FramePair, camera_offsets, common_range, nearest_frames
 from .core import core
 from .editing import EditingMixin
 from .feeder import FrameFeeder, FrameRequest, FrameResult
-from .frame_view import CAMERA_RGB, FrameView, MarkerMark, Overlays, ViewTransform
+from .frame_view import BOOST_DENSE_SHARE, CAMERA_RGB, FrameView, MarkerMark, Overlays, ViewTransform
 from .keys import ANYWHERE, KEY_DISPLAY, KEYS, bindings
 from .markers import MarkersMixin
 from .screens.help import HelpScreen
@@ -45,6 +45,7 @@ from .tiles import ScreenGraphics
 from .timeline import Timeline, next_problem, status_codes
 
 GOOD = ("tracked", "manual", "interpolated", "imported")
+MEASURED = ("tracked", "manual", "imported")  # a point seen in the image (not interpolated, not a prediction)
 FRAME_CACHE_MB = 320  # decoded frames kept for stepping, shared by the cameras
 
 class TableReady(Message):
@@ -118,6 +119,7 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, MarkersMixin, App):
         self._calibration = None
         self._labels: dict[int, str] = {}
         self._xyz_note_shown = False
+        self._dense_note_shown = False  # the boost's notice of a dense scene, once a session
         self._xyz_project: Project | None = None
         self._table_busy = False
         self._table_want = 0
@@ -313,13 +315,21 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, MarkersMixin, App):
             tf = self._transform(cam)
             if tf is None:
                 continue
-            req = FrameRequest(cam, self.cam_index(cam), tf, self.boost, self.pixels.cell_px, self.look)
+            req = FrameRequest(cam, self.cam_index(cam), tf, self.boost, self.pixels.cell_px, self.look,
+                               self._tracked_at(cam) if self.boost else ())
             self._wanted[cam] = req.key
             v = self.view(cam)
             if v.pixels_key == req.key:
                 self.update_overlays(cam)
                 continue
             self.feeder.request(req, self._direction)
+
+    def _tracked_at(self, camera: str) -> tuple:
+        """(x, y) of the markers measured in this camera at its current frame: in a dense scene the
+        marker boost paints these only."""
+        return tuple((round(float(rec.x_px), 1), round(float(rec.y_px), 1))
+                     for rec in self._by_cam_frame.get((camera, self.cam_index(camera)), ())
+                     if rec.status in MEASURED and rec.x_px is not None and np.isfinite(rec.x_px))
 
     @on(FrameReady)
     @guarded
@@ -333,6 +343,11 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, MarkersMixin, App):
             v.show_message(r.error)
             self.notify(r.error, severity="error")
             return
+        if r.boost_limited and not self._dense_note_shown:
+            self._dense_note_shown = True
+            self.notify(f"marker boost: {r.marker_share:.0%} of the {cam} view looks like markers, so it paints "
+                        f"only the tracked markers, and none where they would cover over {BOOST_DENSE_SHARE:.0%} "
+                        "of the view (b: boost off)", timeout=8)
         v.pixels, v.pixels_key, v.tf = r.pixels, r.request.key, r.request.tf
         self.update_overlays(cam)
         if self.views_ready():

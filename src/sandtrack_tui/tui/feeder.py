@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .frame_view import ViewTransform, render_pixels
-from .graphics import render_view
+from .frame_view import ViewTransform, render
+from .graphics import render_graphics
 
 
 @dataclass
@@ -26,11 +26,12 @@ class FrameRequest:
     tf: ViewTransform
     boost: bool = True
     cell_px: tuple[int, int] | None = None  # graphics: render at the terminal's pixels, not half-blocks
-    look: object | None = None  # the markers' appearance model when they are not blue (render_pixels)
+    look: object | None = None  # the markers' appearance model when they are not blue (frame_view.render)
+    markers: tuple = ()  # (x, y) source px of the tracked markers: what the boost paints in a dense scene
 
     @property
     def key(self):
-        return (self.index, self.tf, self.boost, self.cell_px, id(self.look))
+        return (self.index, self.tf, self.boost, self.cell_px, self.markers, id(self.look))
 
 
 @dataclass
@@ -40,6 +41,8 @@ class FrameResult:
     decode_ms: float
     render_ms: float
     error: str | None = None
+    marker_share: float = 0.0  # share of the picture that looks like markers (frame_view.Rendered)
+    boost_limited: bool = False  # a dense scene: the boost painted only the tracked markers
 
 
 class FrameFeeder:
@@ -95,12 +98,14 @@ class FrameFeeder:
             t0 = time.perf_counter()
             frame = self.sources[req.camera].frame(req.index)
             t1 = time.perf_counter()
+            markers = np.array(req.markers, float).reshape(-1, 2)
             if req.cell_px is None:
-                pixels = render_pixels(frame, req.tf, boost=req.boost, look=req.look)
+                out = render(frame, req.tf, boost=req.boost, look=req.look, markers=markers)
             else:
-                pixels = render_view(frame, req.tf, req.cell_px, boost=req.boost, look=req.look)
+                out = render_graphics(frame, req.tf, req.cell_px, boost=req.boost, look=req.look, markers=markers)
             t2 = time.perf_counter()
-            result = FrameResult(req, pixels, (t1 - t0) * 1000, (t2 - t1) * 1000)
+            result = FrameResult(req, out.pixels, (t1 - t0) * 1000, (t2 - t1) * 1000, None, out.marker_share,
+                                 out.limited)
         except Exception as exc:  # noqa: BLE001 - shown to the user, the app keeps running
             result = FrameResult(req, None, 0.0, 0.0, f"{req.camera} frame {req.index}: {exc}")
         self.deliver(result)

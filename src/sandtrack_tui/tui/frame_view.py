@@ -6,6 +6,9 @@ lower one as background. The visible part of the frame is area-averaged down to 
 markers would fade to a faint tint at a 10-20x downscale, so a marker mask is computed at half
 resolution (blue paint, or pixels that look like the seeded marker when it is not blue) and every
 display pixel covering at least `BOOST_FRACTION` of marker pixels is painted vivid blue ("marker boost").
+The boost never covers the picture: where more than `BOOST_DENSE_SHARE` of it looks like markers (a
+packed bed of beads, hundreds of markers on sand), it paints only the tracked markers, and nothing where
+even those would cover more than that share.
 
 Rows become Rich segments with runs of equal colour pairs merged and `Style` objects cached by
 colour pair; in 256-colour terminals the pixels are first snapped to the xterm colour cube, which
@@ -34,6 +37,10 @@ from textual.widget import Widget
 HALF = "▀"
 BOOST_FRACTION = 0.03
 BOOST_RGB = (40, 110, 255)
+# Past this share of a view's picture looking like markers, the boost would paint a scene rather than pick
+# markers out of it (8 markers at 10-20x cover 0.1-1 %, the same zoomed in 4x a few %; a packed bed 30-60 %).
+BOOST_DENSE_SHARE = 0.05
+MARKER_RADIUS_PX = 5.0  # a blue marker's radius when no seeded marker tells it (5 mm at ~1 mm per px)
 # OpenCV HSV (H in 0..180): blue marker paint, well away from sand (H ~ 10-30).
 BLUE_LO = np.array([95, 90, 45], np.uint8)
 BLUE_HI = np.array([135, 255, 255], np.uint8)
@@ -114,23 +121,42 @@ def marker_mask(bgr: np.ndarray) -> np.ndarray:
     return cv2.inRange(cv2.cvtColor(bgr, cv2.COLOR_BGR2HSV), BLUE_LO, BLUE_HI)
 
 
-def render_pixels(frame_bgr: np.ndarray, tf: ViewTransform, boost: bool = True, look=None) -> np.ndarray:
-    """The display image (2*rows, cols, 3) RGB uint8 of the region `tf` shows; black outside the frame.
-    `look`: the appearance model (tracking.appearance) of the project's markers when they are not
-    blue; the boost then paints the pixels that look like them."""
+@dataclass
+class Rendered:
+    """A view's display image and what its marker boost found."""
+
+    pixels: np.ndarray  # (2*rows, cols, 3) RGB uint8
+    marker_share: float = 0.0  # share of the picture that looks like markers (0 without the boost)
+    limited: bool = False  # a dense scene: the boost painted the tracked markers only (or nothing)
+
+
+def render_pixels(frame_bgr: np.ndarray, tf: ViewTransform, boost: bool = True, look=None,
+                  markers: np.ndarray | None = None) -> np.ndarray:
+    """The display image (2*rows, cols, 3) RGB uint8 of the region `tf` shows; black outside the frame
+    (see `render`)."""
+    return render(frame_bgr, tf, boost, look, markers).pixels
+
+
+def render(frame_bgr: np.ndarray, tf: ViewTransform, boost: bool = True, look=None,
+           markers: np.ndarray | None = None) -> Rendered:
+    """The display image of the region `tf` shows, with the marker boost. `look`: the appearance model
+    (tracking.appearance) of the project's markers when they are not blue; the boost then paints the
+    pixels that look like them. `markers`: (N, 2) source px of the tracked markers, the only ones the
+    boost paints in a dense scene."""
     h, w = frame_bgr.shape[:2]
     out = np.zeros((2 * tf.rows, tf.cols, 3), np.uint8)
     ix0, iy0 = max(0, math.floor(tf.x0)), max(0, math.floor(tf.y0))
     ix1 = min(w, math.ceil(tf.x0 + tf.cols * tf.s))
     iy1 = min(h, math.ceil(tf.y0 + 2 * tf.rows * tf.s))
     if ix1 <= ix0 or iy1 <= iy0:
-        return out
+        return Rendered(out)
     dc0 = min(max(round((ix0 - tf.x0) / tf.s), 0), tf.cols)
     dc1 = min(max(round((ix1 - tf.x0) / tf.s), 0), tf.cols)
     dr0 = min(max(round((iy0 - tf.y0) / tf.s), 0), 2 * tf.rows)
     dr1 = min(max(round((iy1 - tf.y0) / tf.s), 0), 2 * tf.rows)
     if dc1 <= dc0 or dr1 <= dr0:
-        return out
+        return Rendered(out)
+    share, limited = 0.0, False
     crop = frame_bgr[iy0:iy1, ix0:ix1]
     size = (dc1 - dc0, dr1 - dr0)
     if tf.s <= 1.0:
@@ -157,9 +183,30 @@ def render_pixels(frame_bgr: np.ndarray, tf: ViewTransform, boost: bool = True, 
             frac = cv2.resize(frac, size, interpolation=cv2.INTER_AREA)
             # a marker split over several display pixels may cover < 3 % of each: keep its peak too
             peak = (frac >= 2) & (frac == cv2.dilate(frac, np.ones((3, 3), np.uint8)))
-            small[(frac >= int(255 * BOOST_FRACTION)) | peak] = BOOST_RGB[::-1]
+            hit = (frac >= int(255 * BOOST_FRACTION)) | peak
+            share = float(np.count_nonzero(hit)) / hit.size
+            if share > BOOST_DENSE_SHARE:
+                hit &= _near_markers(markers, tf, getattr(look, "radius", MARKER_RADIUS_PX), dc0, dr0, hit.shape)
+                limited = True
+                if np.count_nonzero(hit) > BOOST_DENSE_SHARE * hit.size:
+                    hit[:] = False
+            small[hit] = BOOST_RGB[::-1]
     out[dr0:dr1, dc0:dc1] = small[:, :, ::-1]
-    return out
+    return Rendered(out, share, limited)
+
+
+def _near_markers(markers: np.ndarray | None, tf: ViewTransform, radius: float, dc0: int, dr0: int,
+                  shape: tuple[int, int]) -> np.ndarray:
+    """Display pixels (of the picture starting at column dc0, row dr0) within a marker's radius of a
+    tracked marker."""
+    near = np.zeros(shape, np.uint8)
+    if markers is not None and len(markers):
+        u, v = tf.source_to_display(markers[:, 0], markers[:, 1])
+        r = max(int(round(radius / tf.s)), 1)
+        for a, b in zip(u - dc0, v - dr0, strict=True):
+            if -r <= a < shape[1] + r and -r <= b < shape[0] + r:
+                cv2.circle(near, (int(round(a)), int(round(b))), r, 1, -1)
+    return near.astype(bool)
 
 
 def _look_mask(look, half: np.ndarray, s: float) -> np.ndarray | None:

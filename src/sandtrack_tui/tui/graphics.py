@@ -31,9 +31,10 @@ from .frame_view import (
     SELECTED_RGB,
     STATUS_RGB,
     Overlays,
+    Rendered,
     ViewTransform,
     draw_overlays,
-    render_pixels,
+    render,
 )
 
 BOOST_MIN_SCALE = 3.0  # source px per screen px from which a 9 px marker gets the marker boost
@@ -55,11 +56,17 @@ def pixel_transform(tf: ViewTransform, cell_w: int) -> ViewTransform:
 
 
 def render_view(frame_bgr: np.ndarray, tf: ViewTransform, cell_px: tuple[int, int], boost: bool = True,
-                look=None) -> np.ndarray:
+                look=None, markers: np.ndarray | None = None) -> np.ndarray:
     """RGB image of the region `tf` shows, cell_w square pixels per cell across (2 * rows * cell_w
     high; `compose` fits it to the cells' true height)."""
+    return render_graphics(frame_bgr, tf, cell_px, boost, look, markers).pixels
+
+
+def render_graphics(frame_bgr: np.ndarray, tf: ViewTransform, cell_px: tuple[int, int], boost: bool = True,
+                    look=None, markers: np.ndarray | None = None) -> Rendered:
+    """`render_view` with what the marker boost found (frame_view.render)."""
     ptf = pixel_transform(tf, cell_px[0])
-    return render_pixels(frame_bgr, ptf, boost=boost and ptf.s >= BOOST_MIN_SCALE, look=look)
+    return render(frame_bgr, ptf, boost=boost and ptf.s >= BOOST_MIN_SCALE, look=look, markers=markers)
 
 
 def compose(pixels: np.ndarray, tf: ViewTransform, cell_px: tuple[int, int], overlays: Overlays,

@@ -16,6 +16,7 @@ class AutoSeedScreen(ModalScreen[pd.DataFrame | None]):
     AutoSeedScreen { align: center middle; }
     AutoSeedScreen > Vertical { width: 90%; max-width: 100; height: auto; max-height: 80%; border: round $accent;
                                 background: $surface; padding: 0 1; }
+    AutoSeedScreen Label { width: 100%; }
     AutoSeedScreen DataTable { height: auto; max-height: 30; }
     """
     BINDINGS = [Binding("space", "toggle", "use / skip"), Binding("enter", "accept", "accept"),

@@ -20,7 +20,7 @@ class ExportScreen(TaskScreen):
         self.export()
 
     def __init__(self, app) -> None:
-        self.traj = core("trajectories", "trajectory_table", "export", "FORMATS")
+        self.traj = core("trajectories", "export_table", "export", "FORMATS")
         super().__init__(app)
 
     def default_path(self, fmt: str) -> str:
@@ -73,20 +73,23 @@ class ExportScreen(TaskScreen):
         def job(progress, should_stop):
             proj = self.main._worker_project()
             try:
-                df = traj.trajectory_table(proj, method=method)
+                df, pixels_only = traj.export_table(proj, method=method)
             finally:
                 proj.close()
             written = traj.export(df, path, fmt, heights=heights)
-            return df, written
+            return df, written, pixels_only
 
         self.query_one("#result", Static).update("[yellow]exporting…[/]")
         self.main.run_task("export", job, on_result=self.show_result, refresh_points=False)
 
     def show_result(self, result) -> None:
-        df, written = result
+        df, written, pixels_only = result
         methods = ", ".join(sorted(df["method"].dropna().unique())) if len(df) else "none"
         files = "\n".join(f"  {p}" for p in written)
         self.query_one("#result", Static).update(
             f"[green]wrote {len(df)} rows[/] ({df['marker'].nunique() if len(df) else 0} markers; methods: "
-            f"{methods}) to\n{files}")
-        self.notify(f"exported {len(df)} rows")
+            f"{methods}) to\n{files}" + (f"\n[yellow]{pixels_only}[/]" if pixels_only else ""))
+        if pixels_only:
+            self.notify(f"exported {len(df)} rows: {pixels_only}", severity="warning", timeout=10)
+        else:
+            self.notify(f"exported {len(df)} rows")

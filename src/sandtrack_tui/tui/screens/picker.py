@@ -31,6 +31,7 @@ class MarkerPicker(ModalScreen[int | None]):
     MarkerPicker { align: center middle; }
     MarkerPicker > Vertical { width: 90%; max-width: 110; height: auto; max-height: 85%; border: round $accent;
                               background: $surface; padding: 0 1; }
+    MarkerPicker Label { width: 100%; }
     MarkerPicker DataTable { height: auto; max-height: 30; }
     MarkerPicker Input { display: none; }
     MarkerPicker Input.-shown { display: block; }

@@ -1,4 +1,6 @@
-"""Small modal prompts: a line of text, a number, a yes/no question, what to do about unsynced cameras."""
+"""Small modal prompts: a line of text, a number, a yes/no question, what to do about unsynced cameras.
+Their text wraps to the dialog's width (a Label is as wide as its text unless told otherwise), and a
+dialog never grows wider than the terminal."""
 
 from __future__ import annotations
 
@@ -15,7 +17,8 @@ class AskText(ModalScreen):
 
     DEFAULT_CSS = """
     AskText { align: center middle; }
-    AskText > Vertical { width: 60; height: auto; border: round $accent; padding: 0 1; background: $surface; }
+    AskText > Vertical { width: 60; max-width: 95%; height: auto; border: round $accent; padding: 0 1;
+                         background: $surface; }
     AskText Label { width: 100%; }
     """
     BINDINGS = [Binding("escape", "cancel", "cancel")]
@@ -65,7 +68,9 @@ class AskNumber(AskText):
 class Confirm(ModalScreen[bool]):
     DEFAULT_CSS = """
     Confirm { align: center middle; }
-    Confirm > Vertical { width: 60; height: auto; border: round $warning; padding: 0 1; background: $surface; }
+    Confirm > Vertical { width: 60; max-width: 95%; height: auto; border: round $warning; padding: 0 1;
+                         background: $surface; }
+    Confirm Label { width: 100%; }
     """
     BINDINGS = [Binding("y,enter", "yes", "yes"), Binding("n,escape", "no", "no")]
 
@@ -90,7 +95,10 @@ class SyncFirst(ModalScreen[str | None]):
 
     DEFAULT_CSS = """
     SyncFirst { align: center middle; }
-    SyncFirst > Vertical { width: 76; height: auto; border: round $warning; padding: 0 1; background: $surface; }
+    SyncFirst > Vertical { width: 76; max-width: 95%; height: auto; border: round $warning; padding: 0 1;
+                           background: $surface; }
+    SyncFirst Label { width: 100%; }
+    SyncFirst #why { margin-bottom: 1; }
     """
     BINDINGS = [Binding("s,enter", "choose('sync')", "sync now"), Binding("t", "choose('anyway')", "track anyway"),
                 Binding("escape,c", "choose('')", "cancel")]
@@ -103,9 +111,10 @@ class SyncFirst(ModalScreen[str | None]):
         with Vertical():
             yield Label(f"[b]The cameras are not synced yet[/] ({self.cameras}). Tracking with an offset of 0 "
                         "pairs frames taken at different times: once the markers move, the stereo check throws "
-                        "good views away and markers are lost.")
-            yield Label("[b]s[/] / enter: run the audio sync now, then track    [b]t[/]: track anyway (cameras "
-                        "that start together)    [b]escape[/]: cancel")
+                        "good views away and markers are lost.", id="why")
+            yield Label("[b]s[/] / enter: run the audio sync now, then track")
+            yield Label("[b]t[/]: track anyway (cameras that start together)")
+            yield Label("[b]escape[/]: cancel")
 
     def action_choose(self, choice: str) -> None:
         self.dismiss(choice or None)
