@@ -178,3 +178,55 @@ def test_cli_compare_with_and_without_sd_columns(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.strip().splitlines()[-1].startswith("sandtrack compare: error: cannot rank by χ²")
     assert "reading" not in err  # refused before any run was read
+
+
+def test_f6_screen_gives_the_verdict_and_the_band(tmp_path):
+    """The TUI's DEM comparison on a project tracked exactly (the XYZ carries no sd by triangulation here):
+    with an assumed experiment sd it judges an exact DEM consistent and one 3 mm off not."""
+    import asyncio
+
+    from sandtrack_tui.tui.app import SandtrackApp
+    from sandtrack_tui.tui.screens.compare import CompareScreen
+    from tui_synth import MARKERS, N_FRAMES, make_project, true_xy, true_xyz
+
+    project = make_project(tmp_path, calibrated=True)
+    project.set_points([(f, cam, m, *true_xy(m, f, cam), "tracked") for m in MARKERS for f in range(N_FRAMES)
+                        for cam in ("side", "front")], "tracks")
+    dem = pd.DataFrame([{"particle_id": m, "time_s": f / 50.0, **dict(zip(C.AXES, true_xyz(m, f), strict=True))}
+                        for m in MARKERS for f in range(N_FRAMES)])
+    D.write_exchange_csv(dem, tmp_path / "exact.csv", units="mm")
+    D.write_exchange_csv(dem.assign(Y_mm=dem["Y_mm"] + 3.0), tmp_path / "off.csv", units="mm")
+
+    async def run() -> dict:
+        verdicts = {}
+        app = SandtrackApp(project)
+        async with app.run_test(size=(120, 50)) as pilot:
+            await pilot.pause(0.2)
+            await pilot.press("f6")
+            await pilot.pause(0.2)
+            screen = app.screen
+            assert isinstance(screen, CompareScreen)
+            screen.query_one("#exp_sd").value = "0.5"
+            for name in ("exact", "off"):
+                screen.query_one("#dem").value = str(tmp_path / f"{name}.csv")
+                screen.query_one("#verdict").update("")
+                await pilot.click("#run")
+                for _ in range(400):
+                    await pilot.pause(0.05)
+                    text = str(screen.query_one("#verdict").render())
+                    if app.bg_task is None and text:
+                        break
+                verdicts[name] = text
+                verdicts[name + "_plot"] = str(screen.query_one("#plot").render())
+            screen.query_one("#dem_sd").value = "x"
+            await pilot.click("#run")
+            await pilot.pause(0.1)
+            assert any("sd fields take a number" in n.message for n in app._notifications)
+        return verdicts
+
+    try:
+        v = asyncio.run(run())
+    finally:
+        project.close()
+    assert v["exact"].startswith("exact: consistent with the experiment")
+    assert v["off"].startswith("off: NOT consistent") and "95 % band edge" in v["off_plot"]
