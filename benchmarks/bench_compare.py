@@ -4,6 +4,10 @@
   its own clock (known shift) with some particles drifting; shift error (frames) and flag
   precision/recall over several cases; time per comparison; 100 particles for scale.
 - distances: discrete Fréchet + normalised DTW on 400 x 400 samples.
+- consistency: the same synthetic cases with the experiment's sd columns (its true noise, 0.3 mm): χ²/dof,
+  the share of runs called consistent when the DEM is exact (the test's size: should be ~95 %), and
+  of runs called inconsistent when the DEM is 1.5 mm off along one axis (its power: should be 100 %); the
+  CPU time of a comparison with and without sd columns.
 - sample_data: ground_truth/trajectories.csv vs dem/particles.csv, against dem/differences.json.
 """
 
@@ -95,8 +99,32 @@ def _sample_data() -> dict:
 
 
 
+def _consistency(seeds: int = 20) -> dict:
+    sd_cols = {c: 0.3 for c in C.SD_COLUMNS}
+    reduced, consistent, caught, cpu_sd, cpu_bare = [], 0, 0, [], []
+    for seed in range(seeds):
+        exp, dem = make_case(shift_s=0.137, seed=seed)
+        t0 = time.process_time()
+        c = C.compare(exp.assign(**sd_cols), dem, fps=FPS)
+        cpu_sd.append(time.process_time() - t0)
+        reduced.append(c.summary["chi2_reduced"])
+        consistent += bool(c.summary["consistent"])
+        off = C.compare(exp.assign(**sd_cols), dem.assign(Y_mm=dem["Y_mm"] + 1.5), fps=FPS)
+        caught += off.summary["consistent"] is False
+        t0 = time.process_time()
+        C.compare(exp, dem, fps=FPS)
+        cpu_bare.append(time.process_time() - t0)
+    return {"consistency_runs": seeds, "chi2_reduced_mean": round(float(np.mean(reduced)), 3),
+            "chi2_reduced_max": round(float(np.max(reduced)), 3),
+            "exact_dem_called_consistent_pct": round(100 * consistent / seeds, 1),
+            "offset_1_5mm_called_inconsistent_pct": round(100 * caught / seeds, 1),
+            "cpu_seconds_per_compare_with_sd": round(float(np.median(cpu_sd)), 3),
+            "cpu_seconds_per_compare_without_sd": round(float(np.median(cpu_bare)), 3)}
+
+
 def run() -> dict:
     out = _synthetic()
+    out.update(_consistency())
     out.update(_distances())
     out.update(_sample_data())
     return out

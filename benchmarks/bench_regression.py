@@ -53,6 +53,8 @@ def run(epochs: int | None = None) -> dict:
     for key in ("mlp_mean_error_mm", "mlp_sd_mm", "mlp_median_mm", "mlp_p95_mm", "r2_x", "r2_y", "r2_z",
                 "triangulation_mean_error_mm", "triangulation_sd_mm", "residual_mean_error_mm", "residual_sd_mm"):
         out[key] = round(m[key], 5 if key.startswith("r2") else 3)
+    for key in (k for k in m if "_coverage95_pct_" in k or "_sd_median_mm_" in k):
+        out[key] = round(m[key], 2 if "coverage" in key else 4)
     px = points[["xs", "ys", "xf", "yf"]].to_numpy()
     truth = points[["X_mm", "Y_mm", "Z_mm"]].to_numpy()
     exact, _ = triangulate(rig, {"side": px[:, :2], "front": px[:, 2:]})
@@ -117,6 +119,7 @@ def _twin(epochs: int | None) -> dict:
     m = model.metrics
     out = {f"twin_{k}": round(m[k], 3) for k in ("points", "train_seconds", "mlp_mean_error_mm", "mlp_sd_mm",
                                                  "triangulation_mean_error_mm", "residual_mean_error_mm")}
+    out.update({f"twin_{k}": round(v, 2) for k, v in m.items() if "_coverage95_pct_" in k})
     out["twin_preset"] = "full" if folder != SAMPLE else "small"
     traj = pd.read_csv(folder / "trajectories.csv")
     seen = traj[(traj["visible_side"] == 1) & (traj["visible_front"] == 1)][["X_mm", "Y_mm", "Z_mm"]].to_numpy()

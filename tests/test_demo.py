@@ -38,6 +38,9 @@ def test_demo_fast_end_to_end(tmp_path):
     # a few epochs on the sample's 9,037 points (measured: MLP 1.57 mm, triangulation and residual 0.049 mm)
     assert reg["points"] > 9000 and reg["mlp_mean_error_mm"] < 2.4
     assert reg["triangulation_mean_error_mm"] < 0.075 and reg["residual_mean_error_mm"] < 0.075
+    # the network's 95 % intervals on the held-out calibration points, against the true corners (measured 94.8-96.5)
+    assert all(92.0 <= reg[f"mlp_coverage95_pct_{a}"] <= 98.5 for a in "xyz")
+    assert {"mlp_coverage95_pct_x", "residual_coverage95_pct_z"} <= set(stages["xyz"])
 
     trk = stages["tracking"]
     assert trk["markers_matched"] == 8 and trk["false_locks"] == claimed("tracking_sample", "locks") == 0

@@ -13,10 +13,12 @@ from sandtrack_tui.cli import main
 from sandtrack_tui.errors import SandtrackError
 from sandtrack_tui.regression import (
     TrainConfig,
+    coverage,
     load_model,
     load_points,
     outside_training,
     predict,
+    predict_with_sd,
     split_by_frame,
     train,
 )
@@ -163,7 +165,7 @@ def test_cli_train_json_and_project(tmp_path, rig, capsys):
     assert code == 0
     out = json.loads(capsys.readouterr().out)
     for key in ("points", "mlp_mean_error_mm", "mlp_sd_mm", "r2_x", "r2_y", "r2_z", "triangulation_mean_error_mm",
-                "residual_mean_error_mm", "train_seconds"):
+                "residual_mean_error_mm", "train_seconds", "mlp_coverage95_pct_x", "residual_coverage95_pct_z"):
         assert key in out
     assert out["points"] == 2500 and out["triangulation_mean_error_mm"] < 0.57  # measured 0.38
     with Project.open(tmp_path / "p.sandtrack") as proj:
@@ -200,3 +202,67 @@ def test_small_validation_sets_are_measured_every_epoch_and_both_inference_paths
     big = predict(model, px)  # torch
     small = np.concatenate([predict(model, px[i:i + 50]) for i in range(0, len(px), 50)])  # numpy
     assert np.allclose(big, small, atol=1e-3)
+
+
+def test_spread_covers_95_percent_of_errors_on_unseen_poses(trained, rig):
+    model, _ = trained
+    m = model.metrics
+    for method in ("mlp", "residual"):
+        for axis in "xyz":
+            assert 91.0 <= m[f"{method}_coverage95_pct_{axis}"] <= 99.0  # the test split's own figure
+    fresh = calibration_points(rig, n_points=3000, seed=42)
+    px, truth = fresh[["xs", "ys", "xf", "yf"]].to_numpy(), fresh[["X_mm", "Y_mm", "Z_mm"]].to_numpy()
+    for method in ("mlp", "residual"):
+        pred, sd = predict_with_sd(model, px, method)
+        inside = np.isfinite(sd).all(axis=1)
+        assert inside.mean() > 0.97
+        cov = coverage(pred - truth, sd)
+        assert ((cov > 0.92) & (cov < 0.985)).all(), (method, cov)
+    # the spread follows the error over the volume: the fifth of the rows it gives the widest sd err more than
+    # the fifth it gives the narrowest, in proportion
+    for method in ("mlp", "residual"):
+        pred, sd = predict_with_sd(model, px, method)
+        err = np.abs(pred - truth)
+        for k in range(3):
+            ok = np.isfinite(sd[:, k])
+            lo, hi = np.quantile(sd[ok, k], [0.2, 0.8])
+            narrow, wide = sd[ok, k] < lo, sd[ok, k] > hi
+            sd_ratio = sd[ok][wide, k].mean() / sd[ok][narrow, k].mean()
+            err_ratio = err[ok][wide, k].mean() / err[ok][narrow, k].mean()
+            assert sd_ratio > 1.35 and abs(err_ratio / sd_ratio - 1) < 0.25, (method, k, sd_ratio, err_ratio)
+
+
+def test_pixel_noise_above_the_calibration_points_is_propagated(trained, rig):
+    """Tracked pixels noisier than the calibration points (1 px against 0.3): the residual variant's error is
+    then mostly that noise, and only its propagation through the Jacobian keeps the 95 % interval honest."""
+    model, _ = trained
+    fresh = calibration_points(rig, n_points=3000, seed=43, noise_px=0.0)
+    px = fresh[["xs", "ys", "xf", "yf"]].to_numpy()
+    px = px + np.random.default_rng(5).normal(0, 1.0, px.shape)
+    truth = fresh[["X_mm", "Y_mm", "Z_mm"]].to_numpy()
+    pred, bare = predict_with_sd(model, px, "residual")
+    assert coverage(pred - truth, bare).max() < 0.75  # the spread alone claims too much
+    pred, sd = predict_with_sd(model, px, "residual", pixel_sd=np.full(4, 1.0))
+    cov = coverage(pred - truth, sd)
+    assert ((cov > 0.93) & (cov < 0.975)).all(), cov
+    same, _ = predict_with_sd(model, px, "residual", pixel_sd=np.full((len(px), 4), 1.0))
+    assert np.allclose(same, pred)
+
+
+def test_no_confidence_outside_the_training_volume_and_old_files_load(trained, rig, tmp_path):
+    model, _ = trained
+    far = np.array([[0.0, -250.0, 0.0], [380.0, 80.0, 0.0], [0.0, 80.0, -480.0], [0.0, 60.0, 0.0]])
+    px = np.hstack([rig.project_world("side", far), rig.project_world("front", far)])
+    for method in ("mlp", "residual"):
+        xyz, sd = predict_with_sd(model, px, method, pixel_sd=0.3)
+        assert np.isfinite(xyz).all() and np.isnan(sd[:3]).all() and np.isfinite(sd[3]).all()
+    model.save(tmp_path / "m.pt")
+    again = load_model(tmp_path / "m.pt")
+    assert np.allclose(predict_with_sd(again, px, "mlp")[1][3], predict_with_sd(model, px, "mlp")[1][3])
+    doc = torch.load(tmp_path / "m.pt", weights_only=True)
+    doc["version"] = 1
+    del doc["spread"]
+    torch.save(doc, tmp_path / "v1.pt")
+    old = load_model(tmp_path / "v1.pt")
+    xyz, sd = predict_with_sd(old, px, "mlp")
+    assert np.isfinite(xyz).all() and np.isnan(sd).all()

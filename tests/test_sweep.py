@@ -90,3 +90,21 @@ def test_bad_sweep_tables_are_one_line(tmp_path, capsys):
     assert main(["sweep", str(tmp_path / "c.csv")]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "nothing to rank" in err[0]
+
+
+def test_sweep_ranks_by_chi2_given_the_experiment_uncertainty(synthetic_sweep, capsys):
+    runs_csv, _truth, _target = synthetic_sweep
+    folder = runs_csv.parent
+    traj_only = folder / "runs_trajectories.csv"
+    pd.read_csv(runs_csv).drop(columns=["repose"]).to_csv(traj_only, index=False)
+    base = ["sweep", str(traj_only), "--experiment", str(folder / "experiment.csv"), "--dem-units", "mm", "--json"]
+    assert main([*base, "--metric", "chi2_reduced"]) == 1  # the experiment file has no sd columns
+    err = capsys.readouterr().err
+    assert "--exp-sd-mm" in err and len(err.strip().splitlines()) == 1
+    assert main([*base, "--metric", "chi2_reduced", "--exp-sd-mm", "0.3"]) == 0
+    by_chi2 = pd.DataFrame(json.loads(capsys.readouterr().out)["runs"])
+    assert main(base) == 0
+    by_rmse = pd.DataFrame(json.loads(capsys.readouterr().out)["runs"])
+    # the same noise everywhere: χ² per dof orders the runs as the RMSE does, and says which are consistent
+    assert by_chi2["run"].tolist()[:3] == by_rmse["run"].tolist()[:3]
+    assert (np.diff(by_chi2["chi2_reduced"]) >= 0).all() and by_chi2["consistent"].iloc[-1] == False  # noqa: E712

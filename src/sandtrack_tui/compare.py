@@ -26,6 +26,15 @@ Fréchet distance, normalised DTW, maximum deviation, error drift (slope of the 
 mm/s). A particle is flagged when its RMSE or its drift is an outlier among the particles (above
 the median + 4 robust sigmas) and its RMSE exceeds `flag_mm`.
 
+Consistency in units of the measurement's error (`consistency`): when the experiment carries
+``sd_X_mm, sd_Y_mm, sd_Z_mm`` (and optionally ``cov_XY_mm2, cov_XZ_mm2, cov_YZ_mm2``), or `exp_sd_mm`
+stands in for them, each sample's difference is weighed against the combined covariance (the
+experiment's plus `dem_sd_mm`² per axis): χ² per particle and per run with effective degrees of freedom
+(the time-shift fit and the samples' correlation along a trajectory accounted for), its p-value, the
+share of samples within the 95 % band, and a verdict per run: consistent when p >= `alpha`. Rows whose
+sd is NaN (e.g. a network's XYZ outside its training volume) count in the RMSE but not in the χ².
+Without sd columns and without `exp_sd_mm` the χ² part is not computed, and the summary says why.
+
 DTW, pinned here: Euclidean local cost d(i, j); step pattern "symmetric2": D(i, j) = min(D(i-1, j)
 + d, D(i, j-1) + d, D(i-1, j-1) + 2 d), D(0, 0) = 2 d(0, 0), no window; normalised DTW = D(n-1,
 m-1) / (n + m), a weighted mean distance in mm (every path has total weight n + m).
@@ -41,9 +50,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from . import consistency as K
 from .errors import SandtrackError
 
 AXES = ("X_mm", "Y_mm", "Z_mm")
+SD_COLUMNS = ("sd_X_mm", "sd_Y_mm", "sd_Z_mm")
+COV_COLUMNS = ("cov_XY_mm2", "cov_XZ_mm2", "cov_YZ_mm2")
+CHI2_KEYS = ("chi2_reduced", "p_value", "within_95_pct", "samples_eff")
 UNOBSERVED = ("occluded", "lost")  # point statuses whose pixel is a prediction, not a measurement
 METRICS = ["rmse_3d_mm", "rmse_x_mm", "rmse_y_mm", "rmse_z_mm", "final_error_mm", "frechet_mm", "dtw_norm_mm",
            "max_dev_mm", "drift_mm_per_s"]
@@ -172,13 +185,23 @@ def experiment_table(df: pd.DataFrame, method: str | None = None, source: str = 
             if method not in methods:
                 raise SandtrackError(f"{source}: no rows with method {method!r}")
             df = df[df["method"] == method]
-    out = df[need].apply(pd.to_numeric, errors="coerce")
-    out = out[np.isfinite(out.to_numpy()).all(axis=1) & measured_rows(df)]
+    extra = [c for c in (*SD_COLUMNS, *COV_COLUMNS) if c in df.columns]
+    if any(c in extra for c in SD_COLUMNS) and not all(c in extra for c in SD_COLUMNS):
+        raise SandtrackError(f"{source}: give all of {', '.join(SD_COLUMNS)} or none")
+    out = df[need + extra].apply(pd.to_numeric, errors="coerce")
+    out = out[np.isfinite(out[need].to_numpy()).all(axis=1) & measured_rows(df)]
     if out.empty:
         raise SandtrackError(f"{source}: no rows with a finite time and a 3D position from observed pixels")
     out["marker"] = out["marker"].astype(np.int64)
     return out.sort_values(["marker", "time_s"], kind="stable").drop_duplicates(["marker", "time_s"]).reset_index(
         drop=True)
+
+
+def has_sd(exp: pd.DataFrame) -> bool:
+    """Whether an experiment table carries per-point uncertainties: sd columns, not all empty (a table
+    whose XYZ method gives none is treated as one without them)."""
+    return all(c in exp.columns for c in SD_COLUMNS) and bool(np.isfinite(exp[list(SD_COLUMNS)].to_numpy(
+        float)).all(axis=1).any())
 
 
 def measured_rows(df: pd.DataFrame) -> np.ndarray:
@@ -259,8 +282,10 @@ def match_particles(exp: pd.DataFrame, dem: pd.DataFrame, how: str = "auto",
 class _Pairs:
     """Per matched pair: experiment samples and the DEM track, ready for fast shifted interpolation."""
 
-    def __init__(self, exp: pd.DataFrame, dem: pd.DataFrame, pairs: dict[int, int]):
+    def __init__(self, exp: pd.DataFrame, dem: pd.DataFrame, pairs: dict[int, int], exp_sd_mm: float | None = None,
+                 dem_sd_mm: float = 0.0):
         self.items = []
+        self.covs: dict[int, np.ndarray] = {}  # marker -> (n, 3, 3) combined covariance of its samples
         eg = dict(tuple(exp.groupby("marker")))
         dg = dict(tuple(dem.groupby("particle_id")))
         for m, pid in sorted(pairs.items()):
@@ -269,18 +294,33 @@ class _Pairs:
                 continue
             self.items.append((m, pid, e["time_s"].to_numpy(), e[list(AXES)].to_numpy(),
                                d["time_s"].to_numpy(), d[list(AXES)].to_numpy()))
+            if exp_sd_mm is not None:
+                self.covs[m] = K.covariances(np.full((len(e), 3), float(exp_sd_mm)), None, dem_sd_mm)
+            elif all(c in e.columns for c in SD_COLUMNS):
+                cov = e[list(COV_COLUMNS)].to_numpy(float) if all(c in e.columns for c in COV_COLUMNS) else None
+                self.covs[m] = K.covariances(e[list(SD_COLUMNS)].to_numpy(float), cov, dem_sd_mm)
         if not self.items:
             raise SandtrackError("matched particles have fewer than two samples each")
 
     def aligned(self, shift: float, item):
         """Experiment samples within the DEM's span (shifted) and the DEM interpolated there."""
+        t, xe, xi, _ = self._aligned(shift, item)
+        return t, xe, xi
+
+    def aligned_cov(self, shift: float, item):
+        """As `aligned`, plus the samples' combined covariance (n, 3, 3), or None without uncertainties."""
+        t, xe, xi, ok = self._aligned(shift, item)
+        cov = self.covs.get(item[0])
+        return t, xe, xi, None if cov is None else cov[ok]
+
+    def _aligned(self, shift: float, item):
         m, pid, te, xe, td, xd = item
         tq = te - shift
         ok = (tq >= td[0]) & (tq <= td[-1])
         if ok.sum() < 2:
-            return te[ok], xe[ok], np.zeros((ok.sum(), 3))
+            return te[ok], xe[ok], np.zeros((ok.sum(), 3)), ok
         xi = np.column_stack([np.interp(tq[ok], td, xd[:, k]) for k in range(3)])
-        return te[ok], xe[ok], xi
+        return te[ok], xe[ok], xi, ok
 
     def rmse(self, shift: float) -> float:
         sq, n = 0.0, 0
@@ -333,12 +373,22 @@ def compare(exp: pd.DataFrame, dem: pd.DataFrame, name: str = "dem", match: str 
             max_lag_s: float = 0.5, onset_mm: float = 3.0, exp_tool: pd.DataFrame | None = None,
             dem_tool: pd.DataFrame | None = None, time_shift_s: float | None = None, flag_mm: float = 2.0,
             max_match_mm: float = 50.0, exp_onset_s: float | None = None,
-            dem_onset_s: float | None = None) -> Comparison:
+            dem_onset_s: float | None = None, dem_sd_mm: float = 0.0, exp_sd_mm: float | None = None,
+            alpha: float = 0.05) -> Comparison:
     """Align and compare (see module docstring). `time_shift_s` given: no alignment search.
-    The tool's onset on each side: `*_onset_s` if given, else from `*_tool` tracks."""
+    The tool's onset on each side: `*_onset_s` if given, else from `*_tool` tracks. Uncertainty: the
+    experiment's sd columns, else `exp_sd_mm` per axis (None: no χ²), plus `dem_sd_mm` per axis."""
+    for label, v in (("DEM sd", dem_sd_mm), ("experiment sd", exp_sd_mm)):
+        if v is not None and not (np.isfinite(v) and v >= 0):
+            raise SandtrackError(f"{label} must be a number >= 0 mm, got {v}")
+    if not 0 < alpha < 1:
+        raise SandtrackError(f"the consistency level must lie between 0 and 1, got {alpha}")
     exp = experiment_table(exp)
     pairs_map = match_particles(exp, dem, match, max_match_mm)
-    pairs = _Pairs(exp, dem, pairs_map)
+    with_sd = has_sd(exp)
+    if not with_sd and exp_sd_mm is None:
+        exp = exp.drop(columns=[c for c in (*SD_COLUMNS, *COV_COLUMNS) if c in exp.columns])
+    pairs = _Pairs(exp, dem, pairs_map, None if with_sd else exp_sd_mm, dem_sd_mm)
     onset: dict = {"source": None}
     if time_shift_s is None:
         start = None
@@ -368,15 +418,15 @@ def compare(exp: pd.DataFrame, dem: pd.DataFrame, name: str = "dem", match: str 
         shift = float(time_shift_s)
         onset = {"source": "given"}
 
-    per, errors = _metrics(pairs, shift, flag_mm, distances=False)
+    per, errors, _ = _metrics(pairs, shift, flag_mm, distances=False)
     if time_shift_s is None and per["flagged"].any() and (~per["flagged"]).sum() >= 1:
         # Re-align without the outliers: a drifting particle would pull the shift towards itself.
         keep = set(per.loc[~per["flagged"], "marker"].astype(int))
         clean = _Pairs.__new__(_Pairs)
-        clean.items = [it for it in pairs.items if it[0] in keep]
+        clean.items, clean.covs = [it for it in pairs.items if it[0] in keep], pairs.covs
         shift, _ = align_time(clean, shift, min(max_lag_s, 3.0 / fps), 1.0 / fps)
         onset["realigned_without"] = sorted(set(pairs_map) - keep)
-    per, errors = _metrics(pairs, shift, flag_mm)
+    per, errors, parts = _metrics(pairs, shift, flag_mm, fps=fps, shift_fitted=time_shift_s is None)
     summary = {"particles": len(per), "time_shift_s": shift, "time_shift_frames": shift * fps,
                "flagged_markers": per.loc[per["flagged"], "marker"].astype(int).tolist()}
     for col in METRICS:
@@ -385,16 +435,51 @@ def compare(exp: pd.DataFrame, dem: pd.DataFrame, name: str = "dem", match: str 
         summary[f"{col}_max"] = float(per[col].max())
     all_sq = sum(float((e["err_3d_mm"] ** 2).sum()) for e in errors.values())
     summary["rmse_3d_mm_all"] = float(np.sqrt(all_sq / sum(len(e) for e in errors.values())))
+    summary.update(_run_consistency(per, parts, exp, with_sd, exp_sd_mm, dem_sd_mm, alpha))
     return Comparison(name, shift, onset, pairs_map, per, summary, errors)
 
 
-def _metrics(pairs: _Pairs, shift: float, flag_mm: float, distances: bool = True) -> tuple[pd.DataFrame, dict]:
-    rows, errors = [], {}
-    for item in pairs.items:
+def _run_consistency(per: pd.DataFrame, parts: list[K.Chi2], exp: pd.DataFrame, with_sd: bool,
+                     exp_sd_mm: float | None, dem_sd_mm: float, alpha: float) -> dict:
+    """The run's χ² over its particles (independent of each other), its verdict and what it rests on."""
+    out: dict = {"alpha": alpha, "dem_sd_mm": dem_sd_mm}
+    if with_sd and exp_sd_mm is not None:
+        out["note"] = f"the experiment's own sd columns were used, not the assumed {exp_sd_mm:g} mm"
+    if with_sd:
+        out["uncertainty"] = "the experiment's sd columns" + (" and covariances" if all(
+            c in exp.columns for c in COV_COLUMNS) else "")
+    elif exp_sd_mm is not None:
+        out["uncertainty"] = f"an assumed experiment sd of {exp_sd_mm:g} mm per axis (the table has no sd columns)"
+    else:
+        out.update({"uncertainty": None, "chi2_reduced": float("nan"), "consistent": None,
+                    "verdict": "no χ²: the experiment carries no sd columns (an export from before uncertainties?); "
+                               "give an assumed sd per axis (--exp-sd-mm) to test consistency"})
+        return out
+    if dem_sd_mm > 0:
+        out["uncertainty"] += f" and a DEM sd of {dem_sd_mm:g} mm per axis"
+    run = K.combine(parts)
+    out.update(run.to_dict())
+    out["samples_without_sd"] = int(per["samples"].sum() - run.samples)
+    if run.samples == 0:
+        out.update({"consistent": None, "verdict": "no χ²: no sample has a finite uncertainty"})
+        return out
+    out["consistent"] = bool(run.p_value >= alpha)
+    word = "consistent" if out["consistent"] else "NOT consistent"
+    out["verdict"] = (f"{word} with the experiment at the {100 * alpha:g} % level: χ²/dof {run.reduced:.2f}, "
+                      f"p = {run.p_value:.2g} ({run.samples} samples, as {run.dof_eff / 3:.1f} independent ones); "
+                      f"{100 * run.within / run.samples:.1f} % within the 95 % band")
+    return out
+
+
+def _metrics(pairs: _Pairs, shift: float, flag_mm: float, distances: bool = True, fps: float = 50.0,
+             shift_fitted: bool = True) -> tuple[pd.DataFrame, dict, list[K.Chi2]]:
+    """Per-particle metrics, the aligned samples per marker, and the particles' χ² (with uncertainties)."""
+    rows, errors, parts = [], {}, []
+    usable = [it for it in pairs.items if len(pairs.aligned(shift, it)[0]) >= 2]
+    share = 1.0 / max(sum(it[0] in pairs.covs for it in usable), 1) if shift_fitted else 0.0
+    for item in usable:
         m, pid = item[0], item[1]
-        t, xe, xi = pairs.aligned(shift, item)
-        if len(t) < 2:
-            continue
+        t, xe, xi, cov = pairs.aligned_cov(shift, item)
         diff = xe - xi
         err = np.linalg.norm(diff, axis=1)
         slope = float(np.polyfit(t - t[0], err, 1)[0]) if t[-1] > t[0] else 0.0
@@ -413,6 +498,15 @@ def _metrics(pairs: _Pairs, shift: float, flag_mm: float, distances: bool = True
         errors[m] = pd.DataFrame({"time_s": t, "err_3d_mm": err, "exp_X_mm": xe[:, 0], "exp_Y_mm": xe[:, 1],
                                   "exp_Z_mm": xe[:, 2], "dem_X_mm": xi[:, 0], "dem_Y_mm": xi[:, 1],
                                   "dem_Z_mm": xi[:, 2]})
+        if cov is not None:
+            w, _ = K.whiten(diff, cov)
+            part = K.chi2_of_track(np.rint((t - t[0]) * fps), w, share)
+            parts.append(part)
+            rows[-1].update({k: part.to_dict()[k] for k in ("chi2", "chi2_dof", "chi2_reduced", "dof_eff",
+                                                            "samples_eff", "p_value", "within_95_pct")})
+            sd = np.sqrt(np.diagonal(cov, axis1=1, axis2=2))
+            errors[m] = errors[m].assign(sd_X_mm=sd[:, 0], sd_Y_mm=sd[:, 1], sd_Z_mm=sd[:, 2],
+                                         norm_dist=np.sqrt((w ** 2).sum(axis=1)))
     if not rows:
         raise SandtrackError("the experiment and DEM trajectories do not overlap in time after alignment")
     per = pd.DataFrame(rows)
@@ -422,7 +516,7 @@ def _metrics(pairs: _Pairs, shift: float, flag_mm: float, distances: bool = True
         per["frechet_mm"] = [f for f, _ in dist]
         per["dtw_norm_mm"] = [d for _, d in dist]
     per["flagged"] = _flags(per, flag_mm)
-    return per, errors
+    return per, errors, parts
 
 
 def _flags(per: pd.DataFrame, flag_mm: float) -> np.ndarray:
@@ -436,14 +530,30 @@ def _flags(per: pd.DataFrame, flag_mm: float) -> np.ndarray:
     return out & (per["rmse_3d_mm"].to_numpy(float) > flag_mm)
 
 
-def rank(comparisons: list[Comparison], by: str = "rmse_3d_mm_all") -> pd.DataFrame:
-    """DEM runs ranked by agreement (lower is better): overall RMSE, then median Fréchet."""
-    rows = [{"rank": 0, "name": c.name, "rmse_3d_mm_all": c.summary["rmse_3d_mm_all"],
+def rank(comparisons: list[Comparison], by: str = "auto") -> pd.DataFrame:
+    """DEM runs ranked by agreement (lower is better). by "chi2_reduced": the χ² per degree of freedom
+    (the differences in units of their uncertainty); "rmse_3d_mm_all": the overall RMSE (then the median
+    Fréchet breaks ties); "auto": χ² when every run has one, else RMSE. Both ranks are given
+    (`rank` by the criterion used, `rank_rmse` by RMSE)."""
+    rows = [{"rank": 0, "name": c.name, "chi2_reduced": c.summary.get("chi2_reduced", float("nan")),
+             "p_value": c.summary.get("p_value", float("nan")), "consistent": c.summary.get("consistent"),
+             "within_95_pct": c.summary.get("within_95_pct", float("nan")),
+             "rmse_3d_mm_all": c.summary["rmse_3d_mm_all"], "rank_rmse": 0,
              "rmse_3d_mm_median": c.summary["rmse_3d_mm_median"], "frechet_mm_median": c.summary["frechet_mm_median"],
              "dtw_norm_mm_median": c.summary["dtw_norm_mm_median"], "time_shift_s": c.time_shift_s,
              "flagged": len(c.summary["flagged_markers"])} for c in comparisons]
-    df = pd.DataFrame(rows).sort_values([by, "frechet_mm_median"], kind="stable").reset_index(drop=True)
+    df = pd.DataFrame(rows)
+    if by == "auto":
+        by = "chi2_reduced" if len(df) and df["chi2_reduced"].notna().all() else "rmse_3d_mm_all"
+    if by not in ("chi2_reduced", "rmse_3d_mm_all"):
+        raise SandtrackError(f"unknown ranking {by!r} (chi2_reduced, rmse_3d_mm_all)")
+    if df[by].isna().any():
+        raise SandtrackError("cannot rank by χ²: a run has no χ² (the experiment carries no sd columns)")
+    by_rmse = df.sort_values(["rmse_3d_mm_all", "frechet_mm_median"], kind="stable").index
+    df.loc[by_rmse, "rank_rmse"] = np.arange(1, len(df) + 1)
+    df = df.sort_values([by, "frechet_mm_median"], kind="stable").reset_index(drop=True)
     df["rank"] = np.arange(1, len(df) + 1)
+    df.attrs["ranked_by"] = by
     return df
 
 
@@ -461,7 +571,10 @@ def plot_comparison(cmp: Comparison, out_dir: str | Path, max_particles: int = 5
     flagged = set(cmp.summary["flagged_markers"])
     for m in sorted(cmp.errors)[:max_particles]:
         e = cmp.errors[m]
-        fig, axes = plt.subplots(1, 3, figsize=(12, 4), constrained_layout=True)
+        banded = "sd_X_mm" in e.columns
+        fig, grid = plt.subplots(2 if banded else 1, 3, figsize=(12, 7.5 if banded else 4), constrained_layout=True,
+                                 squeeze=False)
+        axes = grid[0]
         for ax, (a, b) in zip(axes, (("X", "Y"), ("X", "Z"), ("Y", "Z")), strict=True):
             ax.plot(e[f"exp_{a}_mm"], e[f"exp_{b}_mm"], "-", color="tab:blue", label="experiment")
             ax.plot(e[f"dem_{a}_mm"], e[f"dem_{b}_mm"], "--", color="tab:orange", label="DEM")
@@ -471,14 +584,21 @@ def plot_comparison(cmp: Comparison, out_dir: str | Path, max_particles: int = 5
             ax.set_aspect("equal", adjustable="datalim")
             ax.grid(alpha=0.3)
         axes[0].legend(fontsize=8)
+        if banded:
+            _band_panels(grid[1], e)
         row = cmp.per_particle.set_index("marker").loc[m]
+        chi = f"  χ²/dof {row['chi2_reduced']:.2f}, p {row['p_value']:.2g}" if "chi2_reduced" in row and \
+            np.isfinite(row["chi2_reduced"]) else ""
         fig.suptitle(f"{cmp.name}: marker {m} vs particle {int(row['particle_id'])}  RMSE {row['rmse_3d_mm']:.2f} mm"
-                     f"{'  FLAGGED' if m in flagged else ''}")
+                     f"{chi}{'  FLAGGED' if m in flagged else ''}")
         p = out / f"{_safe(cmp.name)}_marker{m}.png"
         fig.savefig(p, dpi=90)
         plt.close(fig)
         files.append(p)
-    fig, ax = plt.subplots(figsize=(9, 4.5), constrained_layout=True)
+    banded = any("norm_dist" in e.columns for e in cmp.errors.values())
+    fig, axes = plt.subplots(2 if banded else 1, 1, figsize=(9, 8 if banded else 4.5), constrained_layout=True,
+                             squeeze=False)
+    ax = axes[0, 0]
     for m, e in sorted(cmp.errors.items()):
         ax.plot(e["time_s"], e["err_3d_mm"], color="tab:red" if m in flagged else "0.5",
                 lw=1.6 if m in flagged else 0.8, label=f"marker {m}" if m in flagged else None)
@@ -488,11 +608,36 @@ def plot_comparison(cmp: Comparison, out_dir: str | Path, max_particles: int = 5
     ax.grid(alpha=0.3)
     if flagged:
         ax.legend(fontsize=8)
+    if banded:
+        ax = axes[1, 0]
+        for m, e in sorted(cmp.errors.items()):
+            if "norm_dist" in e.columns:
+                ax.plot(e["time_s"], e["norm_dist"], color="tab:red" if m in flagged else "0.5",
+                        lw=1.6 if m in flagged else 0.8)
+        ax.axhline(np.sqrt(K.CHI2_95_3D), color="tab:green", lw=1.2, label="95 % band")
+        ax.set_xlabel("experiment time (s)")
+        ax.set_ylabel("distance in units of its uncertainty")
+        ax.set_title(cmp.summary.get("verdict", ""), fontsize=9)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
     p = out / f"{_safe(cmp.name)}_error_over_time.png"
     fig.savefig(p, dpi=90)
     plt.close(fig)
     files.append(p)
     return files
+
+
+def _band_panels(axes, e: pd.DataFrame) -> None:
+    """Per axis: DEM minus experiment over time, and the 95 % band of the combined uncertainty."""
+    for ax, a in zip(axes, "XYZ", strict=True):
+        t, band = e["time_s"].to_numpy(), K.Z95 * e[f"sd_{a}_mm"].to_numpy()
+        ax.fill_between(t, -band, band, color="tab:green", alpha=0.25, lw=0, label="95 % band")
+        ax.plot(t, e[f"dem_{a}_mm"] - e[f"exp_{a}_mm"], color="tab:orange", lw=1.0, label="DEM - experiment")
+        ax.axhline(0.0, color="k", lw=0.5)
+        ax.set_xlabel("experiment time (s)")
+        ax.set_ylabel(f"{a}: DEM - experiment (mm)")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
 
 
 def _safe(name: str) -> str:
@@ -545,9 +690,22 @@ def text_plot(series: list[tuple[str, np.ndarray, np.ndarray]], width: int = 60,
 
 
 def error_text_plot(cmp: Comparison, width: int = 60, height: int = 10, markers: list[int] | None = None) -> str:
-    """Terminal plot of the 3D error over time (flagged markers by default, else the worst three)."""
+    """Terminal plot over time of the flagged markers (else the three worst): with uncertainties, their
+    distance from the DEM in units of its uncertainty against the 95 % band's edge; else the 3D error."""
+    per = cmp.per_particle
+    banded = "chi2_reduced" in per.columns and per["chi2_reduced"].notna().any()
     if markers is None:
-        markers = cmp.summary["flagged_markers"] or cmp.per_particle.nlargest(3, "rmse_3d_mm")["marker"].tolist()
-    series = [(f"marker {m}", cmp.errors[m]["time_s"].to_numpy(), cmp.errors[m]["err_3d_mm"].to_numpy())
-              for m in markers if m in cmp.errors]
-    return text_plot(series, width, height, y_label="3D error (mm)", x_label="time (s)")
+        worst = per.nlargest(3, "chi2_reduced" if banded else "rmse_3d_mm")["marker"].tolist()
+        markers = cmp.summary["flagged_markers"] or worst
+    if not banded:
+        series = [(f"marker {m}", cmp.errors[m]["time_s"].to_numpy(), cmp.errors[m]["err_3d_mm"].to_numpy())
+                  for m in markers if m in cmp.errors]
+        return text_plot(series, width, height, y_label="3D error (mm)", x_label="time (s)")
+    series = [(f"marker {m}", cmp.errors[m]["time_s"].to_numpy(), cmp.errors[m]["norm_dist"].to_numpy())
+              for m in markers if m in cmp.errors and "norm_dist" in cmp.errors[m].columns]
+    if series:
+        t = np.concatenate([x for _, x, _ in series])
+        edge = np.sqrt(K.CHI2_95_3D)
+        series.append(("95 % band edge", np.array([t.min(), t.max()]), np.array([edge, edge])))
+    return text_plot(series, width, height, y_label="distance / its uncertainty (above the band edge: outside "
+                     "the 95 % band)", x_label="time (s)")

@@ -167,7 +167,20 @@ def _stage_regression(ctx) -> dict:
     if model.has_residual:
         res = np.linalg.norm(predict(model, x, method="residual") - t, axis=1)
         out["residual_mean_error_mm"] = float(res.mean())
+    out.update(_test_split_coverage(rows[ok], t, ctx["calibration"], model))
     return out
+
+
+def _test_split_coverage(rows, truth_xyz: np.ndarray, calibration, model) -> dict:
+    """The 95 % intervals of every method on the held-out calibration points, through `xyz PIXELS.csv`'s
+    own path: the share of true errors inside, per axis."""
+    from .groundtruth import coverage_by_method
+    from .xyz_pixels import camera_columns, xyz_from_pixels
+
+    pixels = rows[["xs", "ys", "xf", "yf"]].reset_index(drop=True)
+    table, _ = xyz_from_pixels(pixels, camera_columns(pixels.columns), calibration, model, method="all")
+    n_methods = len(table) // len(pixels)
+    return coverage_by_method(table, np.repeat(truth_xyz, n_methods, axis=0))
 
 
 def _stage_tracking(ctx) -> dict:
@@ -203,23 +216,29 @@ def _stage_tracking(ctx) -> dict:
 
 
 def _stage_xyz(ctx) -> dict:
-    from .groundtruth import score_xyz
+    from .groundtruth import coverage_by_method, score_xyz, xyz_truth
     from .xyz import compute_xyz
 
-    xyz = compute_xyz(ctx["project"], method="both")
+    xyz = compute_xyz(ctx["project"], method="all")
     ctx["xyz"] = xyz
     tri = score_xyz(xyz, ctx["truth"], ctx["id_map"], "triangulation")
     mlp = score_xyz(xyz, ctx["truth"], ctx["id_map"], "mlp")
-    return {"mean_error_mm": tri["mean_error_mm"], "p95_error_mm": tri["p95_error_mm"],
-            "points_scored": tri["points_scored"], "mlp_mean_error_mm": mlp["mean_error_mm"],
-            "mlp_p95_error_mm": mlp["p95_error_mm"]}
+    out = {"mean_error_mm": tri["mean_error_mm"], "p95_error_mm": tri["p95_error_mm"],
+           "points_scored": tri["points_scored"], "mlp_mean_error_mm": mlp["mean_error_mm"],
+           "mlp_p95_error_mm": mlp["p95_error_mm"]}
+    if "residual" in set(xyz["method"]):
+        out["residual_mean_error_mm"] = score_xyz(xyz, ctx["truth"], ctx["id_map"], "residual")["mean_error_mm"]
+    # the tracked markers' 95 % intervals, on the frames both cameras measured (tracked or manual)
+    measured = xyz[xyz["status_side"].isin(("tracked", "manual")) & xyz["status_front"].isin(("tracked", "manual"))]
+    out.update(coverage_by_method(measured, xyz_truth(measured, ctx["truth"], ctx["id_map"])))
+    return out
 
 
 def _stage_export(ctx) -> dict:
     from .trajectories import export
 
     out = ctx["work"] / "trajectories.csv"
-    df = ctx["xyz"].copy()
+    df = ctx["xyz"].copy()  # every method: the comparison scores each one's uncertainty
     # export the truth's marker numbers, so the comparison pairs particles by id
     df["marker"] = df["marker"].map(ctx["id_map"]).fillna(-1).astype(int)
     df = df[df.marker > 0]
@@ -239,12 +258,27 @@ def _stage_compare(ctx) -> dict:
     cmp = compare(exp, dem, name="particles")
     diff = ctx["truth"].dem_differences
     expected = float(diff["tool_start_side_time_s"]) - float(diff["time_shift_s"])
-    return {"recovered_shift_s": float(diff["tool_start_side_time_s"]) - cmp.time_shift_s,
-            "true_shift_s": float(diff["time_shift_s"]),
-            "shift_error_frames": abs(cmp.time_shift_s - expected) * 50.0,
-            "particles": int(cmp.summary["particles"]),
-            "flagged_particles": sorted(int(p) for p in cmp.summary["flagged_markers"]),
-            "drifting_particles": sorted(int(p) for p in diff.get("drifting_particles", []))}
+    out = {"recovered_shift_s": float(diff["tool_start_side_time_s"]) - cmp.time_shift_s,
+           "true_shift_s": float(diff["time_shift_s"]),
+           "shift_error_frames": abs(cmp.time_shift_s - expected) * 50.0,
+           "particles": int(cmp.summary["particles"]),
+           "flagged_particles": sorted(int(p) for p in cmp.summary["flagged_markers"]),
+           "drifting_particles": sorted(int(p) for p in diff.get("drifting_particles", []))}
+    # The DEM is the truth but for its drifting particles: with honest uncertainties the others are consistent
+    # with the experiment and the drifting ones are not.
+    for method in ("triangulation", "mlp", "residual"):
+        try:
+            c = compare(read_experiment(ctx["export_csv"], method), dem, name=method)
+        except SandtrackError:
+            continue
+        if c.summary.get("consistent") is None:
+            continue
+        per = c.per_particle
+        out[f"{method}_inconsistent_particles"] = sorted(int(m) for m in per.loc[per["p_value"] < c.summary["alpha"],
+                                                                                  "marker"])
+        out[f"{method}_within_95_pct_of_true_particles"] = float(
+            per.loc[~per["marker"].isin(out["drifting_particles"]), "within_95_pct"].mean())
+    return out
 
 
 def format_table(result: dict) -> str:

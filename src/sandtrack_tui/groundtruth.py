@@ -255,6 +255,36 @@ def score_xyz(xyz: pd.DataFrame, truth: SampleTruth, id_map: dict[int, int], met
     }
 
 
+def coverage_by_method(table: pd.DataFrame, truth_xyz: np.ndarray, k: float = 1.959963984540054) -> dict:
+    """Per method of an XYZ table (rows aligned with `truth_xyz`), over rows with a finite XYZ, sd and
+    truth: the share (%) of true errors within ±k sd per axis (k = 1.96: the 95 % interval) and how
+    many rows carried an sd. Methods whose rows carry no sd are left out."""
+    from .xyz import SD_COLUMNS
+
+    out: dict = {}
+    if not all(c in table.columns for c in SD_COLUMNS):
+        return out
+    err = table[["X_mm", "Y_mm", "Z_mm"]].to_numpy(float) - truth_xyz
+    sd = table[list(SD_COLUMNS)].to_numpy(float)
+    ok = np.isfinite(err).all(axis=1) & np.isfinite(sd).all(axis=1)
+    for method in dict.fromkeys(table["method"]):
+        sel = ok & (table["method"] == method).to_numpy()
+        if not sel.any():
+            continue
+        inside = np.abs(err[sel]) <= k * sd[sel]
+        for i, axis in enumerate("xyz"):
+            out[f"{method}_coverage95_pct_{axis}"] = float(100.0 * inside[:, i].mean())
+        out[f"{method}_rows_with_sd"] = int(sel.sum())
+    return out
+
+
+def xyz_truth(xyz: pd.DataFrame, truth: SampleTruth, id_map: dict[int, int]) -> np.ndarray:
+    """True XYZ (N, 3) of each row of a project's XYZ table (frame, marker), NaN where unknown."""
+    key = pd.DataFrame({"frame": xyz["frame"].to_numpy(), "marker": xyz["marker"].map(id_map).to_numpy()})
+    t = truth.trajectories[["frame", "marker", "X_mm", "Y_mm", "Z_mm"]].drop_duplicates(["frame", "marker"])
+    return key.merge(t, on=["frame", "marker"], how="left")[["X_mm", "Y_mm", "Z_mm"]].to_numpy(float)
+
+
 def true_points_xyz(points: pd.DataFrame, truth: SampleTruth) -> np.ndarray:
     """True world XYZ of calibration-point rows (side frame, corner_id), NaN where unknown."""
     t = truth.corners["side"][["frame", "corner_id", "X_mm", "Y_mm", "Z_mm"]]

@@ -10,8 +10,10 @@ RUNS.csv, one row per DEM run
 
 Agreement of a run
     angle error = run angle - experiment angle (deg); trajectory metric (default the overall 3D
-    RMSE, mm). Score = sum over the criteria of weight x |error| / (median |error| over the runs),
-    so each criterion's typical error counts one; runs are ranked by score, lowest first.
+    RMSE, mm; or ``chi2_reduced``: the run's χ² per degree of freedom against the experiment's
+    uncertainty, see `compare`, for which the experiment needs sd columns or an assumed sd).
+    Score = sum over the criteria of weight x |error| / (median |error| over the runs), so each
+    criterion's typical error counts one; runs are ranked by score, lowest first.
 
 Response surface
     Parameters are coded to [-1, 1] over the range the runs span (the DoE's box). Each response
@@ -40,7 +42,7 @@ import pandas as pd
 from .errors import SandtrackError
 
 RESERVED = {"run", "name", "angle_deg", "repose", "trajectories", "notes", "comment"}
-TRAJ_METRICS = ("rmse_3d_mm_all", "frechet_mm_median", "dtw_norm_mm_median", "final_error_mm_median")
+TRAJ_METRICS = ("rmse_3d_mm_all", "frechet_mm_median", "dtw_norm_mm_median", "final_error_mm_median", "chi2_reduced")
 TIE_PULL = 1e-3
 GRID_POINTS = 20000  # points of the box tried before the local search
 
@@ -228,8 +230,11 @@ def _compare_run(path: str, exp: pd.DataFrame, dem_kw: dict, cmp_kw: dict) -> di
     from .dem import read_dem
 
     cmp = compare(exp, read_dem(path, **dem_kw), name=Path(path).stem, **cmp_kw)
-    return {m: float(cmp.summary[m]) for m in TRAJ_METRICS} | {
+    out = {m: float(cmp.summary.get(m, float("nan"))) for m in TRAJ_METRICS} | {
         "time_shift_s": cmp.time_shift_s, "flagged": len(cmp.summary["flagged_markers"])}
+    if cmp.summary.get("consistent") is not None:
+        out |= {"p_value": float(cmp.summary["p_value"]), "consistent": bool(cmp.summary["consistent"])}
+    return out
 
 
 def _run_one(args) -> tuple[int, dict, str | None]:
@@ -255,6 +260,12 @@ def run_sweep(runs: pd.DataFrame, params: list[str], target_angle_deg: float | N
     cpu0 = time.process_time()
     if metric not in TRAJ_METRICS:
         raise SandtrackError(f"unknown trajectory metric {metric!r} ({', '.join(TRAJ_METRICS)})")
+    if metric == "chi2_reduced" and experiment is not None and (cmp_kw or {}).get("exp_sd_mm") is None:
+        from .compare import has_sd
+
+        if not has_sd(experiment):
+            raise SandtrackError("ranking by chi2_reduced needs the experiment's uncertainty: its table has no sd "
+                                 "columns (an older export); give an assumed sd per axis (--exp-sd-mm)")
     t0 = time.perf_counter()
     weights = {"angle": 1.0, "trajectory": 1.0} | (weights or {})
     table = runs.copy()

@@ -42,7 +42,7 @@ import numpy as np
 import pandas as pd
 
 from .errors import SandtrackError
-from .xyz import XYZ_COLUMNS, NoXYZ, pixel_columns, xyz_columns
+from .xyz import SD_COLUMNS, XYZ_COLUMNS, NoXYZ, pixel_columns, xyz_columns
 
 TIDY_COLUMNS = XYZ_COLUMNS  # a side/front project's; others: xyz.xyz_columns(cameras)
 FORMATS = ("csv", "parquet", "dltdv")
@@ -83,6 +83,9 @@ def table_cameras(df: pd.DataFrame) -> list[str]:
 def check_tidy(df: pd.DataFrame) -> pd.DataFrame:
     cameras = table_cameras(df)
     columns = xyz_columns(cameras)
+    absent_sd = [c for c in SD_COLUMNS if c not in df.columns]
+    if absent_sd:  # a table made without uncertainties: unknown, not zero
+        df = df.assign(**{c: np.nan for c in absent_sd})
     missing = [c for c in columns if c not in df.columns] if cameras else ["status_<camera>"]
     if missing:
         raise SandtrackError(f"trajectory table lacks columns: {', '.join(missing)}")

@@ -25,6 +25,9 @@ side/front project), marker and method, with the columns `xyz_columns(cameras)`:
   the image's axes; Z_mm is NaN. Where no method can give millimetres (one camera without a scale,
   cameras without a calibration or network: `NoXYZ`), `compute_pixels` gives the same table with
   method "pixels" and X_mm, Y_mm, Z_mm NaN: the pixel trajectories alone.
+- ``sd_X_mm, sd_Y_mm, sd_Z_mm``: 1-sigma uncertainty of X, Y, Z (mm). For "mlp" and "residual" rows the
+  network's spread (`regression.spread`: its error on calibration points it never saw, plus the pixels'
+  noise above theirs); NaN outside the training volume and for a model file without a spread.
 - ``residual_px``: RMS reprojection error of the XYZ through the calibration (px); a large value
   means the views do not agree (a bad track or a poor model). NaN without a calibration.
 
@@ -48,6 +51,7 @@ METHODS = ("triangulation", "mlp", "residual")
 METHOD_CHOICES = ("triangulation", "mlp", "residual", "both", "all")
 OUTSIDE_POLICIES = ("flag", "nan", "keep")
 NETWORK_CAMERAS = ("side", "front")  # the network's inputs: xs, ys, xf, yf
+SD_COLUMNS = ("sd_X_mm", "sd_Y_mm", "sd_Z_mm")
 _PIXEL_ALIASES = {"side": ("xs", "ys"), "front": ("xf", "yf")}
 # Worse statuses win when two observations of a camera are combined.
 _SEVERITY = {"manual": 0, "tracked": 1, "imported": 2, "interpolated": 3, "occluded": 4, "lost": 5,
@@ -68,7 +72,8 @@ def pixel_columns(camera: str) -> tuple[str, str]:
 def xyz_columns(cameras) -> list[str]:
     """Columns of the XYZ table of a project with these cameras (the first is the reference)."""
     return ["frame", "time_s", "marker", *(f"status_{c}" for c in cameras),
-            *(col for c in cameras for col in pixel_columns(c)), "X_mm", "Y_mm", "Z_mm", "method", "residual_px"]
+            *(col for c in cameras for col in pixel_columns(c)), "X_mm", "Y_mm", "Z_mm", *SD_COLUMNS, "method",
+            "residual_px"]
 
 
 XYZ_COLUMNS = xyz_columns(NETWORK_CAMERAS)
@@ -211,7 +216,7 @@ def compute_pixels(project, frames=None, times: dict | None = None) -> pd.DataFr
     obs = _observations(project, timeline, frames)
     n = len(obs["frame"])
     return _table(obs, timeline.cameras, [(np.full((n, 3), np.nan), np.full(n, np.nan),
-                                           np.full(n, "pixels", dtype=object))])
+                                           np.full(n, "pixels", dtype=object), np.full((n, 3), np.nan))])
 
 
 def xyz_at_frame(project, frame: int, method: str = "both", **kw) -> pd.DataFrame:
@@ -372,7 +377,7 @@ def _solve(obs: dict, cameras: list[str], methods: list[str], model, calibration
     ok = seen >= 2
     blocks = []
     for m in methods:
-        xyz = np.full((n, 3), np.nan)
+        xyz, sd = np.full((n, 3), np.nan), np.full((n, 3), np.nan)
         res = np.full(n, np.nan)
         label = np.full(n, m, dtype=object)
         if m == "triangulation":
@@ -381,8 +386,8 @@ def _solve(obs: dict, cameras: list[str], methods: list[str], model, calibration
                                                world=True)
         elif n:
             network_rows(m, model, calibration, np.hstack([pix[c] for c in NETWORK_CAMERAS]), outside, xyz, res,
-                         label)
-        blocks.append((xyz, res, label))
+                         label, sd)
+        blocks.append((xyz, res, label, sd))
     return _table(obs, cameras, blocks)
 
 
@@ -398,7 +403,8 @@ def _solve_scaled(project, obs: dict, camera: str, calibration) -> pd.DataFrame:
     n = len(obs["frame"])
     xyz = np.full((n, 3), np.nan)
     xyz[:, :2] = to_mm(obs["pixels"][camera], found[0], cam)
-    return _table(obs, [camera], [(xyz, np.full(n, np.nan), np.full(n, "scale", dtype=object))])
+    return _table(obs, [camera], [(xyz, np.full(n, np.nan), np.full(n, "scale", dtype=object),
+                                   np.full((n, 3), np.nan))])
 
 
 def _table(obs: dict, cameras: list[str], blocks: list) -> pd.DataFrame:
@@ -406,7 +412,7 @@ def _table(obs: dict, cameras: list[str], blocks: list) -> pd.DataFrame:
     n = len(obs["frame"])
     columns = xyz_columns(cameras)
     cols: dict[str, list] = {c: [] for c in columns}
-    for xyz, res, label in blocks:
+    for xyz, res, label, sd in blocks:
         for c in ("frame", "time_s", "marker"):
             cols[c].append(obs[c])
         for c in cameras:
@@ -416,6 +422,8 @@ def _table(obs: dict, cameras: list[str], blocks: list) -> pd.DataFrame:
             cols[yc].append(obs["pixels"][c][:, 1])
         for k, c in enumerate(("X_mm", "Y_mm", "Z_mm")):
             cols[c].append(xyz[:, k])
+        for k, c in enumerate(SD_COLUMNS):
+            cols[c].append(sd[:, k])
         cols["method"].append(label)
         cols["residual_px"].append(res)
     table = pd.DataFrame({c: np.concatenate(v) if v else np.zeros(0) for c, v in cols.items()})
@@ -430,19 +438,20 @@ def _table(obs: dict, cameras: list[str], blocks: list) -> pd.DataFrame:
 
 
 def network_rows(m: str, model, calibration, x: np.ndarray, outside: str, xyz: np.ndarray, res: np.ndarray,
-                 label: np.ndarray) -> None:
-    """Fill xyz, res and label (in place) for the rows of x (N, 4: xs, ys, xf, yf) without a missing
-    pixel, by the network ("mlp") or its residual variant: the reprojection residual through the
-    calibration (else the model's own), MLP rows outside the training volume flagged "mlp_outside"
-    (outside="flag"), emptied ("nan") or left ("keep")."""
-    from .regression import outside_training, predict
+                 label: np.ndarray, sd: np.ndarray) -> None:
+    """Fill xyz, res, label and sd (in place) for the rows of x (N, 4: xs, ys, xf, yf) without a
+    missing pixel, by the network ("mlp") or its residual variant: the reprojection residual through the
+    calibration (else the model's own), the sd of `regression.predict_with_sd` (each pixel's sd: the
+    camera's calibration RMSE), MLP rows outside the training volume flagged "mlp_outside"
+    (outside="flag"), emptied ("nan") or left ("keep"; their sd stays NaN)."""
+    from .regression import outside_training, predict_with_sd
     from .triangulation import reprojection_residual
 
     ok = np.isfinite(x).all(axis=1)
     if not ok.any():
         return
-    xyz[ok] = predict(model, x[ok], method=m)
     cal = calibration if calibration is not None else model.calibration
+    xyz[ok], sd[ok] = predict_with_sd(model, x[ok], method=m, pixel_sd=_camera_pixel_sd(cal))
     if cal is not None and {"side", "front"} <= set(cal.cameras):
         res[ok] = reprojection_residual(cal, {"side": x[ok, :2], "front": x[ok, 2:]}, cal.to_rig(xyz[ok]))
     if m == "mlp" and outside != "keep":
@@ -452,3 +461,12 @@ def network_rows(m: str, model, calibration, x: np.ndarray, outside: str, xyz: n
             label[out] = "mlp_outside"
         else:
             xyz[out] = np.nan
+
+
+def _camera_pixel_sd(calibration) -> np.ndarray | None:
+    """(4,) px for xs, ys, xf, yf: the side and front cameras' calibration RMSE, None if not known."""
+    cams = calibration.cameras if calibration is not None else {}
+    rmse = [getattr(cams.get(c), "rmse_px", None) for c in NETWORK_CAMERAS]
+    if any(r is None for r in rmse):
+        return None
+    return np.repeat(np.asarray(rmse, float), 2)

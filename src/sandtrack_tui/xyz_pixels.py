@@ -3,7 +3,8 @@
 A pixels table has one row per point and the pixels of each camera in two columns: ``xs, ys``
 (side) and ``xf, yf`` (front), or ``x_NAME, y_NAME`` for a camera NAME of the calibration, any number
 of cameras, NaN (an empty field) where a camera did not see the point. Every other column is passed
-through. The result adds ``X_mm, Y_mm, Z_mm, method, residual_px`` (see `xyz.py` for their meaning);
+through. The result adds ``X_mm, Y_mm, Z_mm, sd_X_mm, sd_Y_mm, sd_Z_mm, method, residual_px`` (see `xyz.py`
+for their meaning);
 with several methods each input row appears once per method, in input order. Triangulation uses every
 camera that saw a point (two or more); the network and its residual variant read the side and front
 pixels, as they were trained.
@@ -17,9 +18,17 @@ import numpy as np
 import pandas as pd
 
 from .errors import SandtrackError
-from .xyz import NETWORK_CAMERAS, check_choices, network_rows, pixel_columns, resolve_methods, wanted_methods
+from .xyz import (
+    NETWORK_CAMERAS,
+    SD_COLUMNS,
+    check_choices,
+    network_rows,
+    pixel_columns,
+    resolve_methods,
+    wanted_methods,
+)
 
-RESULT_COLUMNS = ["X_mm", "Y_mm", "Z_mm", "method", "residual_px"]
+RESULT_COLUMNS = ["X_mm", "Y_mm", "Z_mm", *SD_COLUMNS, "method", "residual_px"]
 COMMAND_LINE_NEEDS = {
     "calibration": "triangulation needs --calibration CAL.toml",
     "model": "the {method} method needs --model MODEL.pt (sandtrack train)",
@@ -83,7 +92,7 @@ def xyz_from_pixels(df: pd.DataFrame, cams: dict[str, tuple[str, str]], calibrat
     n = len(df)
     blocks = []
     for m in methods:
-        xyz, res = np.full((n, 3), np.nan), np.full(n, np.nan)
+        xyz, res, sd = np.full((n, 3), np.nan), np.full(n, np.nan), np.full((n, 3), np.nan)
         label = np.full(n, m, dtype=object)
         if m == "triangulation":
             used = {c: p for c, p in pix.items() if c in calibration.cameras}
@@ -91,9 +100,11 @@ def xyz_from_pixels(df: pd.DataFrame, cams: dict[str, tuple[str, str]], calibrat
                 xyz, res = triangulate(calibration, used, refine=refine, world=True)
         else:
             network_rows(m, model, calibration, np.hstack([pix[c] for c in NETWORK_CAMERAS]), outside, xyz, res,
-                         label)
+                         label, sd)
         out = base.copy()
         out["X_mm"], out["Y_mm"], out["Z_mm"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+        for k, c in enumerate(SD_COLUMNS):
+            out[c] = sd[:, k]
         out["method"] = label
         out["residual_px"] = res
         blocks.append(out)
@@ -115,7 +126,7 @@ def write_table(table: pd.DataFrame, path: str | Path | None) -> None:
     import pyarrow as pa
     import pyarrow.csv as pacsv
 
-    out = table.assign(**{c: table[c].round(4) for c in ("X_mm", "Y_mm", "Z_mm", "residual_px")})
+    out = table.assign(**{c: table[c].round(4) for c in ("X_mm", "Y_mm", "Z_mm", *SD_COLUMNS, "residual_px")})
     for c in out.columns:
         if out[c].dtype == object:  # mixed text columns: as text
             out[c] = out[c].astype("string")

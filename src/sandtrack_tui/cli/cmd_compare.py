@@ -38,6 +38,16 @@ def register(sub) -> None:
     p.add_argument("--onset-mm", type=float, default=3.0, help="motion onset threshold (mm, default 3)")
     p.add_argument("--flag-mm", type=float, default=2.0, help="never flag particles with RMSE below this (mm)")
     p.add_argument("--fps", type=float, help="experiment frame rate (default: from the data)")
+    u = p.add_argument_group("consistency in units of the measurement's error")
+    u.add_argument("--dem-sd-mm", type=float, default=0.0, metavar="MM",
+                   help="the DEM's own uncertainty per axis, added to the experiment's (default 0)")
+    u.add_argument("--exp-sd-mm", type=float, metavar="MM",
+                   help="the experiment's sd per axis when its table has no sd_X_mm, sd_Y_mm, sd_Z_mm columns "
+                        "(an older export); without it such a table gets no χ²")
+    u.add_argument("--alpha", type=float, default=0.05,
+                   help="a run is consistent with the experiment when its χ² p-value is at least this (default 0.05)")
+    u.add_argument("--rank-by", choices=["auto", "chi2", "rmse"], default="auto",
+                   help="rank runs by χ² per degree of freedom or by RMSE (default: χ² when every run has one)")
     p.add_argument("--plots", metavar="DIR", help="write PNG plots here")
     add_json_flag(p)
     p.set_defaults(func=run)
@@ -54,10 +64,16 @@ def _triple(text: str) -> tuple[float, float, float]:
 
 
 def run(args) -> int:
-    from ..compare import compare, error_text_plot, plot_comparison, rank, read_experiment, read_tool
+    from ..compare import compare, error_text_plot, has_sd, plot_comparison, rank, read_experiment, read_tool
     from ..dem import read_dem
 
     exp = read_experiment(args.experiment, args.method)
+    if not has_sd(exp):
+        log(f"compare: {args.experiment} has no sd columns (sd_X_mm, sd_Y_mm, sd_Z_mm): " + (
+            f"the experiment's sd is taken as {args.exp_sd_mm:g} mm per axis" if args.exp_sd_mm is not None
+            else "no χ² (give --exp-sd-mm to assume an sd per axis); runs ranked by RMSE"))
+        if args.rank_by == "chi2" and args.exp_sd_mm is None:
+            raise SandtrackError("cannot rank by χ²: the experiment carries no sd columns; give --exp-sd-mm")
     fps = args.fps
     if fps is None:
         dts = exp.groupby("marker")["time_s"].diff().dropna()
@@ -79,16 +95,16 @@ def run(args) -> int:
         cmp = compare(exp, dem, name=Path(path).stem if "*" not in path else path, match=args.match, fps=fps,
                       max_lag_s=args.max_lag, onset_mm=args.onset_mm, exp_tool=exp_tool, dem_tool=dem_tool,
                       time_shift_s=args.time_shift, flag_mm=args.flag_mm, exp_onset_s=args.exp_onset,
-                      dem_onset_s=args.dem_onset)
+                      dem_onset_s=args.dem_onset, dem_sd_mm=args.dem_sd_mm, exp_sd_mm=args.exp_sd_mm, alpha=args.alpha)
         cmp.summary["dem_units"] = dem.attrs.get("units")
         runs.append(cmp)
-    ranking = rank(runs)
+    ranking = rank(runs, {"auto": "auto", "chi2": "chi2_reduced", "rmse": "rmse_3d_mm_all"}[args.rank_by])
     plots = []
     if args.plots:
         for cmp in runs:
             plots += [str(p) for p in plot_comparison(cmp, args.plots)]
     result = {"experiment": str(args.experiment), "fps": fps, "runs": [c.to_dict() for c in runs],
-              "ranking": ranking.to_dict("records"), "plots": plots}
+              "ranking": ranking.to_dict("records"), "ranked_by": ranking.attrs["ranked_by"], "plots": plots}
     emit(result, args.json, text=_text(runs, ranking, fps, error_text_plot))
     return 0
 
@@ -96,7 +112,8 @@ def run(args) -> int:
 def _text(runs, ranking, fps, error_text_plot) -> str:
     lines = []
     cols = ["marker", "particle_id", "rmse_3d_mm", "rmse_x_mm", "rmse_y_mm", "rmse_z_mm", "final_error_mm",
-            "frechet_mm", "dtw_norm_mm", "max_dev_mm", "drift_mm_per_s", "flagged"]
+            "frechet_mm", "dtw_norm_mm", "max_dev_mm", "drift_mm_per_s", "chi2_reduced", "samples_eff", "p_value",
+            "within_95_pct", "flagged"]
     for c in runs:
         s = c.summary
         lines.append(f"== {c.name}: time shift {c.time_shift_s * 1000:+.1f} ms ({c.time_shift_s * fps:+.2f} frames; "
@@ -104,9 +121,17 @@ def _text(runs, ranking, fps, error_text_plot) -> str:
         lines.append(f"   RMSE 3D all {s['rmse_3d_mm_all']:.2f} mm, median {s['rmse_3d_mm_median']:.2f} mm; "
                      f"Fréchet median {s['frechet_mm_median']:.2f} mm; DTW median {s['dtw_norm_mm_median']:.2f} mm; "
                      f"flagged: {', '.join(map(str, s['flagged_markers'])) or 'none'}")
-        lines.append(c.per_particle[cols].to_string(index=False, float_format=lambda v: f"{v:.2f}"))
+        if s.get("uncertainty"):
+            lines.append(f"   uncertainty: {s['uncertainty']}"
+                         + (f"; {s['samples_without_sd']} samples without one left out of χ²"
+                            if s.get("samples_without_sd") else "") + (f" ({s['note']})" if s.get("note") else ""))
+        per = c.per_particle
+        lines.append(per[[k for k in cols if k in per.columns]].to_string(
+            index=False, float_format=lambda v: f"{v:.3g}" if abs(v) < 0.01 else f"{v:.2f}"))
         lines.append(error_text_plot(c))
+        lines.append(f"{c.name}: {s['verdict']}")
     if len(runs) > 1:
-        lines.append("== ranking (best first)")
-        lines.append(ranking.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
+        by = "χ² per degree of freedom" if ranking.attrs["ranked_by"] == "chi2_reduced" else "RMSE"
+        lines.append(f"== ranking (best first, by {by}; rank_rmse: by RMSE)")
+        lines.append(ranking.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
     return "\n".join(lines)

@@ -25,8 +25,14 @@ def register(sub) -> None:
     s = p.add_argument_group("ranking and fit")
     s.add_argument("--params", help="parameter columns, comma-separated (default: every numeric column)")
     s.add_argument("--metric", default="rmse_3d_mm_all",
-                   choices=["rmse_3d_mm_all", "frechet_mm_median", "dtw_norm_mm_median", "final_error_mm_median"],
-                   help="trajectory metric ranked (default rmse_3d_mm_all)")
+                   choices=["rmse_3d_mm_all", "frechet_mm_median", "dtw_norm_mm_median", "final_error_mm_median",
+                            "chi2_reduced"],
+                   help="trajectory metric ranked (default rmse_3d_mm_all; chi2_reduced: the differences in units "
+                        "of the combined uncertainty, see compare)")
+    s.add_argument("--dem-sd-mm", type=float, default=0.0, metavar="MM",
+                   help="the DEM's own uncertainty per axis, added to the experiment's (default 0)")
+    s.add_argument("--exp-sd-mm", type=float, metavar="MM",
+                   help="the experiment's sd per axis when its table has no sd columns (an older export)")
     s.add_argument("--weights", default="angle=1,trajectory=1", metavar="angle=W,trajectory=W",
                    help="weights of the criteria in the score (default 1 and 1)")
     d = p.add_argument_group("reading the runs' files")
@@ -83,6 +89,7 @@ def run(args) -> int:
         dts = exp.groupby("marker")["time_s"].diff().dropna()
         dts = dts[dts > 0]
         cmp_kw["fps"] = float(1.0 / dts.median()) if len(dts) else 50.0
+        cmp_kw |= {"dem_sd_mm": args.dem_sd_mm, "exp_sd_mm": args.exp_sd_mm}
     dem_kw = {"units": args.dem_units, "axes": args.axes, "offset_mm": _triple(args.offset_mm)}
     if args.dt:
         dem_kw["dt"] = args.dt

@@ -99,6 +99,11 @@ def _text(m: dict, out: Path) -> str:
             lines.append(f"  {name:<17} {m[f'{name}_mean_error_mm']:8.3f} {m[f'{name}_sd_mm']:6.3f} "
                          f"{m[f'{name}_median_mm']:7.3f} {m[f'{name}_p95_mm']:6.3f}")
     lines.append(f"  (predicting the mean: {m['baseline_mean_error_mm']:.1f} mm)")
+    for name in ("mlp", "residual"):
+        if f"{name}_coverage95_pct_x" in m:
+            cov = "  ".join(f"{a.upper()} {m[f'{name}_coverage95_pct_{a}']:.1f} %" for a in "xyz")
+            sd = " / ".join(f"{m[f'{name}_sd_median_mm_{a}']:.3f}" for a in "xyz")
+            lines.append(f"{name} spread: test errors within ±1.96 sd: {cov} (median sd X/Y/Z {sd} mm)")
     lines.append(f"MLP R²: X {m['r2_x']:.5f}  Y {m['r2_y']:.5f}  Z {m['r2_z']:.5f}")
     if m.get("test_outside_bounds"):
         lines.append(f"warning: {m['test_outside_bounds']} test points lie outside the training pixel range")

@@ -4,7 +4,7 @@ self-contained model file.
 Model file (`.pt`, written by `torch.save`, loadable with ``torch.load(weights_only=True)``): a dict
 of plain values and tensors only::
 
-    format: "sandtrack-regression", version: 1
+    format: "sandtrack-regression", version: 2 (version 1 files load, without a spread)
     config: training settings (hidden sizes, dropout, epochs, batch size, seed, ...)
     state_dict: MLP weights (4 pixel inputs xs, ys, xf, yf -> 3 outputs X, Y, Z in mm; layers.N.weight/bias)
     normalisation: in_mean, in_std (px), out_mean, out_std (mm)
@@ -14,6 +14,9 @@ of plain values and tensors only::
     residual: None, or {state_dict, res_mean, res_std, calibration_toml}: a second, lighter MLP
         (config residual_hidden) that learns the correction (truth - triangulation, mm) on top of
         triangulation with that calibration
+    spread: {"mlp": ..., "residual": ...} (version 2): per method a small net (standardised pixels -> log sd
+        per axis), err_scale (3, mm), scale (3, the validation split's factor), pixel_sd (4, px: the
+        calibration points' pixel noise inside the spread) and hidden; see `spread`
 
 The MLP only interpolates: outside the volume the training board covered its errors grow fast
 (tens of mm), so `outside_training` flags such queries.
@@ -31,11 +34,13 @@ from torch import nn
 from ..errors import SandtrackError
 
 FORMAT = "sandtrack-regression"
-VERSION = 1
+VERSION = 2
 STUDY_HIDDEN = (512, 1024, 256)
 BOUNDS_MARGIN = 0.02  # fraction of the training range tolerated beyond it, per input
 HULL_TOLERANCE_MM = 5.0  # distance outside the training hull still counted as inside
 SMALL_BATCH = 256  # rows up to which inference runs in numpy
+SPREAD_HIDDEN = (64, 64)
+Z95 = 1.959963984540054  # two-sided 95 % quantile of the normal distribution
 
 
 class MLP(nn.Module):
@@ -58,6 +63,39 @@ class MLP(nn.Module):
 
 
 @dataclass
+class Spread:
+    net: MLP  # standardised pixels -> log sd per axis, in units of err_scale
+    err_scale: np.ndarray  # (3,) mm: RMS training error per axis
+    scale: np.ndarray  # (3,) the validation split's factor per axis
+    pixel_sd: np.ndarray  # (4,) px (xs, ys, xf, yf): pixel noise already inside the spread; 0 where unknown
+
+    def sd(self, x_std: np.ndarray) -> np.ndarray:
+        """sd (N, 3) mm for standardised pixels (N, 4)."""
+        log_sd = np.clip(_forward(self.net, x_std), -20.0, 20.0)
+        return np.exp(log_sd) * self.err_scale * self.scale
+
+    def to_doc(self) -> dict:
+        def t(a):
+            return torch.as_tensor(np.asarray(a, dtype=np.float64))
+
+        return {"state_dict": {k: v.detach().cpu() for k, v in self.net.state_dict().items()},
+                "hidden": list(_hidden(self.net)), "err_scale": t(self.err_scale), "scale": t(self.scale),
+                "pixel_sd": t(self.pixel_sd)}
+
+    @classmethod
+    def from_doc(cls, doc: dict) -> Spread:
+        net = MLP(hidden=tuple(int(h) for h in doc["hidden"]), dropout=0.0)
+        net.load_state_dict(doc["state_dict"])
+        net.eval()
+        return cls(net, doc["err_scale"].numpy(), doc["scale"].numpy(), doc["pixel_sd"].numpy())
+
+
+def _hidden(net: MLP) -> tuple[int, ...]:
+    linear = [m for m in net.layers if isinstance(m, nn.Linear)]
+    return tuple(m.out_features for m in linear[:-1])
+
+
+@dataclass
 class RegressionModel:
     net: MLP
     in_mean: np.ndarray
@@ -73,6 +111,7 @@ class RegressionModel:
     res_mean: np.ndarray | None = None
     res_std: np.ndarray | None = None
     calibration_toml: str | None = None
+    spreads: dict[str, Spread] = field(default_factory=dict)  # method -> its spread (see `spread`)
     _calibration: object = field(default=None, repr=False)
 
     @property
@@ -103,6 +142,7 @@ class RegressionModel:
             "hull": t(self.hull),
             "metrics": {k: v for k, v in self.metrics.items() if isinstance(v, (int, float, str, bool))},
             "residual": None,
+            "spread": {m: sp.to_doc() for m, sp in self.spreads.items()},
         }
         if self.has_residual:
             doc["residual"] = {
@@ -147,6 +187,7 @@ def load_model(path: str | Path) -> RegressionModel:
             model.residual_net = _net_from_state(res["state_dict"], cfg, "residual_hidden")
             model.res_mean, model.res_std = res["res_mean"].numpy(), res["res_std"].numpy()
             model.calibration_toml = res["calibration_toml"]
+        model.spreads = {str(m): Spread.from_doc(d) for m, d in (doc.get("spread") or {}).items()}
     except (KeyError, RuntimeError, TypeError, AttributeError) as exc:
         raise SandtrackError(f"{p}: damaged model file ({exc})") from None
     return model

@@ -24,7 +24,7 @@ from scipy.spatial import ConvexHull, QhullError
 
 from ..errors import SandtrackError
 from .dataset import INPUTS, TARGETS, check_points, split_by_frame
-from .model import MLP, STUDY_HIDDEN, RegressionModel, hull_distance, outside_training, predict
+from .model import MLP, SPREAD_HIDDEN, STUDY_HIDDEN, RegressionModel, hull_distance, outside_training, predict
 
 ProgressFn = Callable[[int, float, float], None]  # (epoch, train loss, validation mean error mm)
 StopFn = Callable[[], bool]
@@ -48,13 +48,14 @@ class TrainConfig:
     residual: bool = True  # also train the residual variant when a calibration is given
     residual_epochs: int = 20
     residual_hidden: tuple[int, ...] = (256, 256)  # the correction is smooth and small: a light net suffices
+    spread_epochs: int = 40  # the spread's small net per method (see spread.py); 0: no spread
     device: str | None = None  # None: CUDA when present, else CPU
     threads: int | None = None  # CPU threads; None: all cores, or 1 when they are busy (see _fastest_threads)
 
     @classmethod
     def fast(cls, **kw) -> TrainConfig:
         """A quick configuration for tests and previews (same shape, few epochs)."""
-        base = {"epochs": 6, "residual_epochs": 3, "patience": 6, "batch_size": 256}
+        base = {"epochs": 6, "residual_epochs": 3, "patience": 6, "batch_size": 256, "spread_epochs": 15}
         return cls(**{**base, **kw})
 
     def total_epochs(self, with_residual: bool) -> int:
@@ -137,7 +138,25 @@ def _train_phases(cfg, calibration, device, x, y, xn, tr, va, in_mean, in_std, o
         info["residual_epochs_run"] = rinfo["epochs_run"]
         if rinfo["stopped"] == "user":
             info["stopped"] = "user"
+    if cfg.spread_epochs > 0:
+        _fit_spreads(model, cfg, calibration, x, y, xn, tr, va)
     return model, tri, info
+
+
+def _fit_spreads(model: RegressionModel, cfg: TrainConfig, calibration, x, y, xn, tr, va) -> None:
+    """Each method's spread (spread.py), from its errors on the training and validation rows; the
+    calibration's reprojection RMSE per camera is the pixel noise of the points, inside the spread."""
+    from .spread import fit_spread
+
+    rmse = [getattr(calibration.cameras.get(c), "rmse_px", None) if calibration is not None else None
+            for c in ("side", "front")]
+    pixel_sd = np.repeat([r if r is not None and np.isfinite(r) else 0.0 for r in rmse], 2)
+    methods = ["mlp", "residual"] if model.has_residual else ["mlp"]
+    for m in methods:
+        spread = fit_spread(xn, predict(model, x, method=m) - y, tr, va, seed=cfg.seed, pixel_sd=pixel_sd,
+                            epochs=cfg.spread_epochs)
+        if spread is not None:
+            model.spreads[m] = spread
 
 
 def _fastest_threads(cfg: TrainConfig, device) -> int:
@@ -170,6 +189,7 @@ def _config_dict(cfg: TrainConfig) -> dict:
     d = asdict(cfg)
     d["hidden"] = list(cfg.hidden)
     d["residual_hidden"] = list(cfg.residual_hidden)
+    d["spread_hidden"] = list(SPREAD_HIDDEN)
     d["device"] = cfg.device or ""
     return d
 
@@ -265,6 +285,22 @@ def error_stats(pred: np.ndarray, truth: np.ndarray, prefix: str) -> dict:
     return out
 
 
+def _coverage_metrics(model: RegressionModel, x: np.ndarray, y: np.ndarray) -> dict:
+    """Per method with a spread: the share of test errors within its 95 % interval (±1.96 sd) and the
+    median sd, per axis; over test rows inside the training volume (outside, sd is NaN)."""
+    from .spread import coverage, predict_with_sd
+
+    out = {}
+    for m in model.spreads:
+        pred, sd = predict_with_sd(model, x, m)
+        cov = coverage(pred - y, sd)
+        for k, axis in enumerate("xyz"):
+            out[f"{m}_coverage95_pct_{axis}"] = float(100.0 * cov[k])
+            out[f"{m}_sd_median_mm_{axis}"] = float(np.nanmedian(sd[:, k])) if np.isfinite(sd[:, k]).any() \
+                else float("nan")
+    return out
+
+
 def _metrics(model, df, tr, va, te, x, y, tri, info, train_seconds, device, threads) -> dict:
     m = {"points": int(len(df)), "train_points": int(tr.sum()), "val_points": int(va.sum()),
          "test_points": int(te.sum()), "frames": int(df["frame"].nunique()),
@@ -280,6 +316,7 @@ def _metrics(model, df, tr, va, te, x, y, tri, info, train_seconds, device, thre
         m.update(error_stats(tri[te], y[te], "triangulation"))
         if model.has_residual:
             m.update(error_stats(predict(model, x[te], method="residual"), y[te], "residual"))
+    m.update(_coverage_metrics(model, x[te], y[te]))
     m["test_outside_bounds"] = int(outside_training(model, x[te]).sum())
     m["test_outside_hull"] = int((hull_distance(model, y[te]) > 0).sum())
     m.update({"epochs_run": int(info["epochs_run"]), "best_epoch": int(info["best_epoch"]),

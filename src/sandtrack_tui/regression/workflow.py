@@ -16,7 +16,8 @@ from .train import ProgressFn, StopFn, TrainConfig, train
 PROJECT_KEYS = ["points", "mlp_mean_error_mm", "mlp_sd_mm", "mlp_median_mm", "mlp_p95_mm", "r2_x", "r2_y", "r2_z",
                 "triangulation_mean_error_mm", "triangulation_sd_mm", "residual_mean_error_mm", "residual_sd_mm",
                 "baseline_mean_error_mm", "test_points", "test_outside_bounds", "epochs_run", "best_epoch",
-                "stopped", "device", "threads", "train_seconds", "train_cpu_seconds"]
+                "stopped", "device", "threads", "train_seconds", "train_cpu_seconds",
+                *(f"{m}_coverage95_pct_{a}" for m in ("mlp", "residual") for a in "xyz")]
 
 
 def train_to_file(points: str | Path | pd.DataFrame, output: str | Path, calibration=None, project=None,

@@ -15,7 +15,8 @@ from ..core import core
 from .base import TaskScreen
 
 SUMMARY_KEYS = ("particles", "time_shift_s", "rmse_3d_mm_all", "rmse_3d_mm_median", "final_error_mm_median",
-                "frechet_mm_median", "dtw_norm_mm_median", "flagged_markers")
+                "frechet_mm_median", "dtw_norm_mm_median", "flagged_markers", "chi2_reduced", "samples_eff",
+                "p_value", "within_95_pct")
 
 
 class CompareScreen(TaskScreen):
@@ -47,7 +48,15 @@ class CompareScreen(TaskScreen):
                               ("by id, else nearest", "auto")], value="nearest", allow_blank=False, id="match",
                              compact=True)
                 yield Button("Compare", id="run", variant="primary", compact=True)
+            with Horizontal(classes="row"):
+                yield Label("DEM sd (mm):")
+                yield Input(value="0", id="dem_sd", compact=True, classes="short",
+                            tooltip="the DEM's own uncertainty per axis, added to the experiment's")
+                yield Label("experiment sd if not known (mm):")
+                yield Input(value="", id="exp_sd", compact=True, classes="short", placeholder="none: no χ²",
+                            tooltip="taken per axis when the XYZ carries no sd (a model file from before spreads)")
             yield self.progress_row()
+            yield Static("", id="verdict")
             yield Static("", id="summary")
             yield Static("", id="plot")
         yield Footer()
@@ -69,6 +78,13 @@ class CompareScreen(TaskScreen):
         if not text or not dem_path.exists():
             self.notify(f"file not found: {dem_path}", severity="error")
             return
+        try:
+            dem_sd = float(self.query_one("#dem_sd", Input).value.strip() or 0)
+            text_sd = self.query_one("#exp_sd", Input).value.strip()
+            exp_sd = float(text_sd) if text_sd else None
+        except ValueError:
+            self.notify("the sd fields take a number of mm (or nothing)", severity="error")
+            return
         method = str(self.query_one("#method", Select).value)
         match = str(self.query_one("#match", Select).value)
         fps = self.main.sources["side"].fps
@@ -83,7 +99,8 @@ class CompareScreen(TaskScreen):
             finally:
                 proj.close()
             dem = dem_mod.read_dem(dem_path)
-            result = cmp_mod.compare(exp, dem, name=dem_path.stem, match=match, fps=fps)
+            result = cmp_mod.compare(exp, dem, name=dem_path.stem, match=match, fps=fps, dem_sd_mm=dem_sd,
+                                     exp_sd_mm=exp_sd)
             return result, cmp_mod.error_text_plot(result, width=width, height=12)
 
         self.main.run_task("DEM comparison", job, on_result=self.show_result, refresh_points=False)
@@ -101,13 +118,16 @@ class CompareScreen(TaskScreen):
         parts = [summary]
         if len(per):
             cols = [c for c in ("marker", "particle_id", "rmse_3d_mm", "final_error_mm", "frechet_mm",
-                                "dtw_norm_mm", "flagged") if c in per.columns]
+                                "dtw_norm_mm", "chi2_reduced", "p_value", "within_95_pct", "flagged")
+                    if c in per.columns]
             table = Table(box=box.SIMPLE_HEAD, title="Per marker", title_justify="left")
             for c in cols:
                 table.add_column(c, justify="right")
             for r in per[cols].itertuples(index=False):
-                table.add_row(*(f"{v:.2f}" if isinstance(v, float) else str(v) for v in r),
+                table.add_row(*(f"{v:.2g}" if isinstance(v, float) and abs(v) < 0.01 else
+                                f"{v:.2f}" if isinstance(v, float) else str(v) for v in r),
                               style="red" if getattr(r, "flagged", False) else None)
             parts.append(table)
+        self.query_one("#verdict", Static).update(f"{cmp.name}: {cmp.summary.get('verdict', '')}")
         self.query_one("#summary", Static).update(Columns(parts, padding=(0, 4)))
         self.query_one("#plot", Static).update(plot)
