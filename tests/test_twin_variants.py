@@ -1,5 +1,6 @@
-"""The twin's harder cases (twin/variants.py): short excerpts rendered here, their truth checked against
-the pictures (the markers found where the truth says, in the output each variant writes)."""
+"""The twin's harder sand-box cases (twin/variants.py, listed in twin/catalog.py): short excerpts rendered
+here, their truth checked against the pictures (the markers found where the truth says, in the output each
+variant writes)."""
 
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ from sandtrack_tui.cli.cmd_sample import VARIANT_NAMES
 from sandtrack_tui.errors import SandtrackError
 from sandtrack_tui.tracking.appearance import learn
 from sandtrack_tui.tracking.seeding import detect_markers
-from sandtrack_tui.twin.variants import VARIANTS, excerpt, render_variant
+from sandtrack_tui.twin.catalog import VARIANTS, excerpt, render_variant
 from sandtrack_tui.video import FrameSource
 
 
