@@ -203,13 +203,13 @@ class ScatteredLayer:
             xz = self._step(xz, self.t0 + k * self.dt)
 
     def _scatter(self, rng) -> np.ndarray:
-        gap = 2 * self.radius * 1.02
+        gap = 2 * self.radius * 1.02  # touching, with a hair of sand between
         pts: list[np.ndarray] = []
         while len(pts) < self.COUNT:
             for _ in range(500):
                 if pts and rng.random() < 0.35:
                     a = rng.uniform(0, 2 * np.pi)
-                    p = pts[int(rng.integers(len(pts)))] + gap * 1.01 * np.array([np.cos(a), np.sin(a)])
+                    p = pts[int(rng.integers(len(pts)))] + gap * 1.001 * np.array([np.cos(a), np.sin(a)])
                 else:
                     p = np.array([rng.uniform(*self.REGION_X), rng.uniform(*self.REGION_Z)])
                 inside = self.REGION_X[0] <= p[0] <= self.REGION_X[1] and self.REGION_Z[0] <= p[1] <= self.REGION_Z[1]
