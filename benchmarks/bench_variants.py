@@ -12,6 +12,11 @@ hidden frames flagged, flagged frames truly hidden; plus the share of visible fr
 identity switches (a `tracked` point within 3 px of another marker's true centre) and the
 appearance models chosen, and the tracking step's CPU per marker and frame (decoding excluded).
 
+The crowds (catalog.CROWDS: `dense300`, `flume`, `flume-8bit`: hundreds of identical beads, to be detected
+in every frame and linked rather than seeded one by one) are not tracked here: `--crowds` renders them
+into the cache and loads them (every camera's frames through FrameSource, the truth files), one row
+each with the render's cost, its size on disk and what its truth holds.
+
 `python benchmarks/bench_variants.py [NAME ...]` runs some; figures print as a table. With `--why`,
 every false lock and every run of frames flagged while the marker was visible is listed too, with the
 tracker's own verdict at the run's first frame (its best match in the gate and the test it failed, or
@@ -38,14 +43,14 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
 from sandtrack_tui.camera import Calibration  # noqa: E402
-from sandtrack_tui.demo import cache_dir, renderer_version  # noqa: E402
+from sandtrack_tui.demo import cache_dir  # noqa: E402
 from sandtrack_tui.groundtruth import REPORTED, identity_switches, match_marker_ids, score_tracking, score_xyz  # noqa: E402
 from sandtrack_tui.store import Project  # noqa: E402
 from sandtrack_tui.tracking.matcher import TemplateMatcher  # noqa: E402
 from sandtrack_tui.tracking.run import accept_seeds, auto_seed, track_project  # noqa: E402
 from sandtrack_tui.tracking.seeding import marker_box, snap_to_marker  # noqa: E402
 from sandtrack_tui.tracking.tracker import MarkerTrack  # noqa: E402
-from sandtrack_tui.twin.variants import VARIANTS, render_variant  # noqa: E402
+from sandtrack_tui.twin.catalog import CROWDS, VARIANTS, cache_key, render_variant  # noqa: E402
 from sandtrack_tui.video import FrameSource  # noqa: E402
 from sandtrack_tui.xyz import compute_xyz  # noqa: E402
 
@@ -53,7 +58,7 @@ CLICK_OFF = (1.5, -1.0)
 
 
 def ensure_variant(name: str, seed: int = 0) -> Path:
-    out = cache_dir() / f"variant-{name}-seed{seed}-{renderer_version()}"
+    out = cache_dir() / f"variant-{name}-seed{seed}-{cache_key(name)}"
     if not (out / ".complete").is_file():
         if out.exists():
             shutil.rmtree(out)
@@ -283,8 +288,39 @@ def flag_causes(points: pd.DataFrame, truth: dict, ids: dict) -> str:
             f"camera at that frame {elsewhere(seen_at)}, tracked there {elsewhere(held_at)}")
 
 
+def load_crowd(name: str, seed: int = 0) -> dict:
+    """A crowd case rendered (once) and read back: its frames through FrameSource, its truth."""
+    folder = ensure_variant(name, seed)
+    info = json.loads((folder / "variant.json").read_text())
+    cams = list(info["cameras"])
+    truth = _truth(folder, cams)
+    out = {"variant": name, "cameras": len(cams), "frames": info["frames"], "render_cpu_s": info["render_cpu_s"],
+           "disk_mb": round(sum(f.stat().st_size for f in folder.rglob("*") if f.is_file()) / 1e6, 1)}
+    for cam in cams:
+        t = truth[cam]
+        with FrameSource(folder / info["videos"][cam], cache_mb=16) as src:
+            first, last = src.frame(0), src.frame(len(src) - 1)
+            out[f"{cam}.frames_read"] = len(src)
+            out[f"{cam}.size"] = f"{first.shape[1]}x{first.shape[0]}"
+            out[f"{cam}.luma_mean"] = round(float(np.mean([first.mean(), last.mean()])), 1)
+        per_frame = t.groupby("frame")
+        out[f"{cam}.markers"] = int(t.marker.nunique())
+        out[f"{cam}.markers_per_frame"] = round(float(per_frame.size().mean()), 1)
+        out[f"{cam}.visible_per_frame"] = round(float(per_frame.visible.sum().mean()), 1)
+        if "state" in t:
+            for state in ("rolling", "saltating"):
+                out[f"{cam}.{state}_per_frame"] = round(float((t.state == state).groupby(t.frame).sum().mean()), 1)
+            out[f"{cam}.speed_px_per_frame_max"] = round(float(np.hypot(t.vx_px, t.vy_px).max()), 1)
+    return out
+
+
+def seeded_names() -> list[str]:
+    """The cases tracked here (seeded, then auto-seeded): every case but the crowds."""
+    return [n for n in VARIANTS if n not in CROWDS]
+
+
 def run(names: list[str] | None = None) -> dict:
-    rows = [run_variant(n) for n in (names or list(VARIANTS))]
+    rows = [load_crowd(n) if n in CROWDS else run_variant(n) for n in (names or seeded_names())]
     out: dict = {}
     for r in rows:
         for k, v in r.items():
@@ -307,9 +343,16 @@ def _table(rows: list[dict]) -> str:
 
 if __name__ == "__main__":
     why = "--why" in sys.argv[1:]
-    names = [a for a in sys.argv[1:] if a != "--why"] or list(VARIANTS)
+    if "--crowds" in sys.argv[1:]:
+        for n in CROWDS:
+            print(json.dumps(load_crowd(n)), flush=True)
+        sys.exit(0)
+    names = [a for a in sys.argv[1:] if a != "--why"] or seeded_names()
     rows = []
     for n in names:
+        if n in CROWDS:
+            print(json.dumps(load_crowd(n)), flush=True)
+            continue
         if why:
             keep: dict = {}
             with _verdicts({}) as verdicts:

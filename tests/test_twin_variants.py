@@ -1,5 +1,6 @@
-"""The twin's harder cases (twin/variants.py): short excerpts rendered here, their truth checked against
-the pictures (the markers found where the truth says, in the output each variant writes)."""
+"""The twin's harder sand-box cases (twin/variants.py, listed in twin/catalog.py): short excerpts rendered
+here, their truth checked against the pictures (the markers found where the truth says, in the output each
+variant writes)."""
 
 from __future__ import annotations
 
@@ -9,13 +10,16 @@ import cv2
 import numpy as np
 import pandas as pd
 import pytest
+from scipy.spatial import cKDTree
 
 from sandtrack_tui.cli import main
 from sandtrack_tui.cli.cmd_sample import VARIANT_NAMES
 from sandtrack_tui.errors import SandtrackError
 from sandtrack_tui.tracking.appearance import learn
 from sandtrack_tui.tracking.seeding import detect_markers
-from sandtrack_tui.twin.variants import VARIANTS, excerpt, render_variant
+from sandtrack_tui.twin.catalog import VARIANTS, excerpt, render_variant
+from sandtrack_tui.twin.scene import SHANK_HALF_X, Timeline
+from sandtrack_tui.twin.variants import TOOL_X, ScatteredLayer
 from sandtrack_tui.video import FrameSource
 
 
@@ -87,3 +91,27 @@ def test_unknown_variant_is_one_clear_error(tmp_path, capsys):
     assert main(["sample", str(tmp_path / "v"), "--variant", "nope"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "unknown twin variant 'nope'" in err[0]
+
+
+def test_scattered_beads_are_pushed_aside_by_the_tool_never_through_each_other():
+    layer = ScatteredLayer(0, Timeline(speed_mm_s=150.0), 2.5)
+    start, end = layer.track[0], layer.track[-1]
+    assert len(start) == 300
+    near = cKDTree(start).query(start, k=2)[0][:, 1]
+    assert near.min() >= 5.1 and 0.3 < (near < 5.15).mean() < 0.7  # none overlapping, about half touching
+    closest = [cKDTree(xz).query(xz, k=2)[0][:, 1].min() for xz in layer.track[::5]]
+    assert min(closest) > 5.0 - 0.02  # at most 0.02 mm into each other while the tool crowds them
+    lateral = start[:, 0] - TOOL_X
+    moved = np.hypot(*(end - start).T)
+    lane = np.abs(lateral) < SHANK_HALF_X + 2.5
+    assert lane.sum() > 15 and (np.abs(end[lane, 0] - TOOL_X) > 25).all()  # the shank's lane cleared
+    assert np.median(moved[np.abs(lateral) < 20]) > 6 * np.median(moved[np.abs(lateral) > 80])
+
+
+def test_three_hundred_blue_markers_in_the_tool_lane(tmp_path):
+    info = render_variant(excerpt("dense300", 4.0, 1, cameras=("side",)), tmp_path)
+    assert info["layout"] == "scattered" and tuple(info["size"]) == (640, 448)
+    truth = pd.read_csv(tmp_path / "ground_truth" / "markers_side.csv")
+    assert truth.marker.nunique() == 300 and truth.visible.sum() > 250
+    n, found, errs = _found(tmp_path, "side", "colour", [0])  # (touching ones merge: found by their blobs)
+    assert found >= 0.45 * n and np.median(errs) < 0.3

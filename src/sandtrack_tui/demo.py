@@ -9,7 +9,6 @@ training set has the study's size; `fast=True` uses the small preset only and fe
 
 from __future__ import annotations
 
-import hashlib
 import os
 import shutil
 import tempfile
@@ -32,13 +31,11 @@ def cache_dir() -> Path:
 
 
 def renderer_version() -> str:
-    """Hash of the renderer's source: a cached render is redone when the renderer changed."""
-    h = hashlib.sha1()
-    twin = Path(__file__).resolve().parent / "twin"
-    for f in sorted(twin.glob("*.py")):
-        h.update(f.name.encode())
-        h.update(f.read_bytes())
-    return h.hexdigest()[:10]
+    """Hash of the sample renderer's source (twin/sample.py and every module of the package it
+    imports): a cached render is redone when code it runs changed."""
+    from .source_hash import source_hash
+
+    return source_hash("sandtrack_tui.twin.sample")
 
 
 def ensure_sample(preset: str, seed: int = 0, log: Callable[[str], None] = print) -> Path:

@@ -2,7 +2,8 @@
 
 Writes calibration and experiment videos of both cameras (H.264 + AAC) and exact ground truth
 (cameras, sync offset, marker XYZ/pixels/visibility, tool, board corners, DEM-style trajectories).
-`--variant` renders one of the twin's harder tracking cases instead (twin/variants.py).
+`--variant` renders one of the twin's harder tracking cases instead (twin/catalog.py): sand-box cases
+(twin/variants.py) or the bedload flume (twin/flume.py).
 """
 
 from __future__ import annotations
@@ -11,9 +12,9 @@ import argparse
 
 from .common import add_json_flag, emit, log
 
-# (twin/variants.py VARIANTS, named here so the parser does not load the renderer)
+# (twin/catalog.py VARIANTS, named here so the parser does not load the renderers)
 VARIANT_NAMES = ("blue", "red", "white", "black", "glass", "light-sand", "dark-sand", "wet-sand", "dense", "fast",
-                 "large", "shake")
+                 "large", "shake", "dense300", "flume", "flume-8bit")
 
 
 def register(sub) -> None:
@@ -32,7 +33,8 @@ def register(sub) -> None:
                         "repose: heaps of known angle of repose, photos and DEM dumps, under OUT/repose/")
     p.add_argument("--variant", metavar="NAME",
                    help="render a tracking case instead of a preset: " + ", ".join(VARIANT_NAMES) +
-                        " (marker styles, sand tones, dense identical beads, fast and blurred, large, shaken; "
+                        " (marker styles, sand tones, dense identical beads, fast and blurred, large, shaken, "
+                        "300 scattered markers, a bedload flume of glass beads in 16-bit TIFF or 8-bit PNG frames; "
                         "experiment videos or image folders and exact truth only)")
     p.add_argument("--workers", type=int, default=2, help="worker processes (default 2)")
     add_json_flag(p)
@@ -46,12 +48,13 @@ def run(args: argparse.Namespace) -> int:
     if args.workers < 1:
         raise SandtrackError("--workers must be at least 1")
     if args.variant is not None:
-        from ..twin.variants import render_variant
+        from ..twin.catalog import render_variant
 
         result = render_variant(args.variant, args.out_dir, seed=args.seed, log=log)
         text = (f"rendered twin variant {args.variant} (seed {args.seed}) into {args.out_dir} in {result['render_s']} "
                 f"s: {result['frames']} frames per camera ({', '.join(result['cameras'])}): "
-                f"{result['note'] or result['style'] + ' markers on ' + result['sand'] + ' sand'}")
+                f"{result['note'] or result['style'] + ' markers on ' + result['sand'] + ' sand'}; "
+                f"{result['render_cpu_s']} s CPU")
         emit(result, args.json, text)
         return 0
     result = render_sample(args.out_dir, seed=args.seed, preset=args.preset, workers=args.workers, log=log)

@@ -288,6 +288,12 @@ def visible_fraction(cam, P: np.ndarray, zt: float, surface: SurfaceGrid, others
     d /= seg[:, None]
     t_box, _ = ray_box(Q, d, shank_box(zt))
     ok &= ~(t_box < seg)
+    others = np.array(list(others), np.float64).reshape(-1, 3)
+    if len(others):  # only spheres within two radii of the line of sight can hide part of this one
+        O_all = others
+        along = (O_all - P) @ e3
+        off = np.linalg.norm(O_all - P - along[:, None] * e3, axis=1)
+        others = O_all[(along > -2 * radius) & (off < 2 * radius + 1e-6)]
     for O in others:
         if np.linalg.norm(O - P) < 1e-9:
             continue

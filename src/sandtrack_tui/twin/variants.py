@@ -5,36 +5,47 @@ window of the true cameras (a crop, optionally zoomed: a longer lens), with exac
 
 - marker styles: blue paint (the sample's), red, white, black, grey glass beads (STYLES);
 - sand tones: the sample's dry sand, light, dark, wet (SAND_TONES);
-- layouts: the sample's 8 scripted markers, or a dense layer of identical beads that touch
-  (`dense`: two patches of hexagonally packed beads beside the tool's lane, carried by the sand);
+- layouts: the sample's 8 scripted markers, a dense layer of identical beads that touch (`dense`: two
+  patches of hexagonally packed beads beside the tool's lane, carried by the sand), or a few hundred
+  identical beads scattered in and beside the lane (`scattered`: some touching, pushed by the tool);
 - tool speed (markers pushed at up to ~25 px per frame), motion blur (the exposure is sampled),
   marker size (8-15 px: zoom, radius);
 - camera shake and pan: the image moves by a known small rotation of the camera each frame (a
   rendered margin, warped and cropped), the truth moved with it;
 - output as H.264 video, a folder of JPEG frames, or a folder of 16-bit grey TIFF frames.
 
-`render_variant(name, out_dir)` writes ``experiment/CAMERA.mp4`` (or ``experiment/CAMERA/`` image
-folders), ``ground_truth/markers_CAMERA.csv`` (frame, marker, x_px, y_px, visible, visible_fraction),
-``ground_truth/cameras.toml`` (the true cameras of the windows, when the view does not shake) and
-``variant.json``. Deterministic for a seed.
+The cases themselves are listed in catalog.py. `render_sandbox(variant, out_dir)` writes
+``experiment/CAMERA.mp4`` (or ``experiment/CAMERA/`` image folders), ``ground_truth/markers_CAMERA.csv``
+(frame, marker, x_px, y_px, visible, visible_fraction), ``ground_truth/cameras.toml`` (the true
+cameras of the windows, when the view does not shake) and ``variant.json``. Deterministic for a seed.
 """
 
 from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 from scipy.interpolate import PchipInterpolator
+from scipy.spatial import cKDTree
 
 from ..camera import Calibration, Camera
 from ..errors import SandtrackError
 from .render import BLUE_PAINT, CameraView, MarkerStyle, SandShader, update_g3
 from .rig import FPS, TOOL_X, true_calibration, world_cameras
-from .scene import MARKER_RADIUS, SAND_Y, MarkerScript, SurfaceGrid, Timeline, visible_fraction
+from .scene import (
+    MARKER_RADIUS,
+    SAND_Y,
+    SHANK_CHORD,
+    SHANK_HALF_X,
+    MarkerScript,
+    SurfaceGrid,
+    Timeline,
+    visible_fraction,
+)
 from .textures import SAND_BGR, Textures
 
 STYLES = {
@@ -51,9 +62,11 @@ SAND_TONES = {
     "wet": (0.27, 0.38, 0.50),
 }
 # Centres of the windows of the true cameras holding the markers (the sample's markers: side x 715-1106,
-# y 450-734; the dense layer: side x 752-831, y 486-706, front x 828-1027, y 475-530).
+# y 450-734; the dense layer: side x 752-831, y 486-706, front x 828-1027, y 475-530; the scattered
+# beads: side x 539-1104, y 451-786, front x 704-1081, y 412-677).
 WINDOW_CENTRE = {"scripted": {"side": (910.0, 590.0), "front": (920.0, 560.0)},
-                 "dense": {"side": (792.0, 596.0), "front": (928.0, 502.0)}}
+                 "dense": {"side": (792.0, 596.0), "front": (928.0, 502.0)},
+                 "scattered": {"side": (822.0, 618.0), "front": (893.0, 545.0)}}
 VISIBLE_MIN_FRACTION = 0.5
 
 
@@ -62,7 +75,7 @@ class Variant:
     name: str
     style: str = "blue"
     sand: str = "dry"
-    layout: str = "scripted"  # "scripted" (the sample's 8 markers) | "dense"
+    layout: str = "scripted"  # "scripted" (the sample's 8 markers) | "dense" | "scattered" (LAYOUTS)
     speed_mm_s: float = 100.0
     radius_mm: float = MARKER_RADIUS
     zoom: float = 1.0  # focal length x zoom
@@ -77,26 +90,7 @@ class Variant:
     note: str = ""
 
 
-VARIANTS = {v.name: v for v in (
-    Variant("blue", note="the sample's blue markers, 9 px, through a window"),
-    Variant("red", style="red"),
-    Variant("white", style="white"),
-    Variant("black", style="black"),
-    Variant("glass", style="glass", radius_mm=3.0, note="grey glass beads, 6 mm"),
-    Variant("light-sand", style="blue", sand="light"),
-    Variant("dark-sand", style="white", sand="dark"),
-    Variant("wet-sand", style="red", sand="wet"),
-    Variant("dense", style="black", layout="dense", radius_mm=3.0, zoom=1.25, speed_mm_s=200.0, output="tiff16",
-            note="56 touching black 6 mm beads, 16-bit grey TIFF frames"),
-    Variant("fast", style="blue", speed_mm_s=250.0, shutter=0.6,
-            note="tool at 250 mm/s: markers up to ~25 px per frame, blurred over 0.6 of the frame time"),
-    Variant("large", style="red", zoom=1.65, size=(640, 448), note="15 px markers"),
-    Variant("shake", style="white", sand="dark", zoom=1.3, speed_mm_s=150.0, shutter=0.5, shake_px=1.5, pan_px=0.5,
-            cameras=("side",), output="jpeg",
-            note="pale 12 px markers on dark sand, blurred, hand-held camera panning 0.5 px per frame and shaking, "
-                 "JPEG frames"),
-)}
-LAST_ROW_Z = {"scripted": 650.0, "dense": 545.0}
+LAST_ROW_Z = {"scripted": 650.0, "dense": 545.0, "scattered": 690.0}
 
 
 def frame_count(v: Variant) -> int:
@@ -179,6 +173,100 @@ class DenseLayer:
         return out
 
 
+class ScatteredLayer:
+    """A few hundred identical beads scattered over the sand in and beside the tool's lane (about a
+    third of them dropped against another: touching pairs and clusters), pushed by the tool. The sand's
+    surface flows round the advancing tool: each bead moves with the velocity of a source that travels
+    just behind the shank's front (the flow round a half-body HALF_WIDTH_MM wide: a bead in the lane is
+    carried ahead of the shank, then slides off to one side), fading with the distance across the lane
+    as the disturbed zone does and nil behind the tool, where the sand has settled. Beads never pass
+    through each other (overlaps are pushed apart every step) nor into the shank, and ride on the sand
+    surface. Trajectories are integrated once (STEPS_PER_FRAME per frame) over the tool's whole travel."""
+
+    COUNT = 300
+    REGION_X = (TOOL_X - 95.0, TOOL_X + 95.0)
+    REGION_Z = (440.0, 690.0)
+    HALF_WIDTH_MM = 45.0
+    REACH_MM = 70.0
+    STEPS_PER_FRAME = 8
+
+    def __init__(self, seed: int, timeline: Timeline, radius: float):
+        rng = np.random.default_rng(seed + 53)
+        self.timeline, self.radius = timeline, radius
+        xz = self._scatter(rng)
+        self.dt = 1.0 / (FPS * self.STEPS_PER_FRAME)
+        self.t0 = timeline.tool_start_s
+        n = int(np.ceil((timeline.tool_end_s - self.t0) / self.dt)) + 2
+        self.track = np.empty((n, len(xz), 2))
+        for k in range(n):
+            self.track[k] = xz
+            xz = self._step(xz, self.t0 + k * self.dt)
+
+    def _scatter(self, rng) -> np.ndarray:
+        gap = 2 * self.radius * 1.02  # touching, with a hair of sand between
+        pts: list[np.ndarray] = []
+        while len(pts) < self.COUNT:
+            for _ in range(500):
+                if pts and rng.random() < 0.35:
+                    a = rng.uniform(0, 2 * np.pi)
+                    p = pts[int(rng.integers(len(pts)))] + gap * 1.001 * np.array([np.cos(a), np.sin(a)])
+                else:
+                    p = np.array([rng.uniform(*self.REGION_X), rng.uniform(*self.REGION_Z)])
+                inside = self.REGION_X[0] <= p[0] <= self.REGION_X[1] and self.REGION_Z[0] <= p[1] <= self.REGION_Z[1]
+                if inside and (not pts or np.hypot(*(np.array(pts) - p).T).min() >= gap):
+                    pts.append(p)
+                    break
+            else:
+                raise SandtrackError("the scattered layout's region is too small for its beads")
+        return np.array(pts)
+
+    def _step(self, xz: np.ndarray, t: float) -> np.ndarray:
+        tl = self.timeline
+        zt = float(tl.tool_z(t))
+        moving = tl.tool_start_s <= t < tl.tool_end_s
+        out = xz.copy()
+        if moving:
+            b = self.HALF_WIDTH_MM
+            stagnation = self.radius + 2.0  # ahead of the shank's front, where the beads it pushes ride
+            xi = xz[:, 0] - TOOL_X
+            eta = xz[:, 1] - (zt + stagnation - b / np.pi)
+            r2 = np.maximum(xi**2 + eta**2, (b / np.pi) ** 2)
+            behind = xz[:, 1] - zt
+            fade = np.exp(-((xi / self.REACH_MM) ** 2)) * np.clip((behind + 60.0) / 45.0, 0.0, 1.0)
+            k = tl.speed_mm_s * b / np.pi * fade / r2 * self.dt
+            out[:, 0] += k * xi
+            out[:, 1] += k * eta
+        self._separate(out, zt)
+        return out
+
+    def _separate(self, xz: np.ndarray, zt: float) -> None:
+        """Push overlapping beads apart (a few sweeps) and out of the shank's footprint, in place."""
+        gap = 2 * self.radius
+        for _ in range(3):
+            pairs = cKDTree(xz).query_pairs(gap, output_type="ndarray")
+            if len(pairs) == 0:
+                break
+            d = xz[pairs[:, 1]] - xz[pairs[:, 0]]
+            dist = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)
+            push = 0.5 * (gap - dist)[:, None] * d / dist[:, None]
+            np.add.at(xz, pairs[:, 0], -push)
+            np.add.at(xz, pairs[:, 1], push)
+        xi = xz[:, 0] - TOOL_X
+        inside = (np.abs(xi) < SHANK_HALF_X + self.radius) & (xz[:, 1] > zt - SHANK_CHORD - self.radius) & \
+            (xz[:, 1] < zt + self.radius)
+        xz[inside, 0] = TOOL_X + np.where(xi[inside] >= 0, 1, -1) * (SHANK_HALF_X + self.radius)
+
+    def positions(self, t: float, surface: SurfaceGrid) -> dict[int, np.ndarray]:
+        g = float(np.clip((t - self.t0) / self.dt, 0, len(self.track) - 1.000001))
+        k = int(g)
+        xz = self.track[k] + (g - k) * (self.track[k + 1] - self.track[k])
+        zt = float(self.timeline.tool_z(t))
+        return {i + 1: np.array([x, surface.height_at(x, z, zt) + self.radius, z]) for i, (x, z) in enumerate(xz)}
+
+
+LAYOUTS = {"scripted": MarkerScript, "dense": DenseLayer, "scattered": ScatteredLayer}
+
+
 # -- rendering ------------------------------------------------------------------------------------
 
 def _shake_path(v: Variant, seed: int) -> np.ndarray:
@@ -243,7 +331,7 @@ def _render_camera(v: Variant, camera: str, seed: int, out: Path) -> list[tuple]
     tl = Timeline(speed_mm_s=v.speed_mm_s)
     surf = SurfaceGrid(seed)
     g3 = np.zeros(surf.H.shape + (3,), np.float32)
-    layer = DenseLayer(seed, tl, v.radius_mm) if v.layout == "dense" else MarkerScript(seed, tl, v.radius_mm)
+    layer = LAYOUTS[v.layout](seed, tl, v.radius_mm)
     style = STYLES[v.style]
     rng = np.random.default_rng(seed + (3 if camera == "side" else 4))
     rows = []
@@ -300,12 +388,8 @@ def _exposure(view, v: Variant, tl: Timeline, layer, surf, tau: float, zt: float
     return np.clip(np.round(acc / n), 0, 255).astype(np.uint8)
 
 
-def render_variant(variant: str | Variant, out_dir: str | Path, seed: int = 0, log=lambda msg: None) -> dict:
-    """Render one variant (a name of VARIANTS, or a Variant) into out_dir (see the module notes);
-    returns what was written."""
-    if isinstance(variant, str) and variant not in VARIANTS:
-        raise SandtrackError(f"unknown twin variant {variant!r} (one of {', '.join(VARIANTS)})")
-    v = VARIANTS[variant] if isinstance(variant, str) else variant
+def render_sandbox(v: Variant, out_dir: str | Path, seed: int = 0, log=lambda msg: None) -> dict:
+    """Render one sand-box case into out_dir (see the module notes); returns what was written."""
     name = v.name
     out = Path(out_dir)
     t0, c0 = time.perf_counter(), time.process_time()
@@ -331,12 +415,3 @@ def render_variant(variant: str | Variant, out_dir: str | Path, seed: int = 0, l
                             "seen (inside the window, not behind the tool, sand or another marker)"}
     (out / "variant.json").write_text(json.dumps(info, indent=2) + "\n")
     return info
-
-
-def variant_names() -> list[str]:
-    return list(VARIANTS)
-
-
-def excerpt(name: str, start_s: float, frames: int, **changes) -> Variant:
-    """A stretch of a variant (tests): `frames` frames from scene time `start_s`, other fields changed."""
-    return replace(VARIANTS[name], start_s=start_s, frames=frames, **changes)
