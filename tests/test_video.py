@@ -105,3 +105,34 @@ def test_fingerprint_changes_with_content(tmp_path, clip):
     fp = fingerprint(clip)
     other = write_clip(tmp_path / "other.mp4", n_frames=61)
     assert fingerprint(other) != fp and fingerprint(clip) == fp
+
+
+def test_image_folder_frame_rate_is_kept_by_the_project(tmp_path):
+    """An image folder's frame rate given to `sandtrack new --fps` is the project's: its frame times, its
+    sources, and a relink that does not give it again."""
+    import json
+    import subprocess
+    import sys
+
+    from sandtrack_tui.store import Project
+    from sandtrack_tui.xyz import Timeline
+
+    folder = tmp_path / "imgs"
+    folder.mkdir()
+    for i in range(4):
+        cv2.imwrite(str(folder / f"f{i:03d}.png"), numbered_frame(i))
+    proj_path = tmp_path / "flume.sandtrack"
+    out = subprocess.run([sys.executable, "-m", "sandtrack_tui", "new", str(proj_path), "--side", str(folder),
+                          "--fps", "130", "--json"], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert json.loads(out.stdout)["videos"]["side"]["fps"] == 130
+    proj = Project.open(proj_path)
+    assert proj.videos()["side"].fps == 130
+    assert Timeline.from_project(proj).time("side", np.array([13]))[0] == pytest.approx(0.1)
+    assert proj.open_sources()["side"].times_s[3] == pytest.approx(3 / 130)
+    proj.link_video("side", folder)  # a relink keeps the rate
+    assert proj.videos()["side"].fps == 130
+    proj.close()
+    bad = subprocess.run([sys.executable, "-m", "sandtrack_tui", "new", str(tmp_path / "b.sandtrack"), "--side",
+                          str(folder), "--fps", "0"], capture_output=True, text=True)
+    assert bad.returncode == 1 and "--fps" in bad.stderr and "Traceback" not in bad.stderr

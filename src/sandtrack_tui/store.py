@@ -162,7 +162,8 @@ class Project:
 
     @classmethod
     def create(cls, path: str | Path, videos: dict[str, str | Path] | None = None,
-               overwrite: bool = False) -> Project:
+               overwrite: bool = False, fps: float | None = None) -> Project:
+        """`fps`: the frame rate of image folders among `videos` (a video's own rate is read from it)."""
         p = Path(path)
         if p.exists():
             if not overwrite:
@@ -181,7 +182,7 @@ class Project:
             with proj._tx():
                 conn.execute("INSERT OR REPLACE INTO meta VALUES ('created', ?)", (str(time.time()),))
             for camera, vpath in (videos or {}).items():
-                proj.link_video(camera, vpath)
+                proj.link_video(camera, vpath, fps)
         except BaseException:
             proj.close()
             raise
@@ -301,11 +302,14 @@ class Project:
                                  f"({str(cause).splitlines()[0][:200]})") from None
 
     # -- videos --------------------------------------------------------------------------------
-    def link_video(self, camera: str, path: str | Path) -> VideoRef:
+    def link_video(self, camera: str, path: str | Path, fps: float | None = None) -> VideoRef:
+        """`fps`: an image folder's frame rate; None keeps the camera's stored one (50 for a new folder)."""
         from .video import FrameSource, fingerprint
 
         p = Path(path).resolve()
-        with FrameSource(p, cache_mb=64) as src:
+        if fps is None and camera in self.videos():
+            fps = self.videos()[camera].fps
+        with FrameSource(p, cache_mb=64, fps=fps) as src:
             ref = VideoRef(camera, str(p), fingerprint(p), src.width, src.height, src.fps, len(src))
         self._write(lambda: self.conn.execute(
             "INSERT OR REPLACE INTO videos VALUES (?,?,?,?,?,?,?)",
@@ -344,7 +348,8 @@ class Project:
         problems = self.video_problems()
         if problems:
             raise SandtrackError("; ".join(p.message() for p in problems))
-        return {c: FrameSource(self.videos()[c].path, cache_mb=cache_mb) for c in self.cameras()}
+        refs = self.videos()
+        return {c: FrameSource(refs[c].path, cache_mb=cache_mb, fps=refs[c].fps) for c in self.cameras()}
 
     # -- facts about the file (not edits: undo leaves them) -----------------------------------
     def meta(self, key: str) -> str | None:

@@ -19,6 +19,8 @@ def register(sub) -> None:
     p.add_argument("--camera", action="append", default=[], metavar="NAME=PATH",
                    help="another camera's video or image folder (repeatable; three or more cameras)")
     p.add_argument("--board", help="calibration board file (board.toml or Caliscope charuco.toml)")
+    p.add_argument("--fps", type=float, help="frame rate of image folders (default 50; a video's own rate is read "
+                   "from the file)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing project file")
     add_json_flag(p)
     p.set_defaults(func=run)
@@ -36,14 +38,16 @@ def run(args) -> int:
         if name in videos:
             raise SandtrackError(f"camera {name!r} given twice")
         videos[name] = path
-    sources = {c: FrameSource(v, cache_mb=16) for c, v in videos.items()}  # validates before creating
+    if args.fps is not None and not 0 < args.fps <= 100_000:
+        raise SandtrackError(f"--fps must be a frame rate above 0, not {args.fps:g}")
+    sources = {c: FrameSource(v, cache_mb=16, fps=args.fps) for c, v in videos.items()}  # validates before creating
     warnings = []
     if "front" in sources:
         warnings = FramePair(sources["side"], sources["front"]).mismatch_warnings()
     for w in warnings:
         log(f"warning: {w}")
     board = load_board(args.board) if args.board else None
-    proj = Project.create(Path(args.project), videos, overwrite=args.overwrite)
+    proj = Project.create(Path(args.project), videos, overwrite=args.overwrite, fps=args.fps)
     if board is not None:
         proj.set("board", board.to_json_dict(), "set board")
     result = {
