@@ -15,7 +15,7 @@ $(BIN)/python:
 # in three processes at once.
 $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/pip install --disable-pip-version-check -q "torch==2.13.0" -e ".[dev]"
-	$(BIN)/python -m sandtrack_tui.tracking.kernels & k=$$!; $(BIN)/python -m sandtrack_tui.tui.sixel & s=$$!; \
+	$(BIN)/python -m sandtrack_tui.tracking.warmup & k=$$!; $(BIN)/python -m sandtrack_tui.tui.sixel & s=$$!; \
 		$(BIN)/python -m sandtrack_tui.triangulation; t=$$?; wait $$k && wait $$s && test $$t -eq 0
 	@touch $(STAMP)
 

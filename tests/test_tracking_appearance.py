@@ -12,8 +12,8 @@ import pytest
 
 from sandtrack_tui.errors import SandtrackError
 from sandtrack_tui.tracking import synthetic
-from sandtrack_tui.tracking.appearance import learn
 from sandtrack_tui.tracking.engine import Engine
+from sandtrack_tui.tracking.learning import learn
 from sandtrack_tui.tracking.matcher import TemplateMatcher
 from sandtrack_tui.tracking.seeding import detect_markers, marker_box, snap_to_marker
 from sandtrack_tui.tracking.tracker import MarkerTrack

@@ -9,8 +9,8 @@ import av
 import numpy as np
 
 from sandtrack_tui.tracking import synthetic
-from sandtrack_tui.tracking.appearance import learn
 from sandtrack_tui.tracking.chroma import Chroma420Frame, block_replicated, reinterpolate
+from sandtrack_tui.tracking.learning import learn
 from sandtrack_tui.tracking.matcher import TemplateMatcher
 
 

@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 
 from sandtrack_tui.errors import SandtrackError
-from sandtrack_tui.tracking import appearance, synthetic
+from sandtrack_tui.tracking import learning, synthetic
 from sandtrack_tui.tracking.engine import Engine, _touching_pairs
 from sandtrack_tui.tracking.kalman import ConstantVelocityKF
 from sandtrack_tui.tracking.seeding import detect_markers, snap_to_marker
@@ -95,7 +95,7 @@ def test_colour_model_dusty_passes_sand_does_not():
     disc = (xx - 40) ** 2 + (yy - 40) ** 2 <= 25
     img[disc] = synthetic.MARKER_BGR
     img = np.clip(img, 0, 255).astype(np.uint8)
-    model = appearance.learn(img, 40, 40, 14, 14)
+    model = learning.learn(img, 40, 40, 14, 14)
     sand = model.score(img)[~disc & ((xx - 40) ** 2 + (yy - 40) ** 2 > 64)]
     assert np.mean(sand >= model.threshold) < 0.001
     dusty = (0.55 * synthetic.MARKER_BGR + 0.45 * synthetic.SAND_BGR).astype(np.uint8)
@@ -114,7 +114,7 @@ def _disc_on_sand(cx: float, cy: float, r: float, seed: int = 0, size: int = 80)
 
 def test_colour_model_marker_size_does_not_grow_with_the_seed_box():
     img = _disc_on_sand(40.3, 39.6, 4.5)
-    radii = [appearance.learn(img, 40, 40, w, w).radius for w in (10, 14, 18, 22)]
+    radii = [learning.learn(img, 40, 40, w, w).radius for w in (10, 14, 18, 22)]
     assert max(radii) - min(radii) < 0.03  # (before: 0.056, the sand's clipped noise counted as marker)
     assert abs(np.mean(radii) - 4.5) < 0.18  # measured 0.12 px
 
@@ -141,11 +141,11 @@ def test_rest_shift_measures_a_subpixel_creep_and_refuses_other_changes():
 def test_bad_seed_boxes_raise_clear_errors():
     img = np.clip(synthetic.sand_texture(60, 60, np.random.default_rng(1)), 0, 255).astype(np.uint8)
     with pytest.raises(SandtrackError, match="outside"):
-        appearance.learn(img, 100, 10, 12, 12)
+        learning.learn(img, 100, 10, 12, 12)
     with pytest.raises(SandtrackError, match="no marker"):
-        appearance.learn(img, 30, 30, 12, 12)
+        learning.learn(img, 30, 30, 12, 12)
     with pytest.raises(SandtrackError, match="too small"):
-        appearance.learn(img, 30, 30, 0, 0)
+        learning.learn(img, 30, 30, 0, 0)
     with pytest.raises(SandtrackError, match="outside"):
         MarkerTrack(1, "cam", img, 0, -5, 10)
 
@@ -525,7 +525,7 @@ def test_an_outline_of_sand_texture_is_not_a_whole_marker():
 def test_search_windows_of_many_centres_are_each_centres_search_window():
     from sandtrack_tui.tracking.reacquire import search_window, search_windows
 
-    model = appearance.learn(_disc_on_sand(40.0, 40.0, 4.5), 40.0, 40.0, 14, 14)
+    model = learning.learn(_disc_on_sand(40.0, 40.0, 4.5), 40.0, 40.0, 14, 14)
     rng = np.random.default_rng(4)
     # centres inside, beyond every edge and on half pixels (where floor and ceil part)
     cx = np.r_[rng.uniform(-30, 130, 40), 10.5, -0.5, 99.5]

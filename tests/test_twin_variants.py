@@ -15,7 +15,7 @@ from scipy.spatial import cKDTree
 from sandtrack_tui.cli import main
 from sandtrack_tui.cli.cmd_sample import VARIANT_NAMES
 from sandtrack_tui.errors import SandtrackError
-from sandtrack_tui.tracking.appearance import learn
+from sandtrack_tui.tracking.learning import learn
 from sandtrack_tui.tracking.seeding import detect_markers
 from sandtrack_tui.twin.catalog import VARIANTS, excerpt, render_variant
 from sandtrack_tui.twin.scene import SHANK_HALF_X, Timeline

@@ -20,12 +20,12 @@ what the compiled kernels, the 4:2:0 window reader and the blob search use. For 
 blob (colour, dark, bright) the clipped score of a pixel is its coverage by the marker, the weight
 of the centroid.
 
-A box with no contrast of any kind gives one line saying what was measured and what to do.
+The choice among them, from a seed box, is learning.py's (learn).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import cv2
@@ -40,9 +40,6 @@ _CLOSE = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
 _SQUARE3 = np.ones((3, 3), np.uint8)
 MIN_SEPARATION = 0.2  # marker median score minus the sand's 99.5th percentile, in marker-contrast units
 MARKER_MEDIAN = 0.75  # a window whose median scores this much is mostly marker (a crowd): its sand level is unknown
-# A colour model covering less than this share of the brightness model's marker area learned from the
-# same box has found a part of the marker (a rim, a reflection), not the marker.
-PART_OF_MARKER = 0.5
 CENTRE_RING_SHARE = 0.75  # share of a circle of half its radius around a seed box's centre that is marker
 FOLLOW_RANGE = (0.5, 1.5)  # a dark model's contrast follows its marker within these multiples of the seed's ...
 FOLLOW_DEADBAND = 0.1  # ... once its middle's score has changed by more than this share
@@ -275,64 +272,6 @@ def describe_text(desc: dict) -> str:
     return f"{what}, contrast {desc['contrast']:.1f}"
 
 
-def learn(frame, cx: float, cy: float, w: float, h: float, centred: bool = True, kind: str | None = None,
-          like: AppearanceModel | None = None) -> AppearanceModel:
-    """Learn the appearance model of the marker in a seed box centred at (cx, cy), w x h px.
-    `frame`: BGR or grey, 8 or 16 bit. `centred`: the box is centred on the marker (a seed), so a
-    blob model must cover the box's centre (a box centred on a pattern, such as a corner between
-    dark and light squares, gets a texture model, not the model of a blob beside its centre); not
-    so for a box around a click that may be off the marker. `kind`: the brightness model (dark or
-    bright) of a marker this one is like (auto-seed), tried first, against sand farther out when the
-    ring around the box holds none (a bead inside a dense layer is surrounded by beads: against them
-    only its highlight stands out); `like`: that marker's own model, taken as this one's when it was
-    learned among touching lookalikes (the beads of one layer) or when even then its kind is not
-    found. Raises SandtrackError with what was measured when the box holds nothing that stands out
-    from the sand around it."""
-    from . import brightness, colour
-
-    if like is not None and like.crowd and kind == like.kind:
-        return replace(like)  # (touching lookalikes: the beads of one layer, learned once among them)
-    if kind in (DARK, BRIGHT):
-        for widen in (1.0, 2.0, 3.0):
-            try:
-                seed = SeedPatch.cut(frame, cx, cy, w, h, widen)
-            except SandtrackError:
-                break
-            m, _ = brightness.learn_brightness(seed, -1.0 if kind == DARK else 1.0)
-            if m is not None and (not centred or seed.centre_scores(m)):
-                return m
-        if like is not None and like.kind == kind:
-            return replace(like)
-    seed = SeedPatch.cut(frame, cx, cy, w, h)
-    model, colour_sep = colour.learn_colour(seed)
-    bright, bright_sep = brightness.learn_brightness(seed)
-    if centred:
-        model = model if model is None or seed.centre_scores(model) else None
-        bright = bright if bright is None or seed.centre_scores(bright) else None
-    grey = model is not None and colour.achromatic(seed, model)
-    if model is not None and bright is not None and model.disc_area < PART_OF_MARKER * bright.disc_area:
-        grey = True  # its colour is a part of the marker (a glass bead's rim): its brightness is the marker
-    if bright is not None and (model is None or grey):
-        return bright  # a white, grey or black marker: its brightness is what it is
-    if model is not None and not grey:
-        model.luma_follows = bright is not None
-        return model
-    texture = brightness.learn_texture(seed)
-    if texture is not None and (model is None or brightness.two_tone(seed)):
-        return texture
-    if model is not None:  # a grey marker on coloured sand, its shaded side as bright as the sand
-        model.luma_follows, model.grey = False, True
-        return model
-    lum_in, lum_ring = seed.luma[seed.inner], seed.luma[seed.ring]
-    seps = ", ".join(f"{what} separation {v:.2f}" for what, v in (("colour", colour_sep), ("brightness", bright_sep))
-                     if np.isfinite(v))
-    raise SandtrackError(
-        f"no marker found in the {w:.0f}x{h:.0f} px seed box: nothing in it stands out from the sand around it "
-        f"(luma {np.median(lum_in):.0f}±{_spread(lum_in):.0f} inside, {np.median(lum_ring):.0f}±"
-        f"{_spread(lum_ring):.0f} around{'; ' + seps if seps else ''}; {MIN_SEPARATION} needed); centre a larger "
-        f"box on the marker (about twice its size), or seed it in another frame where it stands out")
-
-
 def _first_gap(mask: np.ndarray, px: int, py: int, rays: int = 32) -> float | None:
     """Median over rays from (px, py) of the distance at which `mask` first ends (rays that leave the
     image without meeting a gap, through the contacts with touching markers, are left out); None
@@ -371,10 +310,6 @@ def _holes_filled(mask: np.ndarray) -> np.ndarray:
     canvas[1:-1, 1:-1] = mask
     cv2.floodFill(canvas, None, (0, 0), 2, flags=4)
     return canvas[1:-1, 1:-1] != 2
-
-
-def _spread(v: np.ndarray) -> float:
-    return float(1.4826 * np.median(np.abs(v - np.median(v)))) if len(v) else float("nan")
 
 
 def marker_level(p_in: np.ndarray, sand_mid: float) -> float:

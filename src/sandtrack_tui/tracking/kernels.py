@@ -2,7 +2,8 @@
 
 A marker's window is ~20 x 20 px; at that size numpy and OpenCV spend their time entering and
 leaving each call, not computing, and the tracker shares two cores with the video decoder. These
-kernels do the same arithmetic in one call each. Compiled on first use, cached on disk.
+kernels do the same arithmetic in one call each. Compiled on first use, cached on disk (warmup.py
+compiles them all at once).
 
 - `luma_window`: BT.601 brightness of a BGR window, float32 (as cv2.transform with LUMA_BGR).
 - `rest_reference` / `rest_shift`: the Lucas-Kanade shift test of rest.py (`*_luma`: on a frame's brightness
@@ -740,41 +741,3 @@ def colour_score_yuv_interpolated(yp, up, vp, t, x0, y0, x1, y1, w0, w1, w2, b, 
                 c[k] = min(max(y + top + fy * (bottom - top), np.float32(0.0)), np.float32(255.0))
             out[i, j] = _score_of(c[0], c[1], c[2], w0, w1, w2, b, eps, den)
     return out
-
-
-def warm_up() -> None:
-    """Compile (or load) every kernel for the argument types tracking uses, on a small synthetic
-    frame: run once after installing, so the first tracking run does not pay the compilation."""
-    from .matcher import Match
-    from .reacquire import find_blobs
-    from .rest import RestReference
-    from .tracker import MarkerTrack
-
-    yy, xx = np.mgrid[0:96, 0:96]
-    inside = ((xx - 40.3) ** 2 + (yy - 47.6) ** 2 <= 20.0).astype(np.float32)[..., None]
-    frame = np.round(np.array([120.0, 160.0, 190.0]) * (1 - inside) + np.array([170.0, 70.0, 40.0]) * inside)
-    frame = frame.astype(np.uint8)
-    import av
-
-    from .. import yuv
-
-    planar = yuv.wrap(av.VideoFrame.from_ndarray(frame, format="bgr24").reformat(format="yuv420p"))
-    for img in (frame, planar) if planar is not None else (frame,):  # BGR arrays, and frames read in windows
-        track = MarkerTrack(1, "warm-up", frame, 0, 40.3, 47.6, 12, 12)
-        track.intra = np.ones(2, bool)
-        track.predict()
-        m = track.propose(img, 1)
-        track.apply(1, img, m)
-        track.matcher.update_template(img, 40.3, 47.6)
-        rest = RestReference(img, 40.3, 47.6, track.model.radius, m or Match(40.3, 47.6, 1.0, 10.0, 1.0))
-        rest.shift(img, 0.2, 3.0)
-        find_blobs(img, track.model, 40.0, 47.0, 30.0, 30.0)
-        track.model.any_in(img, np.array([[20, 27, 60, 67]], np.int64))
-    median(np.zeros(3, np.float32))
-    median(np.zeros(3))
-    if planar is not None:
-        colour_score_yuv_interpolated(*planar.yuv, 20, 27, 60, 67, *track.model._score_coeffs)
-
-
-if __name__ == "__main__":
-    warm_up()

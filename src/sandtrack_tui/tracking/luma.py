@@ -31,6 +31,7 @@ import numpy as np
 
 from . import kernels
 from .chroma import LUMA_BGR
+from .streak import STREAK_EXPOSURES, STREAK_MIN_SPEED
 
 N_RAYS = 32
 _ANG = np.linspace(0, 2 * np.pi, N_RAYS, endpoint=False)
@@ -181,15 +182,13 @@ class LumaPattern:
     def find(self, frame, x: float, y: float, velocity: tuple | None = None) -> tuple[float, float] | None:
         """Where the pattern lies in `frame`, searched from (x, y); None when it does not fit. With the
         marker's `velocity` (px per frame) at STREAK_MIN_SPEED or more, the pattern smeared along it
-        over the exposures of matcher.STREAK_EXPOSURES is fitted too, and the best fit is the pattern's
+        over the exposures of STREAK_EXPOSURES is fitted too, and the best fit is the pattern's
         (a smear along the motion, even about the mid-exposure, lowers the fit, not the place where the
         still pattern registers; the smeared pattern's sand, smeared too, would pull its own place)."""
         if not self.ok:
             return None
         best = self._register(frame, x, y, self._still)
         if velocity is not None and self._room:
-            from .matcher import STREAK_EXPOSURES, STREAK_MIN_SPEED  # (matcher imports this module)
-
             speed = math.hypot(*velocity)
             if speed >= STREAK_MIN_SPEED:
                 ux, uy = velocity[0] / speed, velocity[1] / speed

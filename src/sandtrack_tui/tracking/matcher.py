@@ -20,6 +20,7 @@ import numpy as np
 from . import kernels
 from .appearance import BRIGHT, DARK, AppearanceModel
 from .luma import edge_circle
+from .streak import STREAK_EXPOSURES, STREAK_MIN_SPEED
 
 
 @dataclass(slots=True)
@@ -48,10 +49,6 @@ class Proposal:
     match: Match
     reattach: bool = False
     jump: bool = False  # re-attached beyond the gate: the marker's velocity starts from that move
-
-
-STREAK_MIN_SPEED = 4.0  # px per frame from which a marker may be smeared into a streak
-STREAK_EXPOSURES = (0.5, 1.0)  # exposures tried, in frames
 
 
 class TemplateMatcher:

@@ -27,10 +27,11 @@ from ..corrections import MARKER_CAMERA_SETTINGS, merge_in_edit
 from ..errors import SandtrackError
 from ..video import camera_offsets as video_offsets
 from . import identity
-from .appearance import KINDS, learn
+from .appearance import KINDS
 from .chroma import Chroma420Frame, block_replicated
 from .decoding import prefetch
 from .engine import Engine
+from .learning import learn
 from .luma import intra_frames
 from .seeding import detect_markers, marker_box, marker_look, pair_by_epipolar, snap_to_marker
 from .stereo import StereoCheck
@@ -258,7 +259,7 @@ def _store_boxes(project, seeds: pd.DataFrame) -> None:
 
 def _store_kinds(project, seeds: pd.DataFrame) -> None:
     """The appearance model auto-seed proposed for each seed (the one of the marker it is like): the
-    tracker learns that kind first (appearance.learn)."""
+    tracker learns that kind first (learning.learn)."""
     if "model" not in seeds.columns:
         return
     kinds = dict(project.get(KINDS_KEY, {}) or {})

@@ -22,9 +22,10 @@ from scipy.optimize import linear_sum_assignment
 
 from ..errors import SandtrackError
 from ..video import to_bgr8
-from .appearance import AppearanceModel, learn
+from .appearance import AppearanceModel
 from .colour import blueness, chroma_blueness
 from .detection import detect_like
+from .learning import learn
 
 DETECT_COLUMNS = ["x_px", "y_px", "w", "h", "area", "contrast"]
 PAIR_MARGIN_PX = 1.0  # a pair's rivals must lie this much farther from the epipolar line than it

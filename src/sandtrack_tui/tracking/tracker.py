@@ -24,11 +24,13 @@ import numpy as np
 
 from ..errors import SandtrackError
 from . import crowd as crowd_rules
-from .appearance import BRIGHT, COLOUR, DARK, AppearanceModel, learn
+from .appearance import BRIGHT, COLOUR, DARK, AppearanceModel
 from .kalman import GATE_D2, ConstantVelocityKF
+from .learning import learn
 from .luma import LumaPattern, edge_centre, edge_circle, rim_step
-from .matcher import STREAK_MIN_SPEED, Match, TemplateMatcher
+from .matcher import Match, TemplateMatcher
 from .rest import RestReference
+from .streak import STREAK_MIN_SPEED
 
 TRACKED, OCCLUDED, LOST, MANUAL, INTERPOLATED = "tracked", "occluded", "lost", "manual", "interpolated"
 DEFAULT_BOX_PX = 16
