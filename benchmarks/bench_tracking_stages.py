@@ -31,25 +31,27 @@ sys.path.insert(0, str(HERE.parents[0] / "src"))
 import bench_tracking as bt  # noqa: E402
 from sandtrack_tui.store import Project, _Edit  # noqa: E402
 from sandtrack_tui.tracking import run as tracking_run  # noqa: E402
+from sandtrack_tui.tracking import verify  # noqa: E402
 from sandtrack_tui.tracking.engine import Engine  # noqa: E402
 from sandtrack_tui.tracking.line_search import LineSearch  # noqa: E402
 from sandtrack_tui.tracking.matcher import TemplateMatcher  # noqa: E402
+from sandtrack_tui.tracking.reattach import Reacquisition  # noqa: E402
 from sandtrack_tui.tracking.rest import RestReference  # noqa: E402
 from sandtrack_tui.tracking.run import accept_seeds, track_project  # noqa: E402
 from sandtrack_tui.tracking.tracker import MarkerTrack  # noqa: E402
 from sandtrack_tui.video import FrameSource  # noqa: E402
 
 RUNS = 6
-STAGES = {  # name -> (class, method)
+STAGES = {  # name -> (class or module, function)
     "step": (Engine, "step"),
     "propose": (MarkerTrack, "propose"),
     "match": (TemplateMatcher, "match"),
     "rest_shift": (RestReference, "shift"),
     "luma_carry": (MarkerTrack, "_carry"),
-    "reacquire": (Engine, "_reacquire"),
-    "band_search": (LineSearch, "_band_blobs"),
+    "reacquire": (Reacquisition, "run"),
+    "band_search": (LineSearch, "band_blobs"),
     "apply": (MarkerTrack, "apply"),
-    "stereo_check": (Engine, "_stereo_check"),
+    "stereo_check": (verify, "stereo_check"),
 }
 
 

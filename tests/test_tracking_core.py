@@ -11,8 +11,9 @@ import pytest
 
 from sandtrack_tui.errors import SandtrackError
 from sandtrack_tui.tracking import learning, synthetic
-from sandtrack_tui.tracking.engine import Engine, _touching_pairs
+from sandtrack_tui.tracking.engine import Engine
 from sandtrack_tui.tracking.kalman import ConstantVelocityKF
+from sandtrack_tui.tracking.search import touching_pairs
 from sandtrack_tui.tracking.seeding import detect_markers, snap_to_marker
 from sandtrack_tui.tracking.stereo import StereoCheck, interpolate_track
 from sandtrack_tui.tracking.tracker import MarkerTrack
@@ -218,7 +219,7 @@ def test_touching_pairs_are_exactly_the_close_pairs(limit):
                zip(rng.uniform(0, 120, n), rng.uniform(0, 60, n), rng.uniform(3, 8, n), strict=True)]
         brute = [(i, k) for i in range(n) for k in range(i + 1, n)
                  if np.hypot(pts[i][0] - pts[k][0], pts[i][1] - pts[k][1]) < limit(pts[i][2], pts[k][2])]
-        assert _touching_pairs(pts, limit) == brute
+        assert touching_pairs(pts, limit) == brute
     assert brute  # the crowded case was exercised
 
 
@@ -330,16 +331,17 @@ def test_a_coasting_marker_does_not_take_a_bead_another_searching_marker_may_own
     cands = {(6, "front"): [(1.97, 0, bead)], (3, "front"): []}
     windows = {(6, "front"): (288.9, 187.7, 54.0, 54.0), (3, "front"): (241.0, 126.5, 80.0, 80.0)}
     eng = Engine()
-    assert eng._assign("front", 336, cands, windows=windows, unanchored={(6, "front")}) == {}
+    assert eng.assigner.assign("front", 336, cands, windows=windows, unanchored={(6, "front")}) == {}
     assert eng.ambiguous and eng.ambiguous[0]["marker"] == 6
     # Pinned by the other view (its band holds the bead), or with no other marker searching there: taken.
-    assert eng._assign("front", 336, cands, windows=windows) == {(6, "front"): bead}
+    assert eng.assigner.assign("front", 336, cands, windows=windows) == {(6, "front"): bead}
     # A coasting marker whose prediction is nearer the bead than the taker's (it did not see it beside
     # the tool): whose bead it is, is not known.
     near = {**windows, (3, "front"): (279.0, 163.0, 20.0, 20.0)}
-    assert Engine()._assign("front", 336, cands, windows=near) == {}
+    assert Engine().assigner.assign("front", 336, cands, windows=near) == {}
     alone = {(6, "front"): windows[(6, "front")]}
-    assert Engine()._assign("front", 336, cands, windows=alone, unanchored={(6, "front")}) == {(6, "front"): bead}
+    taken = Engine().assigner.assign("front", 336, cands, windows=alone, unanchored={(6, "front")})
+    assert taken == {(6, "front"): bead}
 
 
 def test_missed_crowd_markers_are_carried_by_the_image_motion_around_them_where_it_is_clear():
@@ -405,19 +407,19 @@ def test_a_pale_dark_bead_on_the_other_views_line_is_measured_a_half_hidden_one_
         track.predict()
         pale = _glass_bead(sand, *s, 6.0, pale=True)
         assert not track.acceptable(track.matcher.match(pale, *s, 3, 3))  # (coverage < 0.55)
-        m = eng._on_line("side", pale, track, tuple(f), [])
+        m = eng.lines.on_line("side", pale, track, tuple(f), [])
         assert m is not None and np.hypot(m.x - s[0], m.y - s[1]) < 0.15
-        b = eng._on_line("side", pale, track, tuple(f), [], at=(s[0] + 1.2, s[1] - 0.5))  # at a blob given it
+        b = eng.lines.on_line("side", pale, track, tuple(f), [], at=(s[0] + 1.2, s[1] - 0.5))  # at a blob given it
         assert b is not None and np.hypot(b.x - s[0], b.y - s[1]) < 0.15
-        assert eng._on_line("side", pale, track, tuple(f), [(s[0] + 3, s[1])]) is None  # another marker's
+        assert eng.lines.on_line("side", pale, track, tuple(f), [(s[0] + 3, s[1])]) is None  # another marker's
         # another marker still searching, its prediction nearer: it may be that one
         px, py = track.kf.xy
         own = np.hypot(m.x - px, m.y - py)
-        assert eng._nearer_searcher((1, "side"), m, {(2, "side"): (m.x + 0.5 * own, m.y, 20, 20)}, {})
-        assert not eng._nearer_searcher((1, "side"), m, {(2, "side"): (m.x + own + 1, m.y, 20, 20)}, {})
-        assert eng._on_line("side", _glass_bead(sand, *s, 6.0, tool_to_x=s[0] - 1.0), track, tuple(f), []) is None
+        assert eng.lines.nearer_searcher((1, "side"), m, {(2, "side"): (m.x + 0.5 * own, m.y, 20, 20)}, {})
+        assert not eng.lines.nearer_searcher((1, "side"), m, {(2, "side"): (m.x + own + 1, m.y, 20, 20)}, {})
+        assert eng.lines.on_line("side", _glass_bead(sand, *s, 6.0, tool_to_x=s[0] - 1.0), track, tuple(f), []) is None
         off = cal.cameras["front"].project(X + [dx, 2.0, 0])[0]  # 3.3 px off the line
-        assert eng._on_line("side", pale, track, tuple(off), []) is None
+        assert eng.lines.on_line("side", pale, track, tuple(off), []) is None
 
 
 def test_a_pale_bead_is_followed_by_its_look_once_the_other_view_loses_it_not_half_behind_the_tool():
@@ -472,7 +474,7 @@ def test_a_bead_unseen_in_both_views_is_placed_by_its_looks_only_where_they_agre
                               tool_to_x=p[0] - 1.0 if tool == c else None)
             frames[c], live[c], truth[c] = (1, img if bead else np.clip(sand[c], 0, 255).astype(np.uint8), 0.0), [t], p
         props: dict = {}
-        eng._looks(frames, live, props, {})
+        eng.lines.looks(frames, live, props, {})
         return {k[1]: math.hypot(q.match.x - truth[k[1]][0], q.match.y - truth[k[1]][1]) for k, q in props.items()}
 
     both = placed()
@@ -497,11 +499,11 @@ def test_a_lost_pale_bead_is_found_along_the_other_views_line_only_where_it_is_a
     s, f = cal.cameras["side"].project(C + 0.9 * (X - C))[0], cal.cameras["front"].project(X)[0]
     o = cal.cameras["side"].project(C + 1.02 * (X - C))[0]  # 37 px the other way along the line
     pale = _glass_bead(sand, *s, 6.0, pale=True)
-    m = eng._on_band("side", pale, track, tuple(f), [], 78.0)
+    m = eng.lines.on_band("side", pale, track, tuple(f), [], 78.0)
     assert np.hypot(*(s - s0)) > 30 and m is not None and np.hypot(m.x - s[0], m.y - s[1]) < 0.15
     two = _glass_bead(pale.astype(np.float32), *o, 6.0)
-    assert eng._on_band("side", two, track, tuple(f), [], 78.0) is None
-    m = eng._on_band("side", two, track, tuple(f), [tuple(o)], 78.0)
+    assert eng.lines.on_band("side", two, track, tuple(f), [], 78.0) is None
+    m = eng.lines.on_band("side", two, track, tuple(f), [tuple(o)], 78.0)
     assert m is not None and np.hypot(m.x - s[0], m.y - s[1]) < 0.15
 
 

@@ -175,7 +175,7 @@ def test_a_registration_shifted_onto_lookalikes_no_track_follows_is_refused_by_t
 
 
 def _pairing_run(side_points: dict, front_points: dict, frames: int) -> list:
-    """Engine._pair_crowd fed with crowd tracks' points ({marker: (frames, 2) px} per view, NaN: not
+    """CrowdPasses.pair (the engine's) fed with crowd tracks' points ({marker: (frames, 2) px} per view, NaN: not
     measured); returns the engine's pairs after each frame."""
     cal = synthetic.stereo_rig()
     eng = Engine(stereo=StereoCheck(cal, "side", "front"))
@@ -187,7 +187,7 @@ def _pairing_run(side_points: dict, front_points: dict, frames: int) -> list:
     for f in range(frames):
         obs = [Observation(f, cam, m, *p[f], "tracked") for cam, pts in (("side", side_points), ("front", front_points))
                for m, p in pts.items() if np.isfinite(p[f]).all()]
-        eng._pair_crowd({"side": (f, None, 0.0), "front": (f, None, 0.0)}, obs)
+        eng.crowd.pair({"side": (f, None, 0.0), "front": (f, None, 0.0)}, obs)
         out.append(dict(eng.partners))
     return out
 
@@ -238,14 +238,15 @@ def test_a_lost_crowd_bead_is_given_back_on_the_other_views_line_only_when_no_ot
         eng = Engine(stereo=StereoCheck(cal, "side", "front"))
         lost = _Lost(marker=4, camera="front", misses=12, kf=SimpleNamespace(xy=tuple(f0)),
                      model=SimpleNamespace(crowd=True, radius=r))
-        eng.tracks = {(4, "front"): lost, (1, "side"): SimpleNamespace(camera="side", model=SimpleNamespace(radius=r))}
-        eng.partners = {(4, "front"): (1, "side"), (1, "side"): (4, "front")}
-        eng._crowd_seen = {(4, "front"): {0: tuple(f0)}, (1, "side"): {0: tuple(s)}}  # last measured together
+        eng.tracks.update({(4, "front"): lost,
+                           (1, "side"): SimpleNamespace(camera="side", model=SimpleNamespace(radius=r))})
+        eng.partners.update({(4, "front"): (1, "side"), (1, "side"): (4, "front")})
+        eng.crowd._crowd_seen = {(4, "front"): {0: tuple(f0)}, (1, "side"): {0: tuple(s)}}  # last measured together
         props = {(1, "side"): Proposal(Match(*s, 0.95, 5.0, 1.0))}  # the side view measures it, not moved
         taken = {}
-        eng._unexplained_beads = lambda *args, **kw: np.array(beads, float).reshape(-1, 2)
-        eng._give_back = lambda cam, img, found, props: taken.update(found) or len(found)
-        eng._crowd_on_line("front", None, 5, [lost], props, {}, {"side": (5, None, 0.0), "front": (5, None, 0.0)})
+        eng.crowd._unexplained_beads = lambda *args, **kw: np.array(beads, float).reshape(-1, 2)
+        eng.crowd._give_back = lambda cam, img, found, props: taken.update(found) or len(found)
+        eng.crowd._crowd_on_line("front", None, 5, [lost], props, {}, {"side": (5, None, 0.0), "front": (5, None, 0.0)})
         return {t.marker: tuple(xy) for t, xy in taken.items()}, eng.ambiguous
 
     own = f0 + 0.6 * along + 0.4 * across
@@ -430,21 +431,21 @@ def test_a_hidden_patch_is_registered_again_from_the_frame_the_most_beads_around
     eng = Engine()
     crowd_bead = SimpleNamespace(crowd=True, radius=R)
     tracks = {k: SimpleNamespace(marker=k, model=crowd_bead) for k in group + anchors}
-    eng.tracks = {(k, "cam"): t for k, t in tracks.items()}
+    eng.tracks.update({(k, "cam"): t for k, t in tracks.items()})
     for k in group:
-        eng._crowd_seen[(k, "cam")] = {8: tuple(layer[k]), 10: tuple(layer[k] + (0.5, 0.3))}
+        eng.crowd._crowd_seen[(k, "cam")] = {8: tuple(layer[k]), 10: tuple(layer[k] + (0.5, 0.3))}
     for k in anchors:
-        eng._crowd_seen[(k, "cam")] = {8: tuple(layer[k])}
+        eng.crowd._crowd_seen[(k, "cam")] = {8: tuple(layer[k])}
     props = {(k, "cam"): Proposal(Match(*now[k], 0.9, 3.0, 1.0)) for k in anchors}
     patch = [tracks[k] for k in group]
     # From frame 10, with no bead around them measured then, the patch fits the lookalikes' row as well.
     at, agreed = crowd.register(layer[group] + (0.5, 0.3), now[beads], R, 6 * R)
     assert all(beads[b] in lookalikes for b in agreed.values())
     # From frame 8, its anchors pin it: each shown bead its own.
-    at, agreed = eng._register_pinned("cam", patch, now[beads], 0, props, {})
+    at, agreed = eng.crowd._register_pinned("cam", patch, now[beads], 0, props, {})
     assert {group[i]: beads[b] for i, b in agreed.items()} == {k: k for k in shown}
     # No frame with more anchors than the first try had: not tried again.
-    assert eng._register_pinned("cam", patch, now[beads], len(anchors), props, {}) == (None, {})
+    assert eng.crowd._register_pinned("cam", patch, now[beads], len(anchors), props, {}) == (None, {})
 
 
 def test_a_crowd_match_the_image_motion_refused_is_not_given_back_by_the_blob_search():
@@ -453,8 +454,8 @@ def test_a_crowd_match_the_image_motion_refused_is_not_given_back_by_the_blob_se
     step = {"cam": (3, frames[3], 0.0)}
     # Missed this step, its bead in its gate: the blob search gives it back...
     props: dict = {}
-    assert eng._reacquire("cam", frames[3], [t], props, {}, step) == 1 and (2, "cam") in props
+    assert eng.reacquisition.run("cam", frames[3], [t], props, {}, step) == 1 and (2, "cam") in props
     # ... but not when its own match was refused by the flow check this step (that blob is that match).
     props = {}
-    eng._flow_refused = {(2, "cam")}
-    assert eng._reacquire("cam", frames[3], [t], props, {}, step) == 0 and not props
+    eng.crowd.flow_refused = {(2, "cam")}
+    assert eng.reacquisition.run("cam", frames[3], [t], props, {}, step) == 0 and not props

@@ -1,11 +1,12 @@
 """The engine's passes for touching lookalikes (a crowd: a dense layer of identical beads).
 
-A mixin of Engine (engine.py): per step, after every track proposed its match, the passes here give
-missed crowd markers back (carried by the layer's motion and assigned, measured on the other view's
-epipolar line, a hidden patch registered from its neighbours, carried by the beads around it), check
-that the crowd's matches move together with the image (coherence, flow), keep each crowd track's
-recent points, and pair crowd tracks seeded in one view each across the views by their points
-(_pair_crowd). The rules of one bead against its neighbours are in crowd.py.
+A collaborator of Engine (engine.py), on its TrackSet, holding what it remembers of the crowd: per step,
+after every track proposed its match, the passes here give missed crowd markers back (carried by the
+layer's motion and assigned, measured on the other view's epipolar line, a hidden patch registered from
+its neighbours, carried by the beads around it), check that the crowd's matches move together with the
+image (coherence, flow), keep each crowd track's recent points, and pair crowd tracks seeded in one view
+each across the views by their points (pair). The rules of one bead against its neighbours are in
+crowd.py.
 """
 
 from __future__ import annotations
@@ -17,8 +18,10 @@ import numpy as np
 
 from . import crowd as crowd_rules
 from .detection import detect_like
+from .events import AmbiguityLog
 from .matcher import Proposal
 from .tracker import SHORT_MISS, TRACKED
+from .trackset import TrackSet, explained_points
 
 FLOW_AGREE_PX = 1.5  # a crowd marker's match this far from where the image motion took it is not its own
 CROWD_MEMORY = 100  # frames of measured positions kept per crowd track (a hidden patch is registered from them)
@@ -33,9 +36,41 @@ ANCHOR_REACH = 4.0  # radii: the beads around a lost one whose moves carry it (a
 
 
 class CrowdPasses:
-    """Engine's crowd passes (a mixin: the state they use is Engine's fields)."""
+    """The engine's passes for touching lookalikes, and what they remember between steps."""
 
-    def _crowd_passes(self, cam, img, j: int, tracks, props, forced, frames) -> int:
+    def __init__(self, trackset: TrackSet, log: AmbiguityLog):
+        self.trackset = trackset
+        self.log = log
+        self._crowd_at: dict = {}  # crowd track key -> (x, y) measured at the last step
+        self._crowd_carried: dict = {}  # missed crowd track key -> (x, y) carried by the layer
+        self.prev_frames: dict = {}  # camera -> its frame of the previous step (the layer's motion)
+        self._crowd_seen: dict = {}  # crowd track key -> {frame: (x, y)} measured lately
+        # (camera, patch's markers, its frame) -> (step last tried, unexplained beads then)
+        self._regroup_tried: dict = {}
+        # each pair as it was made: (key in the stereo pair's first camera, key in the second, frames measured on
+        # each other's lines then, frame of the first camera at which it was made)
+        self.pairings: list = []
+        # key in one camera -> {key in the other: [frames both measured, frames off each other's lines]} (both ways)
+        self._lines: dict = {}
+        self.flow_refused: set = set()  # crowd track keys whose match the flow check refused this step
+
+    @property
+    def stereo(self):
+        return self.trackset.stereo
+
+    @property
+    def tracks(self) -> dict:
+        return self.trackset.tracks
+
+    @property
+    def partners(self) -> dict:
+        return self.trackset.partners
+
+    @property
+    def direction(self) -> int:
+        return self.trackset.direction
+
+    def passes(self, cam, img, j: int, tracks, props, forced, frames) -> int:
         """The passes that give missed crowd markers back (carried and assigned, measured on the other view's
         line, a hidden patch registered, carried by their neighbours); returns how many of them gave any
         back. (Those the other view pins come first: measured again, they pin a registration as anchors.)"""
@@ -47,7 +82,7 @@ class CrowdPasses:
         n += int(self._crowd_rejoin(cam, img, j, tracks, props, forced) > 0)
         return n
 
-    def _pair_crowd(self, frames, obs) -> None:
+    def pair(self, frames, obs) -> None:
         """Crowd beads seeded in one view each (touching lookalikes are not paired at the seed: an
         epipolar line crosses several of them) are paired across the views by their points over time.
         A bead's points in the two views lie on each other's epipolar lines (within the stereo
@@ -119,7 +154,7 @@ class CrowdPasses:
         start = np.array([self._crowd_carried.get((t.marker, cam)) or self._crowd_at.get((t.marker, cam)) or t.kf.xy
                           for t in missed], float)
         where = np.full_like(start, np.nan)
-        prev = self._crowd_prev.get(cam)
+        prev = self.prev_frames.get(cam)
         if prev is not None:
             where = crowd_rules.flowed(prev, img, start, r)
         lacking = ~np.isfinite(where[:, 0])
@@ -141,7 +176,7 @@ class CrowdPasses:
         beads = self._unexplained_beads(cam, img, missed[0].model, where, props, forced)
         pairs, ambiguous = crowd_rules.assign(where, beads, 0.5 * r, 0.5 * r) if len(beads) else ({}, [])
         for i in ambiguous:
-            self._note_ambiguous(missed[i].marker, cam, j, 2)
+            self.log.note(missed[i].marker, cam, j, 2)
         n = self._give_back(cam, img, {missed[i]: beads[b] for i, b in pairs.items()}, props)
         return n + self._crowd_confirm(cam, img, missed, where, props, forced)
 
@@ -214,7 +249,7 @@ class CrowdPasses:
                 continue
             pairs, ambiguous = crowd_rules.assign(at, beads, 0.5 * r, 0.5 * r)
             for i in ambiguous:
-                self._note_ambiguous(group[patch[i]].marker, cam, j, 2)
+                self.log.note(group[patch[i]].marker, cam, j, 2)
             n += self._give_back(cam, img, {group[patch[i]]: beads[b] for i, b in pairs.items()
                                             if agreed.get(i) == b}, props)
         return n
@@ -266,7 +301,7 @@ class CrowdPasses:
         beads = self._unexplained_beads(cam, img, placed[0].model, where, props, explained)
         pairs, ambiguous = crowd_rules.assign(where, beads, 0.5 * r, 0.5 * r) if len(beads) else ({}, [])
         for i in ambiguous:
-            self._note_ambiguous(placed[i].marker, cam, j, 2)
+            self.log.note(placed[i].marker, cam, j, 2)
         n = self._give_back(cam, img, {placed[i]: beads[b] for i, b in pairs.items()}, props)
         return n + self._confirm_placed(cam, img, placed, where, beads, set(ambiguous), props, forced)
 
@@ -287,7 +322,7 @@ class CrowdPasses:
                     (len(others) and np.hypot(others[:, 0] - x, others[:, 1] - y).min() <= r):
                 continue
             m = t.confirm_carried(img, float(x), float(y))
-            if m is None or any(math.hypot(m.x - a, m.y - b) < r for a, b in self._explained(cam, props, forced)):
+            if m is None or any(math.hypot(m.x - a, m.y - b) < r for a, b in explained_points(cam, props, forced)):
                 continue
             props[(t.marker, cam)] = Proposal(m, reattach=True)
             n += 1
@@ -295,7 +330,7 @@ class CrowdPasses:
 
     def _crowd_on_line(self, cam, img, j: int, tracks, props, forced, frames) -> int:
         """Crowd markers unseen for more than SHORT_MISS frames that the other view measures this step (the
-        same marker, or its paired track: _pair_crowd): the bead no track explains lying on the other
+        same marker, or its paired track: pair): the bead no track explains lying on the other
         view's epipolar band within `reach` of where the marker was last (its radius, plus how far the
         other view saw it move since both last measured it, in this view's scale, but never more than its
         radius), with no other such bead within a bead's width more along the band, is given back. (A bead
@@ -326,7 +361,7 @@ class CrowdPasses:
             rivals = on & (d <= reach + 2 * r)
             if inside.sum() != 1 or rivals.sum() != 1:
                 if rivals.sum() > 1 and inside.any():
-                    self._note_ambiguous(t.marker, cam, j, int(rivals.sum()))
+                    self.log.note(t.marker, cam, j, int(rivals.sum()))
                 continue
             bead = beads[int(np.argmax(inside))]
             n += self._give_back(cam, img, {t: bead}, props)
@@ -335,10 +370,10 @@ class CrowdPasses:
     def _line_from_other_view(self, key, frames, props, forced) -> tuple:
         """(the other view's key, its point this step) for a crowd track whose bead the other view sees
         (the same marker's, or its paired track's point: the epipolar line's source); (None, None)."""
-        other = self._other_view(key)
+        other = self.trackset.other_view(key)
         if other is None or other[1] not in frames:
             return None, None
-        return other, self._point_at(other, frames, props, forced)
+        return other, self.trackset.point_at(other, frames, props, forced)
 
     def _line_reach(self, key, other, other_now) -> float | None:
         """How far (px) a crowd marker unseen a while may be from where it was last measured: its radius,
@@ -412,7 +447,7 @@ class CrowdPasses:
             if m is None or self.stereo.distance(other[1], band_from, cam, (m.x, m.y))[0] > self.stereo.threshold_px \
                     or math.hypot(m.x - carried[0], m.y - carried[1]) > 0.5 * t.model.radius \
                     or any(math.hypot(m.x - a, m.y - b) <= 0.5 * t.model.radius
-                           for a, b in self._explained(cam, props, forced)):
+                           for a, b in explained_points(cam, props, forced)):
                 continue
             props[key] = Proposal(m, reattach=True)
             n += 1
@@ -422,7 +457,7 @@ class CrowdPasses:
         """Carried crowd markers no detected bead gave back, measured where they were carried
         (MarkerTrack.confirm_carried), unless another marker of this camera is measured within a radius
         of there; returns how many came back."""
-        taken = self._explained(cam, props, forced)
+        taken = explained_points(cam, props, forced)
         n = 0
         for t, (x, y) in zip(missed, where, strict=True):
             if (t.marker, cam) in props or not t.carried:
@@ -450,14 +485,14 @@ class CrowdPasses:
         if det.empty:
             return np.empty((0, 2))
         beads = det[["x_px", "y_px"]].to_numpy(float) + (x0, y0)
-        explained = self._explained(cam, props, forced)
+        explained = explained_points(cam, props, forced)
         if explained:
             e = np.array(explained, float)
             d = np.hypot(beads[:, None, 0] - e[None, :, 0], beads[:, None, 1] - e[None, :, 1])
             beads = beads[d.min(axis=1) > r]
         return beads
 
-    def _remember_crowd(self, key, frame: int, xy) -> None:
+    def remember(self, key, frame: int, xy) -> None:
         """A crowd track's position this step, measured or placed (its neighbours' next moves start
         here, and a hidden patch of the layer is registered from where its beads were together); None:
         missed."""
@@ -471,7 +506,7 @@ class CrowdPasses:
         else:
             self._crowd_at.pop(key, None)
 
-    def _crowd_coherence(self, tracks, props, crowd: dict) -> None:
+    def coherence(self, tracks, props, crowd: dict) -> None:
         """Markers among touching lookalikes (a dense layer) are carried by the sand together: a
         marker's match must have moved from its prediction as its touching neighbours' matches did
         (within half a radius of their median); one that did not has taken a neighbour or a gap,
@@ -498,13 +533,13 @@ class CrowdPasses:
         for key in drop:
             del props[key]
 
-    def _crowd_flow_check(self, cam, img, tracks, props) -> None:
+    def flow_check(self, cam, img, tracks, props) -> None:
         """A crowd marker's new match must lie where the image motion around it since the last step
         took it (crowd.flowed, from where it was measured then), within FLOW_AGREE_PX: one that does not
         has jumped to a neighbour's outline or a gap, and coasts instead (flagged). Where the motion is
         not clear the match stands."""
-        prev = self._crowd_prev.get(cam)
-        self._flow_refused = {k for k in self._flow_refused if k[1] != cam}
+        prev = self.prev_frames.get(cam)
+        self.flow_refused = {k for k in self.flow_refused if k[1] != cam}
         if prev is None:
             return
         keys, start, found = [], [], []
@@ -524,7 +559,7 @@ class CrowdPasses:
         for key, d in zip(keys, off, strict=True):
             if d > FLOW_AGREE_PX:  # (NaN: the motion is not clear, the match stands)
                 del props[key]
-                self._flow_refused.add(key)
+                self.flow_refused.add(key)
 
 
 def _patches(points: np.ndarray, link: float) -> list[list[int]]:

@@ -39,7 +39,7 @@ class Match:
     lit: bool = False  # a crowd marker centred by its highlight (its outline not found, or pulled off)
     assigned: bool = False  # a crowd marker measured where an assignment put it, its template not asked
     look: bool = False  # placed by its look at its last full measurement (MarkerTrack.look_match), not measured
-    line: bool = False  # measured on the other view's epipolar line, its outline found all round (Engine._on_line)
+    line: bool = False  # measured on the other view's epipolar line, its outline found all round (LineSearch.on_line)
 
 
 @dataclass
