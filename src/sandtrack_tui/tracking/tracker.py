@@ -36,7 +36,7 @@ TRACKED, OCCLUDED, LOST, MANUAL, INTERPOLATED = "tracked", "occluded", "lost", "
 DEFAULT_BOX_PX = 16
 # A marker touching others matches its seed template (the marker in a ring of sand) less well, and
 # its neighbours' peaks crowd the NCC surface: its score and PSR limits are relaxed this much. (Who is
-# who is the crowd rules' business: engine.py.)
+# who is the crowd rules' business: search.Crowded.)
 TOUCHING_RELAX = 0.85
 MERGED_COVERAGE = 1.4  # marker coverage (in seed discs) above which a blob is two markers merged
 HELD_MEAS_PX = 1.0  # measurement noise of a held marker's template peak (no outline), px
@@ -172,7 +172,7 @@ class MarkerTrack:
         self.held = False
         self.highlight_offset: tuple | None = None  # a crowd bead's highlight - its centre, px
         self.highlight_contrast: float | None = None  # how far its highlight stands out of its body (crowd.py)
-        self.carried = False  # missed among touching lookalikes, moved with the layer (engine.py): not lost
+        self.carried = False  # missed among touching lookalikes, moved with the layer (crowd_passes.py): not lost
         self._last_measured: tuple | None = (frame_index, x, y)  # (frame, x, y) of the last match or point
 
     # -- per frame -----------------------------------------------------------------------------
@@ -597,7 +597,7 @@ class MarkerTrack:
         return m
 
     def verify_assigned(self, frame_bgr: np.ndarray, x: float, y: float) -> Match | None:
-        """A crowd marker given a detected bead by assignment (engine.py: who it is comes from where the
+        """A crowd marker given a detected bead by assignment (crowd_passes.py: who it is comes from where the
         layer carried it, not from how it looks), measured there by its own outline, found all round it
         and of its own radius (as any crowd match), whatever its template's score: the template was cut
         among the bead's old neighbours, and once the layer has deformed it fits the bead among its new
@@ -612,7 +612,7 @@ class MarkerTrack:
 
     def confirm_carried(self, frame_bgr: np.ndarray, x: float, y: float) -> Match | None:
         """A crowd marker carried by the layer's motion (or placed by its neighbours' moves) to (x, y)
-        (engine.py), measured again: its template found there, and its highlight (crowd.highlight) found
+        (crowd_passes.py), measured again: its template found there, and its highlight (crowd.highlight) found
         where this bead's own highlight sits from its centre (learned while its outline was seen all round
         it), giving a centre near (x, y): two independent estimates of where the bead is agree. Near: as
         far as keeps the highlight's search on the bead's body (_highlight_agree_px); or, within half a
@@ -651,7 +651,7 @@ class MarkerTrack:
 
     def confirm_on_line(self, frame_bgr: np.ndarray, x: float, y: float) -> Match | None:
         """A crowd marker carried by the layer's motion, placed at (x, y) on the other view's epipolar line
-        (engine.py), measured by its own outline: a circle of its radius found all round it within half a
+        (crowd_passes.py), measured by its own outline: a circle of its radius found all round it within half a
         radius of there (TemplateMatcher.silhouette, strict), whatever its template scores (a bead half hidden
         behind its neighbours shows only part of its shading). None without that outline, on a blob of two
         beads merged, or cut by the border."""
