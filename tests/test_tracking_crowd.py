@@ -66,7 +66,7 @@ def _tracked_bead(n_frames: int, steps: int | None = None, **render) -> tuple:
 def test_a_crowd_bead_is_centred_by_its_highlight_where_its_outline_does_not_measure_it():
     k = 5
     loose, frames, t, eng = _tracked_bead(5)
-    assert np.hypot(*(np.array(t.highlight_offset) - np.array(SHINE) * R)) < 0.14  # learned from its outline (0.09)
+    assert np.hypot(*(np.array(t.highlight.offset) - np.array(SHINE) * R)) < 0.14  # learned from its outline (0.09)
     x, y = loose[k] + (2.4, 1.2)
     img = frames[-1]
 
@@ -395,7 +395,7 @@ def _under_tool(img: np.ndarray, x0: float, seed: int = 9) -> np.ndarray:
 def test_a_carried_bead_half_under_the_tool_is_measured_by_its_highlight_and_a_hidden_one_is_not():
     k = 5
     loose, frames, t, eng = _tracked_bead(5)
-    assert t.highlight_contrast > 20.0  # learned with its offset, where its outline was seen all round
+    assert t.highlight.contrast > 20.0  # learned with its offset, where its outline was seen all round
     x, y = loose[k] + (2.4, 1.2)
     # Carried 1.7 px off (farther than the highlight alone vouches for), its right side under the tool: its
     # outline is not found all round, its highlight (up and left of its centre) stands out of its body.
@@ -416,9 +416,9 @@ def test_a_carried_bead_whose_highlight_sits_far_off_its_centre_is_measured_by_i
     # would reach the bead's rim and the brighter sand beyond, and find no highlight.
     k, shine = 5, (-0.3, -0.34)
     loose, frames, t, eng = _tracked_bead(5, shine=shine)
-    assert np.hypot(*(np.array(t.highlight_offset) - np.array(shine) * R)) < 0.1  # measured 0.069 px
+    assert np.hypot(*(np.array(t.highlight.offset) - np.array(shine) * R)) < 0.1  # measured 0.069 px
     x, y = loose[k] + (2.4, 1.2)
-    assert t._highlight_reach() + math.hypot(*t.highlight_offset) <= R - 1.0  # on the bead's body
+    assert t.highlight.reach() + math.hypot(*t.highlight.offset) <= R - 1.0  # on the bead's body
     m = t.confirm_carried(frames[-1], x + 0.4, y - 0.3)
     assert m is not None and math.hypot(m.x - x, m.y - y) < 0.3
 

@@ -25,6 +25,7 @@ import numpy as np
 from ..errors import SandtrackError
 from . import crowd as crowd_rules
 from .appearance import BRIGHT, COLOUR, DARK, AppearanceModel
+from .highlight import CARRIED_AGREE_PX, Highlight
 from .kalman import GATE_D2, ConstantVelocityKF
 from .learning import learn
 from .luma import LumaPattern, edge_centre, edge_circle, rim_step
@@ -40,16 +41,6 @@ DEFAULT_BOX_PX = 16
 TOUCHING_RELAX = 0.85
 MERGED_COVERAGE = 1.4  # marker coverage (in seed discs) above which a blob is two markers merged
 HELD_MEAS_PX = 1.0  # measurement noise of a held marker's template peak (no outline), px
-CARRIED_AGREE_PX = 1.0  # a carried crowd marker's outline centre this near its carried position re-confirms it
-HIGHLIGHT_ALPHA = 0.2  # share of a new measurement in a crowd bead's highlight offset (and contrast)
-# Share of a crowd bead's own highlight contrast (learned with its offset) a highlight found must reach: the
-# brightest point of a flat surface (the tool over a hidden bead) reaches its noise only (0.02-0.07 of it on the
-# dense twin), a bead's own highlight, partly hidden or read across a neighbour's rim, 0.40-1.07.
-HIGHLIGHT_CONTRAST_SHARE = 0.25
-# A crowd bead's highlight is first looked for this far from its centre, in radii: anywhere on its body but
-# its rim (a pixel's blur inside it: beyond, the bright sand or gap bleeds in, and a brightest point on
-# the search's edge is no highlight).
-HIGHLIGHT_FIRST_REACH = 0.8
 SHORT_MISS = 3  # frames unseen up to which a returning marker's match is judged leniently (verify_at)
 # A fast marker's colour match this far behind its brightness pattern is stale chroma: half the pitch of
 # 4:2:0 chroma samples (2 px), under which the colour's centre cannot tell where the marker is anyway.
@@ -170,8 +161,7 @@ class MarkerTrack:
         self._look: tuple | LumaPattern | None = None
         self.rest_frames = 0
         self.held = False
-        self.highlight_offset: tuple | None = None  # a crowd bead's highlight - its centre, px
-        self.highlight_contrast: float | None = None  # how far its highlight stands out of its body (crowd.py)
+        self.highlight = Highlight(self.model)  # a crowd bead's highlight: where it sits, how far it stands out
         self.carried = False  # missed among touching lookalikes, moved with the layer (crowd_passes.py): not lost
         self._last_measured: tuple | None = (frame_index, x, y)  # (frame, x, y) of the last match or point
 
@@ -225,26 +215,9 @@ class MarkerTrack:
         return m
 
     def _centre_by_highlight(self, frame_bgr, m: Match) -> None:
-        """A crowd match centred by its highlight where its outline does not measure it: the brightest
-        point within half a radius of where this bead's highlight sits from the match's centre
-        (crowd.highlight), less that offset (learned while its outline was seen all round it). A smooth
-        sphere's highlight stays at a fixed offset from its centre (the light and the view do not move
-        with it), and is its own: a neighbour's lies a bead's width away. So is measured a bead whose
-        outline was not found (in a pressed layer the gaps between the beads close), and one whose
-        outline's centre lies farther than CARRIED_AGREE_PX from where its highlight puts it (a
-        neighbour's rim or a shadow pulled the outline: on the dense twin, of the 12 tracked frames
-        where the two disagreed by more than 1 px, the highlight was the nearer the truth in 10, 0.27
-        against 1.13 px median). Left as it is without a learned offset or a highlight there (held,
-        when its outline was not found either)."""
-        off = self.highlight_offset
-        if off is None or m.rest:
-            return
-        h = crowd_rules.highlight(frame_bgr, m.x + off[0], m.y + off[1], 0.5 * self.model.radius)
-        if h is None or (m.outline and math.hypot(h[0] - off[0] - m.x, h[1] - off[1] - m.y) <= CARRIED_AGREE_PX):
-            return
-        m.x, m.y = h[0] - off[0], h[1] - off[1]
-        m.outline = m.used_centroid = m.lit = True
-        m.d2 = self.kf.d2(m.x, m.y)
+        """A crowd match centred by its highlight where its outline does not measure it (Highlight.centre)."""
+        if self.highlight.centre(frame_bgr, m):
+            m.d2 = self.kf.d2(m.x, m.y)
 
     def look_match(self, frame_bgr, near: tuple | None = None) -> Match | None:
         """A marker of a brightness model whose match failed, found again by its look at its last full
@@ -615,23 +588,23 @@ class MarkerTrack:
         (crowd_passes.py), measured again: its template found there, and its highlight (crowd.highlight) found
         where this bead's own highlight sits from its centre (learned while its outline was seen all round
         it), giving a centre near (x, y): two independent estimates of where the bead is agree. Near: as
-        far as keeps the highlight's search on the bead's body (_highlight_agree_px); or, within half a
+        far as keeps the highlight's search on the bead's body (Highlight.agree_px); or, within half a
         radius (an assignment's gate), where the bead's own outline of its radius is found all round that
-        centre too, or where the search lay on the body of a bead centred there (_own_highlight). The
-        highlight must stand out of that body as the bead's own does (_stands_out). Else None (it stays
+        centre too, or where the search lay on the body of a bead centred there (Highlight.own). The
+        highlight must stand out of that body as the bead's own does (Highlight.stands_out). Else None (it stays
         flagged)."""
-        off = self.highlight_offset
+        off = self.highlight.offset
         if off is None:
             return None
         m = self.matcher.match(frame_bgr, x, y, 2.0, 2.0)
         if m is None or self.cut_by_border(frame_bgr, m):
             return None
-        h = crowd_rules.highlight(frame_bgr, x + off[0], y + off[1], self._highlight_reach())
+        h = crowd_rules.highlight(frame_bgr, x + off[0], y + off[1], self.highlight.reach())
         if h is None:
             return None
         cx, cy = h[0] - off[0], h[1] - off[1]
         d = math.hypot(cx - x, cy - y)
-        if d > self._highlight_agree_px():
+        if d > self.highlight.agree_px():
             # (farther, within the gate of an assignment: its own outline, of its radius, found all round that
             # centre confirms it; the sand between beads gives no such outline. Or, where its outline is pressed
             # against its neighbours' or half under the tool, its highlight itself: found on the body of a bead
@@ -641,9 +614,9 @@ class MarkerTrack:
             e = self.matcher.silhouette(frame_bgr, cx, cy, strict=True)
             if e is not None and math.hypot(e[0] - cx, e[1] - cy) <= CARRIED_AGREE_PX:
                 cx, cy = e
-            elif not self._own_highlight(frame_bgr, h, (x + off[0], y + off[1]), (cx, cy)):
+            elif not self.highlight.own(frame_bgr, h, (x + off[0], y + off[1]), (cx, cy)):
                 return None
-        elif not self._stands_out(frame_bgr, h, (cx, cy)):
+        elif not self.highlight.stands_out(frame_bgr, h, (cx, cy)):
             return None
         m.x, m.y, m.outline, m.used_centroid = cx, cy, True, True
         m.d2 = self.kf.d2(m.x, m.y)
@@ -673,62 +646,6 @@ class MarkerTrack:
         more than a bead shows with six like it touching it all round (crowd.packed_coverage; a small bead's
         window holds relatively more of its neighbours' rims), and never under MERGED_COVERAGE."""
         return crowd_rules.packed_coverage(self.model.radius, MERGED_COVERAGE)
-
-    def _highlight_agree_px(self) -> float:
-        """How far from where it was carried a crowd bead's highlight may put its centre (confirm_carried):
-        so far that, were that centre the bead's, the highlight's search (half a radius around the carried
-        place plus the offset) lay wholly on the bead's body, a pixel's blur inside its rim: the brightest
-        point found there is then its own highlight, not the sand between the beads; never under
-        CARRIED_AGREE_PX."""
-        off = self.highlight_offset
-        return max(CARRIED_AGREE_PX, self.model.radius - 1.0 - math.hypot(*off) - self._highlight_reach())
-
-    def _own_highlight(self, frame_bgr, h: tuple, searched: tuple, centre: tuple) -> bool:
-        """A highlight `h` found by a search around `searched`, farther from where the bead was carried than
-        _highlight_agree_px allows, is this bead's own, the bead centred at `centre`: the search's accepted
-        part (crowd.highlight takes no point within a pixel of its edge) lay on that bead's body, a pixel's
-        blur inside its rim, so the sand between the beads was not searched; and it stands out of that body
-        as this bead's own highlight does (_stands_out, with its contrast learned)."""
-        if self.highlight_contrast is None:
-            return False
-        reach = math.hypot(searched[0] - centre[0], searched[1] - centre[1]) + self._highlight_reach()
-        return reach <= self.model.radius and self._stands_out(frame_bgr, h, centre)
-
-    def _stands_out(self, frame_bgr, h: tuple, centre: tuple) -> bool:
-        """The highlight `h` stands out of the body of a bead centred at `centre` (crowd.highlight_contrast)
-        by at least HIGHLIGHT_CONTRAST_SHARE of what this bead's own highlight did where its outline was seen
-        all round it: the brightest point of the tool over a hidden bead stands out by its noise only (1-3
-        grey levels on the dense twin, against 41-47 of the beads' own highlights beside it). True while no
-        contrast is learned, or near the image's edge."""
-        k = self.highlight_contrast
-        if k is None:
-            return True
-        c = crowd_rules.highlight_contrast(frame_bgr, h[0], h[1], centre[0], centre[1], self.model.radius)
-        return not math.isfinite(c) or c >= HIGHLIGHT_CONTRAST_SHARE * k
-
-    def _highlight_reach(self) -> float:
-        """How far from where a carried crowd bead's highlight should be it is looked for (confirm_carried):
-        half a radius, but no farther than keeps the search on the bead's body, a pixel's blur inside its rim,
-        were the bead where it was carried (a bead whose highlight sits far from its centre, as in a slanted
-        view, would otherwise reach its rim and the sand beyond, brighter than the highlight, and find none)."""
-        return min(0.5 * self.model.radius, self.model.radius - 1.0 - math.hypot(*self.highlight_offset))
-
-    def _learn_highlight(self, frame_bgr, m: Match) -> None:
-        """Where this crowd bead's highlight sits from its centre, from a frame that measured its outline
-        all round it (a running mean)."""
-        off = self.highlight_offset
-        r = self.model.radius
-        h = crowd_rules.highlight(frame_bgr, m.x + (off[0] if off else 0.0), m.y + (off[1] if off else 0.0),
-                                  0.5 * r if off else HIGHLIGHT_FIRST_REACH * r)
-        if h is None:
-            return
-        d = (h[0] - m.x, h[1] - m.y)
-        self.highlight_offset = d if off is None else (off[0] + HIGHLIGHT_ALPHA * (d[0] - off[0]),
-                                                       off[1] + HIGHLIGHT_ALPHA * (d[1] - off[1]))
-        c = crowd_rules.highlight_contrast(frame_bgr, h[0], h[1], m.x, m.y, r)
-        if math.isfinite(c):
-            k = self.highlight_contrast
-            self.highlight_contrast = c if k is None else k + HIGHLIGHT_ALPHA * (c - k)
 
     def _pattern_denies(self, frame_bgr, m: Match, frame_index: int | None) -> bool:
         """A marker with no dark silhouette, unseen a frame or two, whose colour covers less than a whole
@@ -780,8 +697,8 @@ class MarkerTrack:
             # (at rest the centre is the last measurement moved by the brightness shift: it is learned from
             # there only while no offset is known, e.g. a bead at rest since its seed)
             if self.model.crowd and frame_bgr is not None and not reattach and not m.lit \
-                    and (not m.rest or self.highlight_offset is None):
-                self._learn_highlight(frame_bgr, m)
+                    and (not m.rest or self.highlight.offset is None):
+                self.highlight.learn(frame_bgr, m)
             if m.assigned and frame_bgr is not None:  # (its template no longer fits it: cut again where it is)
                 self.matcher.update_template(frame_bgr, m.x, m.y, 1.0)
             if m.rest:
