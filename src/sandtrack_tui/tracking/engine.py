@@ -34,7 +34,6 @@ from .line_search import LineSearch
 from .matcher import Proposal
 from .matching import BlobAssigner, resolve_conflicts
 from .reattach import Reacquisition
-from .search import touching_pairs as _touching_pairs  # noqa: F401 (tests reach it here)
 from .stereo import StereoCheck
 from .tracker import MarkerTrack, Observation
 from .trackset import TrackSet
