@@ -36,6 +36,7 @@ from sandtrack_tui.tracking.engine import Engine  # noqa: E402
 from sandtrack_tui.tracking.line_search import LineSearch  # noqa: E402
 from sandtrack_tui.tracking.matcher import TemplateMatcher  # noqa: E402
 from sandtrack_tui.tracking.reattach import Reacquisition  # noqa: E402
+from sandtrack_tui.tracking.refine import LumaCarry  # noqa: E402
 from sandtrack_tui.tracking.rest import RestReference  # noqa: E402
 from sandtrack_tui.tracking.run import accept_seeds, track_project  # noqa: E402
 from sandtrack_tui.tracking.tracker import MarkerTrack  # noqa: E402
@@ -47,7 +48,7 @@ STAGES = {  # name -> (class or module, function)
     "propose": (MarkerTrack, "propose"),
     "match": (TemplateMatcher, "match"),
     "rest_shift": (RestReference, "shift"),
-    "luma_carry": (MarkerTrack, "_carry"),
+    "luma_carry": (LumaCarry, "refine"),
     "reacquire": (Reacquisition, "run"),
     "band_search": (LineSearch, "band_blobs"),
     "apply": (MarkerTrack, "apply"),

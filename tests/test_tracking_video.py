@@ -96,10 +96,10 @@ def test_edge_centre_finds_a_dark_disc_and_refuses_flat_sand():
 
 
 def test_one_fit_of_the_silhouette_circle_from_a_start_off_its_centre_is_the_silhouettes():
-    # The luma carry fits the circle once (tracker.CARRY_EDGE_ROUNDS), from the colour centre less its offset
+    # The luma carry fits the circle once (refine.CARRY_EDGE_ROUNDS), from the colour centre less its offset
     # at the last intra frame: from up to 1.4 px off, in any direction, on noisy sand, that one fit is the
     # dark disc's circle within 0.06 px.
-    from sandtrack_tui.tracking.tracker import CARRY_EDGE_ROUNDS
+    from sandtrack_tui.tracking.refine import CARRY_EDGE_ROUNDS
 
     rng = np.random.default_rng(1)
     cx, cy, r = 30.3, 28.6, 4.5
@@ -191,20 +191,15 @@ def test_a_white_markers_colour_left_behind_or_partly_hidden_is_not_taken_for_it
     from types import SimpleNamespace
 
     from sandtrack_tui.tracking.matcher import STREAK_MIN_SPEED, Match
-    from sandtrack_tui.tracking.tracker import (
-        PARTIAL_ASTRAY_PX,
-        PLACE_MIN_FIT,
-        STALE_BEHIND_PX,
-        MarkerTrack,
-        TrackParams,
-    )
+    from sandtrack_tui.tracking.refine import PARTIAL_ASTRAY_PX, PLACE_MIN_FIT, STALE_BEHIND_PX, LumaCarry
+    from sandtrack_tui.tracking.tracker import TrackParams
 
     def takes(colour_xy, velocity, coverage=0.9, fit=0.8):
-        t = MarkerTrack.__new__(MarkerTrack)
-        t._pattern = SimpleNamespace(find=lambda *a, **k: None, place=(50.0, 40.0), fit=fit)  # (fit under MIN_NCC)
-        t._offset, t.kf, t.params = (0.5, -0.25), SimpleNamespace(vxy=velocity), TrackParams()
+        c = LumaCarry(None, TrackParams(), SimpleNamespace(vxy=velocity))
+        c.pattern = SimpleNamespace(find=lambda *a, **k: None, place=(50.0, 40.0), fit=fit)  # (fit under MIN_NCC)
+        c.offset = (0.5, -0.25)
         m = Match(*colour_xy, 0.73, 5.0, coverage)
-        return t._carry_pattern(None, m, intra=False), (m.x, m.y) == colour_xy
+        return c._carry_pattern(None, m, intra=False), (m.x, m.y) == colour_xy
 
     fast = (6.0, 8.0)  # 10 px per frame, along (0.6, 0.8)
     behind = 1.5 * STALE_BEHIND_PX
@@ -226,17 +221,18 @@ def test_a_white_marker_whose_colour_match_fails_at_an_intra_frame_is_found_by_i
     still found by its brightness pattern, as between intra frames, and the chain is cut again there."""
     from types import SimpleNamespace
 
-    from sandtrack_tui.tracking.tracker import MarkerTrack, TrackParams
+    from sandtrack_tui.tracking.refine import LumaCarry
+    from sandtrack_tui.tracking.tracker import TrackParams
 
     sand = synthetic.sand_texture(80, 80, np.random.default_rng(5)).astype(float)
     r, (ax, ay), (dx, dy) = 4.4, (38.3, 40.6), (1.6, -0.9)
-    t = MarkerTrack.__new__(MarkerTrack)
-    t.model, t.params, t.intra = SimpleNamespace(luma_follows=False, radius=r), TrackParams(), np.array([True, True])
-    t._pattern, t._offset = LumaPattern(_white_sphere_on_sand(sand, ax, ay, r), ax, ay, r), (0.3, -0.2)
-    t.kf = SimpleNamespace(xy=(ax, ay), vxy=(0.0, 0.0), d2=lambda x, y: 1.0)
-    m = t._pattern_match(_white_sphere_on_sand(sand, ax + dx, ay + dy, r), 1)
+    c = LumaCarry(SimpleNamespace(luma_follows=False, radius=r), TrackParams(),
+                  SimpleNamespace(xy=(ax, ay), vxy=(0.0, 0.0), d2=lambda x, y: 1.0))
+    c.intra = np.array([True, True])
+    c.pattern, c.offset = LumaPattern(_white_sphere_on_sand(sand, ax, ay, r), ax, ay, r), (0.3, -0.2)
+    m = c.pattern_match(_white_sphere_on_sand(sand, ax + dx, ay + dy, r), 1)
     assert m is not None and np.hypot(m.x - 0.3 - ax - dx, m.y + 0.2 - ay - dy) < 0.15
-    assert (t._pattern.x, t._pattern.y) == m.luma
+    assert (c.pattern.x, c.pattern.y) == m.luma
 
 
 def test_a_lost_white_marker_is_found_again_by_the_pattern_kept_from_before_it_was_hidden():
@@ -245,19 +241,22 @@ def test_a_lost_white_marker_is_found_again_by_the_pattern_kept_from_before_it_w
     within 0.15 px and followed on from it; half covered, or farther than its radius, it is not."""
     from types import SimpleNamespace
 
-    from sandtrack_tui.tracking.tracker import LOST, SHORT_MISS, MarkerTrack, TrackParams
+    from sandtrack_tui.tracking.refine import LumaCarry
+    from sandtrack_tui.tracking.tracker import LOST, MarkerTrack, TrackParams
 
     sand = synthetic.sand_texture(80, 80, np.random.default_rng(5)).astype(float)
     r, (ax, ay), (dx, dy), offset = 4.4, (38.3, 40.6), (1.2, -0.8), (0.3, -0.2)
 
     def lost_track():
         t = MarkerTrack.__new__(MarkerTrack)
-        t.model, t.params, t.intra = SimpleNamespace(luma_follows=False, radius=r), TrackParams(), np.array([False])
-        t._pattern = LumaPattern(_white_sphere_on_sand(sand, ax, ay, r), ax, ay, r)
-        t._offset, t._anchor_luma, t.status, t.held, t.misses = offset, (ax, ay), LOST, False, SHORT_MISS
+        t.model, t.params = SimpleNamespace(luma_follows=False, radius=r), TrackParams()
         t.kf = SimpleNamespace(xy=(ax + offset[0], ay + offset[1]), vxy=(0.0, 0.0), d2=lambda x, y: 50.0)
-        t._follow_pattern_chain(None, None, False)  # (the chain broken by the miss)
-        assert t._pattern is None
+        t.carry = LumaCarry(t.model, t.params, t.kf)
+        t.intra = np.array([False])
+        t.carry.pattern = LumaPattern(_white_sphere_on_sand(sand, ax, ay, r), ax, ay, r)
+        t.carry.offset, t.carry.anchor_luma, t.status, t.held = offset, (ax, ay), LOST, False
+        t.carry._follow_pattern_chain(None, None, False, long_miss=True)  # (the chain broken by the miss)
+        assert t.carry.pattern is None
         t.misses = 40
         return t
 
@@ -265,7 +264,7 @@ def test_a_lost_white_marker_is_found_again_by_the_pattern_kept_from_before_it_w
     t = lost_track()
     m = t.pattern_return(back, 7)
     assert m is not None and np.hypot(m.x - offset[0] - ax - dx, m.y - offset[1] - ay - dy) < 0.15
-    assert t._pattern is not None and t._kept is None  # (followed on by its pattern)
+    assert t.carry.pattern is not None and t.carry.kept is None  # (followed on by its pattern)
     half = back.copy()
     half[int(ay + dy):, :] = np.round(sand[int(ay + dy):, :]).astype(np.uint8)
     assert lost_track().pattern_return(half, 7) is None
@@ -282,7 +281,8 @@ def test_a_white_marker_found_again_far_away_with_weak_colour_is_placed_by_its_k
     from types import SimpleNamespace
 
     from sandtrack_tui.tracking.matcher import Match
-    from sandtrack_tui.tracking.tracker import LOST, SHORT_MISS, MarkerTrack, TrackParams
+    from sandtrack_tui.tracking.refine import LumaCarry
+    from sandtrack_tui.tracking.tracker import LOST, MarkerTrack, TrackParams
 
     sand = synthetic.sand_texture(80, 80, np.random.default_rng(5)).astype(float)
     r, (ax, ay), offset = 4.4, (30.3, 40.6), (0.3, -0.2)
@@ -291,11 +291,13 @@ def test_a_white_marker_found_again_far_away_with_weak_colour_is_placed_by_its_k
     def lost_track():
         t = MarkerTrack.__new__(MarkerTrack)
         t.model = SimpleNamespace(luma_follows=False, radius=r, has_blob=True)
-        t.params, t.intra = TrackParams(), np.array([False])
-        t._pattern = LumaPattern(_white_sphere_on_sand(sand, ax, ay, r), ax, ay, r)
-        t._offset, t._anchor_luma, t.status, t.held, t.misses = offset, (ax, ay), LOST, False, SHORT_MISS
+        t.params = TrackParams()
         t.kf = SimpleNamespace(xy=(ax + offset[0], ay + offset[1]), vxy=(0.0, 0.0), d2=lambda x, y: 50.0)
-        t._follow_pattern_chain(None, None, False)  # (the chain broken by the miss)
+        t.carry = LumaCarry(t.model, t.params, t.kf)
+        t.intra = np.array([False])
+        t.carry.pattern = LumaPattern(_white_sphere_on_sand(sand, ax, ay, r), ax, ay, r)
+        t.carry.offset, t.carry.anchor_luma, t.status, t.held = offset, (ax, ay), LOST, False
+        t.carry._follow_pattern_chain(None, None, False, long_miss=True)  # (the chain broken by the miss)
         t.misses = 40
         return t
 
@@ -304,15 +306,15 @@ def test_a_white_marker_found_again_far_away_with_weak_colour_is_placed_by_its_k
     back = _white_sphere_on_sand(sand, bx, by, r)
     t = lost_track()
     assert t.pattern_return(back, 7) is None
-    m = t._whole_by_pattern(back, weak, 1.0)
+    m = t.carry.whole_by_pattern(back, weak, 1.0)
     assert m is not None and np.hypot(m.x - offset[0] - bx, m.y - offset[1] - by) < 0.15
-    t._follow_pattern_chain(back, m, reattach=True)
-    assert t._pattern is not None and t._kept is None  # (followed on by its pattern)
+    t.carry._follow_pattern_chain(back, m, reattach=True)
+    assert t.carry.pattern is not None and t.carry.kept is None  # (followed on by its pattern)
     half = back.copy()
     half[int(by):, :] = np.round(sand[int(by):, :]).astype(np.uint8)
-    assert lost_track()._whole_by_pattern(half, weak, 1.0) is None
+    assert lost_track().carry.whole_by_pattern(half, weak, 1.0) is None
     flat = Match(weak.x, weak.y, weak.score, 0.5 * p.min_psr, weak.colour_frac)
-    assert lost_track()._whole_by_pattern(back, flat, 1.0) is None
+    assert lost_track().carry.whole_by_pattern(back, flat, 1.0) is None
 
 
 def test_a_creeping_white_marker_is_carried_by_its_brightness_pattern_not_its_stale_colour(tmp_path):

@@ -24,14 +24,14 @@ import numpy as np
 
 from ..errors import SandtrackError
 from . import crowd as crowd_rules
-from .appearance import BRIGHT, COLOUR, DARK, AppearanceModel
+from .appearance import BRIGHT, DARK, AppearanceModel
 from .highlight import CARRIED_AGREE_PX, Highlight
 from .kalman import GATE_D2, ConstantVelocityKF
 from .learning import learn
-from .luma import LumaPattern, edge_centre, edge_circle, rim_step
+from .luma import LumaPattern, edge_circle, rim_step
 from .matcher import Match, TemplateMatcher
+from .refine import LOST_PLACE_PX, PLACE_MIN_FIT, LumaCarry
 from .rest import RestReference
-from .streak import STREAK_MIN_SPEED
 
 TRACKED, OCCLUDED, LOST, MANUAL, INTERPOLATED = "tracked", "occluded", "lost", "manual", "interpolated"
 DEFAULT_BOX_PX = 16
@@ -42,13 +42,6 @@ TOUCHING_RELAX = 0.85
 MERGED_COVERAGE = 1.4  # marker coverage (in seed discs) above which a blob is two markers merged
 HELD_MEAS_PX = 1.0  # measurement noise of a held marker's template peak (no outline), px
 SHORT_MISS = 3  # frames unseen up to which a returning marker's match is judged leniently (verify_at)
-# A fast marker's colour match this far behind its brightness pattern is stale chroma: half the pitch of
-# 4:2:0 chroma samples (2 px), under which the colour's centre cannot tell where the marker is anyway.
-STALE_BEHIND_PX = 1.0
-# A colour match covering less than a whole disc lying farther than this from where the marker's brightness
-# pattern registers is the uncovered part of a marker partly hidden: the pitch of 4:2:0 chroma samples, within
-# which a whole marker's colour and pattern agree.
-PARTIAL_ASTRAY_PX = 2.0
 # A whole marker shows an outline of at least its radius less this share (a bead moving in depth changes its
 # image size by about that over a box's depth; a larger circle is its contact shadow's rim, not a part hidden).
 OUTLINE_RADIUS_TOL = 0.15
@@ -56,14 +49,6 @@ OUTLINE_RADIUS_TOL = 0.15
 # rays, luma.rim_step): on the glass twin, whole beads 1.05 median (1 % under 0.37), a pale bead's faint rim
 # 0.28 at the least; circles found in sand's texture 0.05 median, 99 % under 0.21.
 RIM_SHARE = 0.25
-# The luma carry fits the silhouette's circle once, from the colour centre less the last intra frame's offset:
-# that start lies within a fraction of the radius of the silhouette's centre (the sample: 0.31 px median, 1.4 px
-# at most), where the rays still cross the outline nearly square and the circle through their edge points is the
-# silhouette's. Fitted again from its own centre, it moved by 0.06 px (median), no nearer the truth: the sample's
-# centres 0.198 / 0.500 px (mean / p95) with one fit, 0.201 / 0.519 px with up to three.
-CARRY_EDGE_ROUNDS = 1
-LOST_PLACE_PX = 0.5  # a lost marker's pattern found from around its place must come back this near it
-PLACE_MIN_FIT = 0.5  # a pattern fitting worse (a quarter of its disc's brightness variance explained) has no place
 
 
 @dataclass
@@ -150,11 +135,7 @@ class MarkerTrack:
         self.reacquisitions = 0
         self._since_update = 0
         self.counts = {TRACKED: 0, OCCLUDED: 0, LOST: 0, MANUAL: 0}
-        self.intra = None  # per frame of this camera: intra-coded (set by the caller)
-        self._offset: tuple | None = None  # colour centre - luma centre at the last intra frame
-        self._anchor_luma: tuple | None = None
-        self._pattern: LumaPattern | None = None  # the marker's brightness at the last intra frame (no silhouette)
-        self._kept: tuple | None = None  # (pattern, offset, anchor) of a chain broken by a long miss
+        self.carry = LumaCarry(self.model, self.params, self.kf)  # its colour centre carried by its brightness
         self._rest: RestReference | None = None
         # A brightness model's marker at its last full measurement: (window, x0, y0, x, y) of its
         # LumaPattern, cut when first wanted (look_match), then the pattern itself.
@@ -164,6 +145,15 @@ class MarkerTrack:
         self.highlight = Highlight(self.model)  # a crowd bead's highlight: where it sits, how far it stands out
         self.carried = False  # missed among touching lookalikes, moved with the layer (crowd_passes.py): not lost
         self._last_measured: tuple | None = (frame_index, x, y)  # (frame, x, y) of the last match or point
+
+    @property
+    def intra(self) -> np.ndarray | None:
+        """Per frame of this camera: intra-coded (set by the caller; the luma carry reads it)."""
+        return self.carry.intra
+
+    @intra.setter
+    def intra(self, mask) -> None:
+        self.carry.intra = mask
 
     # -- per frame -----------------------------------------------------------------------------
     @property
@@ -191,7 +181,7 @@ class MarkerTrack:
     def propose(self, frame_bgr: np.ndarray, frame_index: int | None = None) -> Match | None:
         """Best acceptable match inside the gate (after predict), or None."""
         r, p = self._rest, self.params
-        if r is not None and self.status == TRACKED and not self._is_intra(frame_index):
+        if r is not None and self.status == TRACKED and not self.carry.is_intra(frame_index):
             d = r.shift(frame_bgr, p.rest_shift_px, r.residual_limit)
             if d is not None:
                 o = r.match
@@ -204,13 +194,13 @@ class MarkerTrack:
         m = self.matcher.match(frame_bgr, px, py, hx, hy, self.kf.innovation_inv(), self.params.gate_d2,
                                self.kf.vxy)
         if m is None:
-            return self._pattern_match(frame_bgr, frame_index) or self.look_match(frame_bgr)
+            return self.carry.pattern_match(frame_bgr, frame_index) or self.look_match(frame_bgr)
         if not m.outline and self.counts[TRACKED] == 0:
             return None  # (held only once measured since its seed: a seed nothing confirmed is not followed)
         m.d2 = self.kf.d2(m.x, m.y)
         if not self.acceptable(m, TOUCHING_RELAX if m.touching else 1.0) or self.cut_by_border(frame_bgr, m) \
-                or not self._carry(frame_bgr, m, frame_index):
-            return self._pattern_match(frame_bgr, frame_index) or self.look_match(frame_bgr, (m.x, m.y))
+                or not self.carry.refine(frame_bgr, m, frame_index):
+            return self.carry.pattern_match(frame_bgr, frame_index) or self.look_match(frame_bgr, (m.x, m.y))
         self._centre_by_highlight(frame_bgr, m)
         return m
 
@@ -298,218 +288,14 @@ class MarkerTrack:
         if not self.coasting:
             return None
         if self.misses <= SHORT_MISS:
-            return self._pattern_match(frame_bgr, frame_index) or self._look_return(frame_bgr)
-        if self.status != LOST or self._kept is None or self.model.luma_follows:
+            return self.carry.pattern_match(frame_bgr, frame_index) or self._look_return(frame_bgr)
+        if self.status != LOST or self.carry.kept is None or self.model.luma_follows:
             return None
-        placed = self._resume_chain(frame_bgr, self._kept, *self.kf.xy)
+        placed = self.carry.resume(frame_bgr, self.carry.kept, *self.kf.xy)
         if placed is None:
             return None
         x, y, found, fit = placed
         return Match(x, y, fit, float("nan"), float("nan"), self.kf.d2(x, y), True, found)
-
-    def _resume_chain(self, frame_bgr, chain: tuple, x: float, y: float) -> tuple | None:
-        """(x, y, pattern's place, fit) of the marker where the brightness pattern of `chain` ((pattern, its
-        centre's offset from the marker's, anchor luma)) registers from around (x, y), when it fits
-        (LumaPattern.MIN_NCC) within the marker's radius of there and at one place, not one of several (found
-        again alike from half a radius either side): the chain goes on from there (it becomes the live one).
-        Else None, the chain left as it was."""
-        pattern, offset, anchor = chain
-        r = self.model.radius
-        found = pattern.find(frame_bgr, x - offset[0], y - offset[1])
-        if found is None or math.hypot(found[0] + offset[0] - x, found[1] + offset[1] - y) > r:
-            return None
-        fit = pattern.fit
-        for dx, dy in ((r, 0.0), (-r, 0.0), (0.0, r), (0.0, -r)):
-            other = pattern.find(frame_bgr, found[0] + 0.5 * dx, found[1] + 0.5 * dy)
-            if other is not None and math.hypot(other[0] - found[0], other[1] - found[1]) > LOST_PLACE_PX:
-                return None
-        self._pattern, self._offset, self._anchor_luma, self._kept = pattern, offset, anchor, None
-        return found[0] + offset[0], found[1] + offset[1], found, fit
-
-    def _whole_by_pattern(self, frame_bgr, m: Match, relax: float) -> Match | None:
-        """A marker with no dark silhouette, found again where a blob of its colour was (re-acquisition), whose
-        colour's peak stands out there (PSR) but covers less of its seed disc than min_colour, or fits its
-        template less than min_score. Its colour alone cannot tell a part of it from the whole of it: a white
-        marker back in sight in a furrow of disturbed sand shows about half its seed disc's chroma contrast
-        while its brightness is unchanged (the white twin: coverage 0.41-0.68 and template NCC 0.59-0.80 on
-        markers seen whole, the colour's centre 0.5-1.9 px off them); the template is a colour template, and
-        fits less for the same reason. Its brightness pattern, the live chain's or the one kept from before it
-        was lost, says which: a whole marker fits it (LumaPattern.MIN_NCC, closer than any template's
-        min_score), a part does not (what hides it is in its disc). Found so, within its radius of the colour's
-        centre and at one place, the marker is there, placed as its pattern puts it (0.1-0.4 px off on those
-        frames); its chain goes on from there. None otherwise."""
-        p = self.params
-        if self.model.luma_follows or not self.model.has_blob or (math.isfinite(m.psr) and m.psr < p.min_psr * relax):
-            return None
-        chain = self._kept or (self._pattern, self._offset, self._anchor_luma)
-        if chain[0] is None or chain[1] is None:
-            return None
-        placed = self._resume_chain(frame_bgr, chain, m.x, m.y)
-        if placed is None:
-            return None
-        x, y, found, _fit = placed
-        return Match(x, y, m.score, m.psr, m.colour_frac, self.kf.d2(x, y), True, found)
-
-    def _pattern_match(self, frame_bgr, frame_index: int | None) -> Match | None:
-        """A marker with no dark silhouette whose colour match failed (between intra frames its colour is
-        stale: a moving marker's is left behind, and weakens; at an intra frame a smear or a partial
-        cover may fail it) is measured by its brightness pattern (see _carry_pattern) when that is
-        found inside the gate; else None. At an intra frame the pattern is cut again where it was found
-        (the chain goes on from there with the offset it had: no fresh colour measured it)."""
-        if self.model.luma_follows or self._pattern is None or self._offset is None:
-            return None
-        found = self._pattern.find(frame_bgr, *self.kf.xy, velocity=self.kf.vxy)
-        if found is None:
-            return None
-        x, y = found[0] + self._offset[0], found[1] + self._offset[1]
-        d2 = self.kf.d2(x, y)
-        if d2 > self.params.gate_d2:
-            return None
-        fit = self._pattern.fit
-        if self._is_intra(frame_index):
-            self._pattern = LumaPattern(frame_bgr, *found, self.model.radius)
-        return Match(x, y, fit, float("nan"), float("nan"), d2, True, found)
-
-    @property
-    def intra(self) -> np.ndarray | None:
-        return self._intra
-
-    @intra.setter
-    def intra(self, mask) -> None:
-        self._intra = mask
-        self._intra_set = None if mask is None else frozenset(np.flatnonzero(mask).tolist())
-
-    def _is_intra(self, frame_index: int | None) -> bool:
-        s = self._intra_set
-        return s is not None and frame_index in s
-
-    def _carry(self, frame_bgr, m: Match, frame_index: int | None) -> bool:
-        """Measure the luma centre of a whole, clearly seen marker; between intra frames, move the
-        match to luma centre + the last intra frame's offset (see luma.py). False: the match is the
-        marker's stale colour, not the marker (see _carry_pattern)."""
-        if self.intra is None or not self.params.luma_carry or self.model.kind != COLOUR:
-            return True  # (a brightness model measures the full-resolution luma itself: nothing trails)
-        intra = self._is_intra(frame_index)
-        if not m.used_centroid and (intra or self.model.luma_follows):
-            return True  # (a pattern is cut, and an edge measured, on a whole, clearly seen marker only)
-        if not intra and self._offset is None:
-            return True  # nothing to carry until the next intra frame
-        if not self.model.luma_follows:
-            return self._carry_pattern(frame_bgr, m, intra)
-        sx, sy = m.x, m.y
-        if self._offset is not None:  # start from where the edge centre is expected
-            sx, sy = sx - self._offset[0], sy - self._offset[1]
-        m.luma = edge_centre(frame_bgr, sx, sy, self.model.radius, iterations=CARRY_EDGE_ROUNDS, outward=True)
-        if m.luma is None or intra:
-            return True
-        lx, ly = m.luma
-        ax, ay = self._anchor_luma
-        dx, dy = lx - ax, ly - ay
-        dist = math.hypot(dx, dy)
-        if 1e-3 < dist <= self.params.luma_carry_max_px:
-            # Stale colour can only hold the centre back towards where the marker was at the intra
-            # frame: move it forward along that motion, by at most the distance moved since.
-            ux, uy = dx / dist, dy / dist
-            along = (lx + self._offset[0] - m.x) * ux + (ly + self._offset[1] - m.y) * uy
-            along = min(max(along, 0.0), dist)
-            m.x, m.y = m.x + along * ux, m.y + along * uy
-        return True
-
-    def _carry_pattern(self, frame_bgr, m: Match, intra: bool) -> bool:
-        """_carry for a marker with no dark silhouette (its brightness does not set it apart from the
-        sand: a white marker on beige sand): its disc's brightness pattern at the intra frame
-        (luma.LumaPattern), found again in the frames after it, moved as far as the marker, which
-        is then there: the pattern is the marker's own (not an edge that shading or a shadow may
-        shift), so the stale colour is not trusted in any direction.
-        When the pattern fits too poorly to tell where the marker is, the colour match stands, unless
-        the marker moves fast (STREAK_MIN_SPEED or more) and the colour lies behind where the pattern
-        registers, along the motion, by more than STALE_BEHIND_PX: that colour is the chroma left
-        behind by the moving marker (stale between intra frames); or unless the colour covers less than
-        a whole disc and lies more than PARTIAL_ASTRAY_PX from where the pattern registers (fitting at
-        least PLACE_MIN_FIT): that is the part of a marker not yet hidden. Then the marker is not
-        measured (False)."""
-        if intra:
-            self._pattern = LumaPattern(frame_bgr, m.x, m.y, self.model.radius)
-            m.luma = (m.x, m.y) if self._pattern.ok else None
-            return True
-        m.luma = None if self._pattern is None else self._pattern.find(frame_bgr, m.x, m.y, velocity=self.kf.vxy)
-        if m.luma is None:
-            return self._pattern is None or not (self._colour_left_behind(m) or self._partial_colour_astray(m))
-        m.x, m.y = m.luma[0] + self._offset[0], m.luma[1] + self._offset[1]
-        return True
-
-    def _colour_left_behind(self, m: Match) -> bool:
-        """The fast marker's colour match m lies behind its pattern's last registration along the motion."""
-        place, (vx, vy) = self._pattern.place, self.kf.vxy
-        speed = math.hypot(vx, vy)
-        if place is None or speed < STREAK_MIN_SPEED:
-            return False
-        px, py = place[0] + self._offset[0], place[1] + self._offset[1]
-        return ((m.x - px) * vx + (m.y - py) * vy) / speed < -STALE_BEHIND_PX
-
-    def _partial_colour_astray(self, m: Match) -> bool:
-        """Colour match m covers less than a whole disc and lies away from its pattern's last registration."""
-        place = self._pattern.place
-        if m.colour_frac >= self.params.confident_colour or place is None or self._pattern.fit < PLACE_MIN_FIT:
-            return False
-        return math.hypot(m.x - place[0] - self._offset[0], m.y - place[1] - self._offset[1]) > PARTIAL_ASTRAY_PX
-
-    def _update_offset(self, frame_index: int, m: Match | None, reattach: bool, frame_bgr=None) -> None:
-        intra = self._is_intra(frame_index)
-        if m is not None and m.luma is not None and intra:
-            self._offset = (m.x - m.luma[0], m.y - m.luma[1])
-            self._anchor_luma = m.luma
-            return
-        if not self.model.luma_follows and not intra:
-            self._follow_pattern_chain(frame_bgr, m, reattach)
-            return
-        if m is None or m.luma is None or reattach or self._anchor_luma is None or \
-                math.hypot(m.luma[0] - self._anchor_luma[0], m.luma[1] - self._anchor_luma[1]) \
-                > self.params.luma_carry_max_px:
-            self._offset = self._anchor_luma = self._pattern = None  # the chain from the intra frame is broken
-
-    def _follow_pattern_chain(self, frame_bgr, m: Match | None, reattach: bool) -> None:
-        """_update_offset between intra frames for a marker with no dark silhouette, followed by its
-        brightness pattern (see _carry_pattern)."""
-        if m is None:
-            if self._pattern is not None and self.misses >= SHORT_MISS:
-                self._kept = (self._pattern, self._offset, self._anchor_luma)  # (to find it again when lost)
-            if self._pattern is None or self.misses >= SHORT_MISS:
-                self._offset = self._anchor_luma = self._pattern = None  # the chain is broken
-            # (else unseen a frame or two: the chain is kept, to find the marker by its pattern: pattern_return)
-            return
-        if reattach and m.luma is not None and self._pattern is not None:
-            return  # (found again by its chain's pattern: _whole_by_pattern; the chain goes on)
-        if reattach:
-            self._offset = self._anchor_luma = self._pattern = None
-            if m.colour_frac >= self.params.confident_colour:
-                self._restart_pattern(frame_bgr, m)  # (the chain restarts where the marker was found again)
-            return
-        if self._pattern is None:
-            self._restart_pattern(frame_bgr, m)
-        elif m.luma is not None and math.hypot(m.luma[0] - self._anchor_luma[0], m.luma[1] - self._anchor_luma[1]) \
-                > self.params.luma_carry_max_px:
-            # (far from where it was cut: the sand, the light differ; no fit this one frame: the marker is
-            # still where the chain says)
-            self._new_pattern(frame_bgr, m.x, m.y)
-
-    def _restart_pattern(self, frame_bgr, m: Match) -> None:
-        """A chain broken between intra frames starts again from a colour match centred on the marker's
-        coverage: its brightness pattern there, followed until the next intra frame (the colour's place
-        at this frame may be stale, but without the chain it only grows staler)."""
-        if frame_bgr is None or self.intra is None or not self.params.luma_carry or not m.used_centroid \
-                or not m.colour_frac >= self.params.min_colour:
-            return
-        self._new_pattern(frame_bgr, m.x, m.y)
-
-    def _new_pattern(self, frame_bgr, x: float, y: float) -> None:
-        """Follow the brightness pattern of the marker at (x, y) in this frame from now on (no chain when
-        there is none to follow)."""
-        pattern = None if frame_bgr is None else LumaPattern(frame_bgr, x, y, self.model.radius)
-        if pattern is not None and pattern.ok:
-            self._pattern, self._offset, self._anchor_luma = pattern, (0.0, 0.0), (x, y)
-        else:
-            self._pattern = self._offset = self._anchor_luma = None
 
     def shows_whole(self, frame_bgr, x: float, y: float) -> bool:
         """The marker of a brightness model at (x, y) shows its outline all round, of its own size, stepping
@@ -558,12 +344,12 @@ class MarkerTrack:
         # where it is says little, and a lookalike nearby may be taken for it.
         relax = 0.9 if self.misses <= SHORT_MISS else 1.0
         if not self.acceptable(m, relax):
-            m = self._whole_by_pattern(frame_bgr, m, relax)
+            m = self.carry.whole_by_pattern(frame_bgr, m, relax)
             if m is None:
                 return None
         if self.model.has_blob and m.colour_frac > MERGED_COVERAGE:
             return None  # the candidate is this marker merged with another: who is who is not clear
-        if self.cut_by_border(frame_bgr, m) or self._pattern_denies(frame_bgr, m, frame_index):
+        if self.cut_by_border(frame_bgr, m) or self.carry.denies(frame_bgr, m, frame_index):
             return None
         m.d2 = self.kf.d2(m.x, m.y)
         self._centre_by_highlight(frame_bgr, m)
@@ -647,21 +433,6 @@ class MarkerTrack:
         window holds relatively more of its neighbours' rims), and never under MERGED_COVERAGE."""
         return crowd_rules.packed_coverage(self.model.radius, MERGED_COVERAGE)
 
-    def _pattern_denies(self, frame_bgr, m: Match, frame_index: int | None) -> bool:
-        """A marker with no dark silhouette, unseen a frame or two, whose colour covers less than a whole
-        disc where it would be found again: when its brightness pattern (kept from before the miss) is
-        not there, part of it is still hidden (a whole one fits its pattern to NCC >= 0.97 at 99 % of
-        frames) and its colour's centre is not its own. A whole disc of colour is refused only as stale
-        chroma left behind by a fast marker (see _carry_pattern)."""
-        if self.model.luma_follows or self._pattern is None or self._offset is None or self._is_intra(frame_index):
-            return False
-        if m.colour_frac >= self.params.confident_colour:
-            if math.hypot(*self.kf.vxy) < STREAK_MIN_SPEED:
-                return False
-            found = self._pattern.find(frame_bgr, m.x - self._offset[0], m.y - self._offset[1], velocity=self.kf.vxy)
-            return found is None and self._colour_left_behind(m)
-        return self._pattern.find(frame_bgr, m.x - self._offset[0], m.y - self._offset[1]) is None
-
     def apply(self, frame_index: int, frame_bgr: np.ndarray | None, m: Match | None,
               reattach: bool = False, jump: bool = False) -> Observation:
         """Commit this frame's outcome and return its observation. `jump`: re-attached beyond the
@@ -669,8 +440,8 @@ class MarkerTrack:
         self.frame_index = frame_index
         p = self.params
         if m is not None:
-            self._kept = None
-        self._update_offset(frame_index, m, reattach, frame_bgr)
+            self.carry.kept = None
+        self.carry.update(frame_index, m, reattach, frame_bgr, self.misses >= SHORT_MISS)
         self.held = m is not None and not m.outline
         if self.held:
             self._rest = None
@@ -737,7 +508,7 @@ class MarkerTrack:
 
     def set_manual(self, frame_index: int, frame_bgr: np.ndarray | None, x: float, y: float) -> Observation:
         """An operator's point met along the way: trust it, keep tracking from it."""
-        self._offset = self._anchor_luma = self._pattern = self._kept = None
+        self.carry.reset()
         self._rest = None
         self.held = False
         if self.misses > 2:
