@@ -1,5 +1,5 @@
 """Touching lookalikes seeded in one view each, paired across the views by their tracks and made one
-marker (tracking/run.py `_merge_pairs`, CrowdPasses.pair's rule): how right the pairs are on the
+marker (tracking/run.py `_merge_pairs`, CrowdPairing.pair's rule): how right the pairs are on the
 twin's dense layer (twin/variants.py `dense`), seeded as bench_variants.py seeds it.
 
 1. As seeded: the pairs made, how many join two different true beads, and the XYZ of the merged

@@ -175,7 +175,7 @@ def test_a_registration_shifted_onto_lookalikes_no_track_follows_is_refused_by_t
 
 
 def _pairing_run(side_points: dict, front_points: dict, frames: int) -> list:
-    """CrowdPasses.pair (the engine's) fed with crowd tracks' points ({marker: (frames, 2) px} per view, NaN: not
+    """CrowdPairing.pair (the engine's) fed with crowd tracks' points ({marker: (frames, 2) px} per view, NaN: not
     measured); returns the engine's pairs after each frame."""
     cal = synthetic.stereo_rig()
     eng = Engine(stereo=StereoCheck(cal, "side", "front"))
@@ -187,7 +187,7 @@ def _pairing_run(side_points: dict, front_points: dict, frames: int) -> list:
     for f in range(frames):
         obs = [Observation(f, cam, m, *p[f], "tracked") for cam, pts in (("side", side_points), ("front", front_points))
                for m, p in pts.items() if np.isfinite(p[f]).all()]
-        eng.crowd.pair({"side": (f, None, 0.0), "front": (f, None, 0.0)}, obs)
+        eng.pairing.pair({"side": (f, None, 0.0), "front": (f, None, 0.0)}, obs)
         out.append(dict(eng.partners))
     return out
 

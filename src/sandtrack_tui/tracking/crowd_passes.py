@@ -4,9 +4,8 @@ A collaborator of Engine (engine.py), on its TrackSet, holding what it remembers
 after every track proposed its match, the passes here give missed crowd markers back (carried by the
 layer's motion and assigned, measured on the other view's epipolar line, a hidden patch registered from
 its neighbours, carried by the beads around it), check that the crowd's matches move together with the
-image (coherence, flow), keep each crowd track's recent points, and pair crowd tracks seeded in one view
-each across the views by their points (pair). The rules of one bead against its neighbours are in
-crowd.py.
+image (coherence, flow), keep each crowd track's recent points (crowd tracks seeded in one view each are
+paired across the views by pairing.py). The rules of one bead against its neighbours are in crowd.py.
 """
 
 from __future__ import annotations
@@ -20,18 +19,13 @@ from . import crowd as crowd_rules
 from .detection import detect_like
 from .events import AmbiguityLog
 from .matcher import Proposal
-from .tracker import SHORT_MISS, TRACKED
+from .tracker import SHORT_MISS
 from .trackset import TrackSet, explained_points
 
 FLOW_AGREE_PX = 1.5  # a crowd marker's match this far from where the image motion took it is not its own
 CROWD_MEMORY = 100  # frames of measured positions kept per crowd track (a hidden patch is registered from them)
 REGROUP_REACH = 6.0  # radii: how far a hidden patch of the layer is looked for
 REGROUP_EVERY = 3  # frames between registrations of one patch
-# Two crowd tracks, one per view, are one bead when the other view's line through one never missed the
-# other over PAIR_MIN_FRAMES frames measured together, while every other track of that view left it at
-# PAIR_BREAKS frames or more (more than a wrong measurement or two: a bead beside the line, not on it).
-PAIR_MIN_FRAMES = 10
-PAIR_BREAKS = 3
 ANCHOR_REACH = 4.0  # radii: the beads around a lost one whose moves carry it (as crowd.carried's reach)
 
 
@@ -47,11 +41,6 @@ class CrowdPasses:
         self._crowd_seen: dict = {}  # crowd track key -> {frame: (x, y)} measured lately
         # (camera, patch's markers, its frame) -> (step last tried, unexplained beads then)
         self._regroup_tried: dict = {}
-        # each pair as it was made: (key in the stereo pair's first camera, key in the second, frames measured on
-        # each other's lines then, frame of the first camera at which it was made)
-        self.pairings: list = []
-        # key in one camera -> {key in the other: [frames both measured, frames off each other's lines]} (both ways)
-        self._lines: dict = {}
         self.flow_refused: set = set()  # crowd track keys whose match the flow check refused this step
 
     @property
@@ -81,56 +70,6 @@ class CrowdPasses:
         n += int(self._crowd_regroup(cam, img, j, tracks, props, forced) > 0)
         n += int(self._crowd_rejoin(cam, img, j, tracks, props, forced) > 0)
         return n
-
-    def pair(self, frames, obs) -> None:
-        """Crowd beads seeded in one view each (touching lookalikes are not paired at the seed: an
-        epipolar line crosses several of them) are paired across the views by their points over time.
-        A bead's points in the two views lie on each other's epipolar lines (within the stereo
-        threshold) at every frame both are measured; a track of the other view that left the line at
-        PAIR_BREAKS frames or more is another bead (beside the line, or carried apart from it). Two
-        tracks are paired when each is the only one of the other view that never left the other's line
-        over at least PAIR_MIN_FRAMES frames measured together, every other track measured with it having
-        left it PAIR_BREAKS times or more; anything less stays unpaired."""
-        a, b = self.stereo.cams
-        if a not in frames or b not in frames:
-            return
-        measured = {a: {}, b: {}}
-        for o in obs:
-            key = (o.marker, o.camera)
-            t = self.tracks.get(key)
-            if o.status == TRACKED and t is not None and t.model.crowd and key not in self.partners \
-                    and (o.marker, self.stereo.other(o.camera)) not in self.tracks:
-                measured[o.camera][key] = (o.x_px, o.y_px)
-        if not measured[a] or not measured[b]:
-            return
-        ka, kb = list(measured[a]), list(measured[b])
-        pa = np.repeat(np.array([measured[a][k] for k in ka], float), len(kb), axis=0)
-        pb = np.tile(np.array([measured[b][k] for k in kb], float), (len(ka), 1))
-        off = self.stereo.distance(a, pa, b, pb) > self.stereo.threshold_px
-        for (x, y), broke in zip(((x, y) for x in ka for y in kb), off, strict=True):
-            rec = self._lines.setdefault(x, {}).get(y)
-            if rec is None:
-                rec = self._lines[x][y] = self._lines.setdefault(y, {})[x] = [0, 0]
-            rec[0] += 1
-            rec[1] += int(broke)
-        for x in ka:
-            y = self._only_on_line(x)
-            if y is not None and y in measured[b] and self._only_on_line(y) == x:
-                self.partners[x], self.partners[y] = y, x
-                self.pairings.append((x, y, self._lines[x][y][0], int(frames[a][0])))
-
-    def _only_on_line(self, key):
-        """The one track of the other view that never left `key`'s line over PAIR_MIN_FRAMES frames, every
-        other one measured with it having left it PAIR_BREAKS times or more; None."""
-        found = None
-        for other, (together, broke) in self._lines.get(key, {}).items():
-            if other in self.partners:
-                continue
-            if broke == 0 and together >= PAIR_MIN_FRAMES and found is None:
-                found = other
-            elif broke < PAIR_BREAKS:
-                return None
-        return found
 
     def _crowd_return(self, cam, img, j: int, tracks, props, forced) -> int:
         """Missed markers among touching lookalikes, carried by the layer's motion (crowd.py: the image
@@ -330,7 +269,7 @@ class CrowdPasses:
 
     def _crowd_on_line(self, cam, img, j: int, tracks, props, forced, frames) -> int:
         """Crowd markers unseen for more than SHORT_MISS frames that the other view measures this step (the
-        same marker, or its paired track: pair): the bead no track explains lying on the other
+        same marker, or its paired track: pairing.py): the bead no track explains lying on the other
         view's epipolar band within `reach` of where the marker was last (its radius, plus how far the
         other view saw it move since both last measured it, in this view's scale, but never more than its
         radius), with no other such bead within a bead's width more along the band, is given back. (A bead

@@ -1,11 +1,13 @@
 """All markers in all cameras, one time step at a time: the step as the list of its stages.
 
 1. predict (motion.py): every track's Kalman prediction; the seeds' and the operator's own points.
-2. search (search.py), per camera: every track proposes its best gated match; among touching markers
-   only a match clearly its own stands; when most tracks of a camera leave their gates at once and the
-   whole view moved (globalmotion.py), every track of that camera is moved with it and searched again
-   (motion.ViewFollower); two tracks claiming one spot keep only the better (matching.py); touching
-   lookalikes (a crowd) must move with their neighbours and with the image (crowd_passes.py).
+2. search (search.py), per camera: every track proposes its best gated match (MarkerTrack.propose: the
+   template's peak and colour centroid, matcher.py, refined by the marker's brightness between intra frames,
+   refine.py, or by a crowd bead's highlight, highlight.py); among touching markers only a match clearly
+   its own stands; when most tracks of a camera leave their gates at once and the whole view moved
+   (globalmotion.py), every track of that camera is moved with it and searched again (motion.ViewFollower);
+   two tracks claiming one spot keep only the better (matching.py); touching lookalikes (a crowd) must move
+   with their neighbours and with the image (crowd_passes.py).
 3. verify (verify.py): with a calibration, a marker's proposals in the two cameras lie on each other's
    epipolar lines, or the suspect view is dropped and flagged.
 4. re-acquire (reattach.py): coasting tracks look for unexplained blobs (along the epipolar band when
@@ -15,8 +17,8 @@
    that nothing measured is placed by its look where it shows whole (in both views only where they agree).
 5. commit (commit.py): every track commits its status and its refined point for the frame
    (MarkerTrack.apply).
-6. pair: crowd tracks seeded in one view each are paired across the views once their points tell who is
-   who (crowd_passes.py; the run makes each pair one marker at its end: run._merge_pairs).
+6. pair (pairing.py): crowd tracks seeded in one view each are paired across the views once their points
+   tell who is who (the run makes each pair one marker at its end: run._merge_pairs).
 Between the stages the step's findings are plain data: `live` (camera -> [MarkerTrack] stepping this
 frame), `props` ((marker, camera) -> matcher.Proposal), `forced` ((marker, camera) -> (x, y), the
 operator's points).
@@ -33,6 +35,7 @@ from .events import AmbiguityLog
 from .line_search import LineSearch
 from .matcher import Proposal
 from .matching import BlobAssigner, resolve_conflicts
+from .pairing import CrowdPairing
 from .reattach import Reacquisition
 from .stereo import StereoCheck
 from .tracker import MarkerTrack, Observation
@@ -58,6 +61,7 @@ class Engine:
         self.view = motion.ViewFollower(self.max_events)
         self.lines = LineSearch(self.trackset)
         self.crowd = CrowdPasses(self.trackset, self.log)
+        self.pairing = CrowdPairing(self.trackset)
         self.assigner = BlobAssigner(self.trackset, self.log, self.ambiguity_d2)
         self.reacquisition = Reacquisition(self.trackset, self.lines, self.crowd, self.assigner)
 
@@ -72,7 +76,7 @@ class Engine:
 
     @property
     def pairings(self) -> list:
-        return self.crowd.pairings
+        return self.pairing.pairings
 
     @property
     def ambiguous(self) -> list:
@@ -97,7 +101,7 @@ class Engine:
         self._reacquire(frames, live, props, forced)
         obs += commit(frames, live, props, forced, self.trackset, self.crowd)
         if self.stereo is not None:
-            self.crowd.pair(frames, obs)
+            self.pairing.pair(frames, obs)
         return obs
 
     def _search(self, cam, j, img, tracks: list, props: dict) -> None:

@@ -7,7 +7,7 @@
 - `track_project(project, ...)`: track forward or backward from the seeds (or from any frame:
   re-tracking after a correction is tracking from that frame), writing results to the store
   as they are made, in chunks, inside one undoable edit; touching lookalikes seeded in one view
-  each that the run tells to be one bead (CrowdPasses.pair) become one marker in that edit.
+  each that the run tells to be one bead (CrowdPairing.pair) become one marker in that edit.
 
 Frame indices are each camera's own. The cameras are stepped together on the first camera's
 clock ("side"): side frame i pairs with the front frame nearest to side time t - sync_offset_s
@@ -364,7 +364,7 @@ def track_project(project, markers=None, start: int | None = None, stop: int | N
                   band_px: float = 3.0) -> dict:
     """Track markers from their seeds (or from frame `start`, first camera's index) to `stop`
     (inclusive; default: the end in that direction). Results go to the store as they are made.
-    Markers of one camera each whose tracks the engine paired across the views (one bead: CrowdPasses.pair)
+    Markers of one camera each whose tracks the engine paired across the views (one bead: CrowdPairing.pair)
     are merged into the first camera's marker at the end, as part of the same edit (`paired_across_views`).
     Returns a summary dict (counts per marker and camera, stereo flags, ambiguities, problems, pairs)."""
     if direction not in ("forward", "backward"):
