@@ -8,6 +8,8 @@ from dataclasses import dataclass, field
 
 @dataclass
 class AmbiguityLog:
+    """Ambiguities noted by the step's stages (note), as the run's summary lists them (records)."""
+
     max_events: int = 500
     records: list = field(default_factory=list)
     _open: dict = field(default_factory=dict)  # (marker, camera) -> its latest record

@@ -52,6 +52,8 @@ def blob_id(seen: list, b, radius: float) -> int:
 
 
 class BlobAssigner:
+    """Coasting tracks to the blobs their searches found (assign); ambiguities go to the log."""
+
     def __init__(self, trackset: TrackSet, log: AmbiguityLog, ambiguity_d2: float = 6.0):
         self.trackset = trackset
         self.log = log

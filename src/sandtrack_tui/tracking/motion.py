@@ -42,6 +42,8 @@ def predict(trackset: TrackSet, frames: dict, manual: dict) -> tuple[list[Observ
 
 @dataclass
 class ViewFollower:
+    """The view's own motion carried into a camera's predictions (follow), and the shifts applied."""
+
     max_events: int = 500
     shifts: list = field(default_factory=list)  # {camera, frame, dx, dy} applied
     _prev: dict = field(default_factory=dict)  # camera -> its frame of the previous step

@@ -17,6 +17,8 @@ PAIR_BREAKS = 3
 
 
 class CrowdPairing:
+    """Pairs crowd tracks of the two views (pair) into TrackSet.partners; each pair as made in `pairings`."""
+
     def __init__(self, trackset: TrackSet):
         self.trackset = trackset
         # each pair as it was made: (key in the stereo pair's first camera, key in the second, frames measured on

@@ -20,6 +20,8 @@ JUMP_FRAMES = 2  # frames after a miss during which a track is searched a larges
 
 
 class Reacquisition:
+    """The re-acquisition of one camera's coasting tracks (run), with the searches it holds."""
+
     def __init__(self, trackset: TrackSet, lines: LineSearch, crowd: CrowdPasses, assigner: BlobAssigner):
         self.trackset = trackset
         self.lines = lines

@@ -14,6 +14,8 @@ from .tracker import MarkerTrack
 
 @dataclass
 class TrackSet:
+    """One engine's tracks, by camera, and each marker's other view."""
+
     stereo: StereoCheck | None = None
     direction: int = 1  # +1 forward, -1 backward
     tracks: dict = field(default_factory=dict)  # (marker, camera) -> MarkerTrack
