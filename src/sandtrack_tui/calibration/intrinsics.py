@@ -317,7 +317,7 @@ def calibrate_intrinsics(name: str, views: dict[int, BoardView], board: BoardSpe
 
             folds = len(frames) if len(frames) <= 10 else n_folds
             cands, chosen = select_lens(frames, fit_views, score, n_folds=folds, check=check)
-            selection = lens_report(cands, "board views", len(frames), folds)
+            selection = lens_report(cands, "board views", len(frames), folds, "left-out board views")
             lens, (rms, K, D, rv, tv) = chosen.fitted
             k3 = "free" if "k3" in lens.terms else "fixed at 0 (cross-validation)"
         elif lens_name != base.name:
