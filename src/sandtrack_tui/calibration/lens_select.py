@@ -77,12 +77,14 @@ class Comparison:
     better_in: int
     worse_in: int
     p_value: float
+    resolved: bool  # larger than the left-out points can resolve
     significant: bool
 
     def row(self) -> dict:
         return {"units": self.units, "points": self.points, "rmse_excess_pct": round(self.excess_pct, 2),
                 "interval_pct": [round(v, 2) for v in self.interval_pct], "units_better": self.better_in,
-                "units_worse": self.worse_in, "p_value": float(f"{self.p_value:.3g}"), "significant": self.significant}
+                "units_worse": self.worse_in, "p_value": float(f"{self.p_value:.3g}"), "resolved": self.resolved,
+                "significant": self.significant}
 
 
 def folds_of(groups: Sequence, n_folds: int) -> list[np.ndarray]:
@@ -200,15 +202,15 @@ def compare(c: Candidate, best: Candidate) -> Comparison:
     tiny = 1e-9 * max(float(np.max(np.abs(sse_b))), 1e-300)
     moved = np.abs(diff) > tiny
     p = 1.0 if c is best or not moved.any() else float(wilcoxon(diff[moved], alternative="greater").pvalue)
-    resolution = 1.0 / np.sqrt(n.sum())
+    resolved = bool(np.log(max(ratio, 1e-300)) > 1.0 / np.sqrt(n.sum()))
 
     def pct(r: float) -> float:  # mean squared error ratio -> RMSE in % above the best's
         return 100.0 * (np.sqrt(max(r, 0.0)) - 1.0)
 
     return Comparison(units=g, points=int(n.sum()), excess_pct=pct(ratio),
                       interval_pct=(pct(ratio - half), pct(ratio + half)), better_in=int(np.sum(diff < -tiny)),
-                      worse_in=int(np.sum(diff > tiny)), p_value=p,
-                      significant=bool(p < ALPHA and np.log(max(ratio, 1e-300)) > resolution))
+                      worse_in=int(np.sum(diff > tiny)), p_value=p, resolved=resolved,
+                      significant=bool(p < ALPHA and resolved))
 
 
 def report(candidates: list[Candidate], groups_kind: str, n_groups: int, n_folds: int, units_kind: str) -> dict:
@@ -223,7 +225,7 @@ def report(candidates: list[Candidate], groups_kind: str, n_groups: int, n_folds
             "rule": "simplest model not significantly worse than the best: Wilcoxon signed-rank test, one-sided "
                     f"{100 * ALPHA:g} %, on the units' squared error differences, and a ratio of mean squared errors "
                     "above exp(1/sqrt(points))",
-            "why": why(chosen, candidates) if chosen else "",
+            "why": why(chosen, candidates) if chosen else "", "alpha": ALPHA,
             "candidates": [c.row() for c in candidates]}
 
 

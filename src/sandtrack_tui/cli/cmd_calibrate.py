@@ -164,10 +164,15 @@ def _selection_lines(sel: dict | None) -> list[str]:
         if c.get("cv_rmse_px") is None:
             out.append(f"      {c['lens']:<15} {c.get('excluded', '')}")
             continue
-        mark = "  <- chosen" if c["chosen"] else ("  (not significantly worse)" if c["within_noise"] else "")
         v = c.get("versus_best")
-        versus = (f"{v['rmse_excess_pct']:+6.1f} %  {v['units_worse']:>3} / {v['units_better']:<3}"
-                  f"  {v['p_value']:<7.2g}" if v else "")
+        noise = ("  (below the points' resolution)" if v and v["p_value"] < sel.get("alpha", 0.05)
+                 else "  (not significantly worse)")
+        mark = "  <- chosen" if c["chosen"] else (noise if c["within_noise"] else "")
+        if v and not (v["units_worse"] or v["units_better"]):
+            versus = f"{'best':>8}{'':18}"
+        else:
+            versus = (f"{v['rmse_excess_pct']:+6.1f} %  {v['units_worse']:>3} / {v['units_better']:<3}"
+                      f"  {v['p_value']:<7.2g}" if v else "")
         out.append(f"      {c['lens']:<15} {c['train_rmse_px']:.3f} / {c['cv_rmse_px']:.3f}       {versus}{mark}")
     if sel.get("why"):
         out.append(f"    chosen {sel['why']}")
