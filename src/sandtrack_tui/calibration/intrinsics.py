@@ -224,7 +224,8 @@ def calibrate_intrinsics(name: str, views: dict[int, BoardView], board: BoardSpe
     """Calibrate one camera from its board views (frame -> BoardView).
 
     model: a lens model name (`lens.LENSES`; "pinhole" means "standard"), or "auto": every candidate
-    is cross-validated over whole board views and the simplest within noise of the best is kept."""
+    is cross-validated over whole board views and the simplest not significantly worse than the best
+    is kept (lens_select)."""
     lens_name = "standard" if model == "pinhole" else model
     if lens_name != "auto":
         get_lens(lens_name)
