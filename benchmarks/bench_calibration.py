@@ -90,7 +90,7 @@ def lens_choice_on_the_rig(res, board) -> dict:
     (timestamps.csv); and a cross-validation of the whole rig over left-out frames (3 folds: the rig
     fitted on the others, each left-out frame's board pose fitted with the cameras held, its corners'
     error) for the automatic choice, the standard model and the simplest radial ones."""
-    from sandtrack_tui.calibration.lens_select import Candidate, excess_over
+    from sandtrack_tui.calibration.lens_select import Candidate, compare
 
     names = list(res.views)
     sizes = {n: (c.width, c.height) for n, c in res.calibration.cameras.items()}
@@ -123,7 +123,7 @@ def lens_choice_on_the_rig(res, board) -> dict:
     best = min(cands, key=lambda c: c.cv_rmse_px)
     out["rig_cross_validation_px"] = {c.lens: round(c.cv_rmse_px, 4) for c in cands}
     out["rig_cross_validation_within_noise_of_best"] = {  # the rule of the automatic choice
-        c.lens: bool(np.subtract(*excess_over(c, best)) <= 0) for c in cands}
+        c.lens: not compare(c, best).significant for c in cands}
     out["rig_cross_validation_best"] = best.lens
     return out
 

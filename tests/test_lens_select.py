@@ -51,6 +51,26 @@ def test_rule_keeps_the_simplest_within_noise():
     assert choose(cands).lens == "tangential"
 
 
+def test_rule_resolves_a_real_difference_with_few_groups():
+    """Three left-out groups of nine blocks each, the blocks' difficulty spread by a factor of 4 and each
+    block's ratio of the two models by 30 %: a model 20 % better in RMSE is found in every one of 200
+    draws (measured 100 %; 95 % at 10 %), an equal one displaces the simpler in 7 % (the test's 5 %)."""
+    picks = {}
+    for gain in (1.0, 1.2):
+        chosen = []
+        for seed in range(200):
+            rng = np.random.default_rng(seed)
+            richer = 0.3 * rng.uniform(0.5, 2.0, 27) * rng.lognormal(0, 0.3, 27)
+            cands = [candidate("tangential", richer * gain ** 2 * rng.lognormal(0, 0.3, 27)),
+                     candidate("prism", richer)]
+            chosen.append(choose(cands).lens)
+        picks[gain] = np.mean(np.array(chosen) == "prism")
+        v = cands[0].versus_best
+        assert v.units == 27 and v.points == 27 * 40
+        assert v.interval_pct[0] < 100 * (gain - 1) < v.interval_pct[1], v
+    assert picks[1.2] == 1.0 and picks[1.0] <= 0.10, picks
+
+
 def stepped_target(rng, depths=(-40.0, -20.0, 0.0), step=20.0, extent=240.0) -> np.ndarray:
     g = np.arange(-extent / 2, extent / 2 + 1e-9, step)
     pts = [np.column_stack([x.ravel(), y.ravel(), np.full(x.size, z)])
@@ -237,3 +257,53 @@ def test_bundle_adjustment_fits_the_forced_model_of_each_camera():
             err[key].append(np.linalg.norm(xyz - X[ids], axis=1))
     fitted, true = (float(np.mean(np.concatenate(err[k]))) for k in ("fitted", "true"))
     assert fitted < 1.5 * true + 0.05, (fitted, true)
+
+
+PRISM_LENS = np.array([-0.08, 0.05, 0.0005, -0.0004, 0, 0, 0, 0, 0.018, -0.009, 0.012, 0.006])
+
+
+def five_plane_target(distortion, seed: int, noise_px: float = 0.3) -> pd.DataFrame:
+    """Two cameras (f = 2000 px) 560 mm from a 300 mm target of five depth planes (Z = -60 .. 60 mm)."""
+    rng = np.random.default_rng(seed)
+    g = np.arange(-150.0, 150.0 + 1e-9, 20.0)
+    X = np.vstack([np.column_stack([x.ravel(), y.ravel(), np.full(x.size, z)])
+                   for z in (-60.0, -30.0, 0.0, 30.0, 60.0) for x, y in [np.meshgrid(g, g)]])
+    df = pd.DataFrame({"X_mm": X[:, 0], "Y_mm": X[:, 1], "Z_mm": X[:, 2]})
+    for k, centre in enumerate([(-260.0, -60.0, -560.0), (240.0, -40.0, -570.0)]):
+        cam = Camera(f"c{k}", 1920, 1080, [[2000.0, 0, 950], [0, 2002.0, 545], [0, 0, 1]], distortion,
+                     *look_at(centre))
+        px = cam.project(X) + rng.normal(0, noise_px, (len(X), 2))
+        inside = (px[:, 0] > 0) & (px[:, 0] < 1920) & (px[:, 1] > 0) & (px[:, 1] < 1080)
+        df[f"x_c{k}"], df[f"y_c{k}"] = np.where(inside, px[:, 0], np.nan), np.where(inside, px[:, 1], np.nan)
+    return df
+
+
+def outer_planes_error(df: pd.DataFrame, lens: str) -> tuple[float, Calibration]:
+    """Calibrated on the three middle planes, the mean 3D error (mm) on the two outer ones."""
+    fit, test = df[df.Z_mm.abs() < 45], df[df.Z_mm.abs() > 45]
+    cams = {n: (f"x_{n}", f"y_{n}") for n in ("c0", "c1")}
+    cal = calibrate_from_points(fit, cams, sizes=dict.fromkeys(cams, (1920, 1080)), lens=lens)
+    xyz, _ = triangulate(cal, {n: test[list(c)].to_numpy(float) for n, c in cams.items()}, refine=True)
+    return float(np.nanmean(np.linalg.norm(xyz - test[["X_mm", "Y_mm", "Z_mm"]].to_numpy(), axis=1))), cal
+
+
+@pytest.mark.parametrize(("distortion", "needed"), [(PRISM_LENS, True), (PRISM_LENS[:5], False)])
+def test_outer_planes_of_a_five_plane_target(distortion, needed):
+    """Fitted on the three middle planes (three groups), the outer two predicted. A lens with thin-prism
+    distortion needs the richer terms: the tangential model, which the rule of groups alone kept (the
+    outer planes 10 % worse), is now significantly worse on the 27 blocks; without it the simple model
+    is kept. Either way the choice is within 1.5 % of the best model forced on both cameras (measured
+    0.6 % / 0.9 %)."""
+    df = five_plane_target(distortion, seed=0)
+    auto, cal = outer_planes_error(df, "auto")
+    forced = {lens: outer_planes_error(df, lens)[0] for lens in ("radial1", "tangential", "prism")}
+    assert auto <= 1.015 * min(forced.values()), (auto, forced)
+    extra = {"s1", "tau_x", "k4"}
+    for n, rep in cal.report["per_camera"].items():
+        sel = rep["lens_selection"]
+        assert "27 blocks" in sel["compared"] and sel["why"].startswith(sel["chosen"])
+        tangential = next(c for c in sel["candidates"] if c["lens"] == "tangential")
+        assert bool(extra & set(LENSES[sel["chosen"]].terms)) == needed, (n, sel["why"])
+        assert tangential["versus_best"]["significant"] == needed, (n, tangential)
+    if needed:
+        assert forced["tangential"] > 1.08 * auto

@@ -109,10 +109,23 @@ def point_groups(df: pd.DataFrame) -> tuple[np.ndarray | None, str]:
     return None, ""
 
 
-def image_blocks(uv: np.ndarray) -> tuple[np.ndarray, str]:
-    """A 3 x 3 grid over one camera's image, cut at its pixels' terciles."""
-    cells = [np.searchsorted(np.quantile(uv[:, k], [1 / 3, 2 / 3]), uv[:, k], side="right") for k in (0, 1)]
-    return cells[1] * 3 + cells[0], "image blocks"
+def image_blocks(uv: np.ndarray, k: int = 3) -> tuple[np.ndarray, str]:
+    """A k x k grid over one camera's image, cut at its pixels' quantiles."""
+    q = np.arange(1, k) / k
+    cells = [np.searchsorted(np.quantile(uv[:, j], q), uv[:, j], side="right") for j in (0, 1)]
+    return cells[1] * k + cells[0], "image blocks"
+
+
+def units_within(groups: np.ndarray, uv: np.ndarray, per_unit: int = 5) -> np.ndarray:
+    """The units a lens choice compares models on (see lens_select): each group cut into blocks of
+    neighbouring points, a grid over its pixels of up to 3 x 3 blocks of about `per_unit` points or
+    more. One id per point, unique across groups."""
+    unit = np.zeros(len(groups), dtype=int)
+    for g in np.unique(groups):
+        rows = np.flatnonzero(groups == g)
+        k = int(np.clip(np.floor(np.sqrt(len(rows) / per_unit)), 1, 3))
+        unit[rows] = g * 9 + image_blocks(uv[rows], k)[0]
+    return unit
 
 
 def calibrate_from_points(df: pd.DataFrame, cams: dict[str, tuple[str, str]],
@@ -295,16 +308,19 @@ def _select(name, X, uv, size, start, groups, groups_kind) -> tuple[BundleState,
             raise SandtrackError("too few points left to fit")
         return _fit(X[m], uv[m], get_lens(lens_name), start if m.all() else _initial_pose(name, X[m], uv[m]))
 
+    units = units_within(groups, uv)
+
     def score(st, test):
         e2 = np.sum((_projected(st, X) - uv) ** 2, axis=1)
-        return np.array([np.sum(e2[groups == g]) for g in test]), np.array([np.sum(groups == g) for g in test])
+        ids = [u for g in test for u in np.unique(units[groups == g])]
+        return np.array([np.sum(e2[units == u]) for u in ids]), np.array([np.sum(units == u) for u in ids])
 
     def check(lens_name, st):
         return None if _monotonic(st, size, uv) else "its radial distortion folds the image edge back"
 
     n_folds = len(ids) if len(ids) <= 10 else 5
     cands, chosen = select_lens(ids, fit, score, n_folds=n_folds, check=check)
-    return chosen.fitted, report(cands, groups_kind, len(ids), n_folds)
+    return chosen.fitted, report(cands, groups_kind, len(ids), n_folds, "blocks of neighbouring points")
 
 
 def _standard_size(size: tuple[int, int]) -> tuple[int, int]:

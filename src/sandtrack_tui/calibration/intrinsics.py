@@ -224,7 +224,8 @@ def calibrate_intrinsics(name: str, views: dict[int, BoardView], board: BoardSpe
     """Calibrate one camera from its board views (frame -> BoardView).
 
     model: a lens model name (`lens.LENSES`; "pinhole" means "standard"), or "auto": every candidate
-    is cross-validated over whole board views and the simplest within noise of the best is kept."""
+    is cross-validated over whole board views and the simplest not significantly worse than the best
+    is kept (lens_select)."""
     lens_name = "standard" if model == "pinhole" else model
     if lens_name != "auto":
         get_lens(lens_name)
@@ -317,7 +318,7 @@ def calibrate_intrinsics(name: str, views: dict[int, BoardView], board: BoardSpe
 
             folds = len(frames) if len(frames) <= 10 else n_folds
             cands, chosen = select_lens(frames, fit_views, score, n_folds=folds, check=check)
-            selection = lens_report(cands, "board views", len(frames), folds)
+            selection = lens_report(cands, "board views", len(frames), folds, "left-out board views")
             lens, (rms, K, D, rv, tv) = chosen.fitted
             k3 = "free" if "k3" in lens.terms else "fixed at 0 (cross-validation)"
         elif lens_name != base.name:

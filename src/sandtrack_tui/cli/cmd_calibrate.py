@@ -153,16 +153,29 @@ def _text(r: dict) -> str:
 
 
 def _selection_lines(sel: dict | None) -> list[str]:
-    """The candidates of an automatic lens choice: training and cross-validated RMSE (px)."""
+    """The candidates of an automatic lens choice: training and cross-validated RMSE (px), and each one
+    against the best on the same left-out units (RMSE above the best, units worse / better, p-value)."""
     if not sel:
         return []
-    out = [f"    lens auto: {sel['cross_validation']}; candidates (train / cross-validated px):"]
+    out = [f"    lens auto: {sel['cross_validation']}; {sel.get('compared', '')}",
+           f"    rule: {sel['rule']}",
+           "      lens            train / left-out px   vs best: RMSE  worse/better units  p"]
     for c in sel["candidates"]:
         if c.get("cv_rmse_px") is None:
             out.append(f"      {c['lens']:<15} {c.get('excluded', '')}")
             continue
-        mark = "  <- chosen" if c["chosen"] else ("  (within noise)" if c["within_noise"] else "")
-        out.append(f"      {c['lens']:<15} {c['train_rmse_px']:.3f} / {c['cv_rmse_px']:.3f}{mark}")
+        v = c.get("versus_best")
+        noise = ("  (below the points' resolution)" if v and v["p_value"] < sel.get("alpha", 0.05)
+                 else "  (not significantly worse)")
+        mark = "  <- chosen" if c["chosen"] else (noise if c["within_noise"] else "")
+        if v and not (v["units_worse"] or v["units_better"]):
+            versus = f"{'best':>8}{'':18}"
+        else:
+            versus = (f"{v['rmse_excess_pct']:+6.1f} %  {v['units_worse']:>3} / {v['units_better']:<3}"
+                      f"  {v['p_value']:<7.2g}" if v else "")
+        out.append(f"      {c['lens']:<15} {c['train_rmse_px']:.3f} / {c['cv_rmse_px']:.3f}       {versus}{mark}")
+    if sel.get("why"):
+        out.append(f"    chosen {sel['why']}")
     return out
 
 
