@@ -432,11 +432,10 @@ def triangulate_with_sd(calibration, pixels: dict, sd: dict, refine: bool):
     """XYZ (world, mm), residual (px) and sd per world axis (mm) of `triangulation.triangulate`, the sd by
     `triangulation_sd` (pixel noise and the calibration's parameter covariance)."""
     from .triangulation import triangulate
-    from .triangulation_sd import triangulation_covariance, world_sd
+    from .triangulation_sd import triangulation_sd
 
     xyz, res = triangulate(calibration, pixels, refine=refine, world=False)
-    cov = triangulation_covariance(calibration, pixels, xyz, sd)
-    return calibration.to_world(xyz), res, world_sd(calibration, cov)
+    return calibration.to_world(xyz), res, triangulation_sd(calibration, pixels, xyz, sd)
 
 
 def _solve_scaled(project, obs: dict, camera: str, calibration) -> pd.DataFrame:
