@@ -25,9 +25,17 @@ side/front project), marker and method, with the columns `xyz_columns(cameras)`:
   the image's axes; Z_mm is NaN. Where no method can give millimetres (one camera without a scale,
   cameras without a calibration or network: `NoXYZ`), `compute_pixels` gives the same table with
   method "pixels" and X_mm, Y_mm, Z_mm NaN: the pixel trajectories alone.
-- ``sd_X_mm, sd_Y_mm, sd_Z_mm``: 1-sigma uncertainty of X, Y, Z (mm). For "mlp" and "residual" rows the
-  network's spread (`regression.spread`: its error on calibration points it never saw, plus the pixels'
-  noise above theirs); NaN outside the training volume and for a model file without a spread.
+- ``sd_X_mm, sd_Y_mm, sd_Z_mm``: 1-sigma uncertainty of X, Y, Z (mm). For "triangulation" rows each
+  pixel's sd (the tracker's estimate where the points table has one, else the camera's calibration RMSE)
+  and the calibration's parameter covariance, propagated to first order (`triangulation_sd`). For "mlp"
+  and "residual" rows the network's spread (`regression.spread`: its error on calibration points it never
+  saw, plus the pixels' noise above theirs); NaN outside the training volume and for a model file without
+  a spread. NaN where a pixel's sd is not known.
+- ``xyz_source``: "interpolated" (every camera's pixels at the reference time: its own frame or the two
+  around it), or "nearest_frame": a camera had a point in only one of the two frames around (a seed
+  frame, a track's first or last frame; never next to a "lost" one), so its pixels are that frame's and
+  their sd grows by the marker's motion over the time between (its speed from that frame and the next one
+  beyond; NaN when the track has no such frame yet).
 - ``residual_px``: RMS reprojection error of the XYZ through the calibration (px); a large value
   means the views do not agree (a bad track or a poor model). NaN without a calibration.
 
