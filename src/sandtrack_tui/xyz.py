@@ -431,8 +431,7 @@ def pixel_sd(sd: np.ndarray, extra: np.ndarray, calibration, camera: str) -> np.
     """Each pixel's sd (px): its own (the tracker's or the table's), else the camera's calibration RMSE
     (NaN without either), combined with `extra` (motion to a nearest frame; NaN: unknown)."""
     cam = calibration.cameras.get(camera) if calibration is not None else None
-    rmse = cam.rmse_px if cam is not None and cam.rmse_px is not None else np.nan
-    base = np.where(np.isfinite(sd), sd, rmse)
+    base = np.where(np.isfinite(sd), sd, axis_sd(cam))
     return np.hypot(base, extra)
 
 
@@ -527,7 +526,14 @@ def network_rows(m: str, model, calibration, x: np.ndarray, outside: str, xyz: n
 def _camera_pixel_sd(calibration) -> np.ndarray | None:
     """(4,) px for xs, ys, xf, yf: the side and front cameras' calibration RMSE, None if not known."""
     cams = calibration.cameras if calibration is not None else {}
-    rmse = [getattr(cams.get(c), "rmse_px", None) for c in NETWORK_CAMERAS]
-    if any(r is None for r in rmse):
+    sd = [axis_sd(cams.get(c)) for c in NETWORK_CAMERAS]
+    if not np.isfinite(sd).all():
         return None
-    return np.repeat(np.asarray(rmse, float), 2)
+    return np.repeat(np.asarray(sd, float), 2)
+
+
+def axis_sd(camera) -> float:
+    """A camera's pixel noise per image axis (px): its calibration RMSE, a 2-D distance, over √2; NaN
+    when not known."""
+    rmse = getattr(camera, "rmse_px", None)
+    return float(rmse) / math.sqrt(2.0) if rmse is not None and np.isfinite(rmse) else math.nan
