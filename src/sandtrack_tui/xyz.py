@@ -356,6 +356,10 @@ def _lookup(points: pd.DataFrame, marker: np.ndarray, frame: np.ndarray):
         status[hit] = points["status"].to_numpy(object)[src]
         if "sd_px" in points.columns:
             sd[hit] = points["sd_px"].to_numpy(float, na_value=np.nan)[src]
+        elif "score" in points.columns:
+            from .tracking.pixel_sd import point_sd_px
+
+            sd[hit] = point_sd_px(points["score"].to_numpy(float, na_value=np.nan)[src], status[hit])
     usable = (status != "lost") & (status != "missing") & np.isfinite(x) & np.isfinite(y)
     return x, y, status, usable, sd
 
@@ -428,10 +432,11 @@ def _solve(obs: dict, cameras: list[str], methods: list[str], model, calibration
 
 
 def pixel_sd(sd: np.ndarray, extra: np.ndarray, calibration, camera: str) -> np.ndarray:
-    """Each pixel's sd (px): its own (the tracker's or the table's), else the camera's calibration RMSE
-    (NaN without either), combined with `extra` (motion to a nearest frame; NaN: unknown)."""
+    """Each pixel's sd (px): its own (the tracker's, `tracking.pixel_sd`, or the table's), else (NaN) the
+    camera's calibration RMSE per axis (NaN without either), combined with `extra` (motion to a nearest
+    frame; NaN: unknown). inf (a predicted point) stays inf: its XYZ gets no sd."""
     cam = calibration.cameras.get(camera) if calibration is not None else None
-    base = np.where(np.isfinite(sd), sd, axis_sd(cam))
+    base = np.where(np.isnan(sd), axis_sd(cam), sd)
     return np.hypot(base, extra)
 
 
