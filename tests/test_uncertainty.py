@@ -192,3 +192,47 @@ def test_sd_and_source_columns_reach_csv_and_parquet(seeded, tmp_path):
     worse = trajectory_table(proj, method="triangulation")
     assert worse.loc[worse["X_mm"].notna(), "sd_Z_mm"].median() > 2 * sd_tracked
 
+
+
+@pytest.mark.skipif(not (SAMPLE_DATA / "model.pt").is_file(), reason="sample_data/ is not in this checkout")
+def test_live_table_shows_xyz_plus_minus_sd_right_after_a_seed(tmp_path):
+    """One seed per camera (the front at its nearest frame only): the table shows XYZ at once, marked
+    "~" (nearest frame) with "±?" (no motion known yet); with the front frames around, a number after ±."""
+    from sandtrack_tui.cli.cmd_tui import sample_project
+    from sandtrack_tui.tracking.run import seed_marker
+    from sandtrack_tui.tui.app import SandtrackApp
+    from test_tui_app import aio, settle
+
+    side = pd.read_csv(SAMPLE_DATA / "ground_truth" / "markers_side.csv")
+    front = pd.read_csv(SAMPLE_DATA / "ground_truth" / "markers_front.csv")
+
+    @aio
+    async def run():
+        app = SandtrackApp(sample_project(SAMPLE_DATA, tmp_path / "sample.sandtrack"))
+        async with app.run_test(size=(220, 55)) as pilot:
+            await settle(pilot, app)
+            first, _ = app.common_range()
+            app.go_to(first + 5)
+            marker, f = 3, app.frame
+            s = side[(side.frame == f) & (side.marker == marker)].iloc[0]
+            seed_marker(app.project, marker, "side", f, s.x_px, s.y_px)
+            j = app.cam_index("front")
+            t = front[(front.frame == j) & (front.marker == marker)].iloc[0]
+            seed_marker(app.project, marker, "front", j, t.x_px, t.y_px)
+            app.after_edit()
+            table = app._w["table"]
+
+            def cell() -> str:
+                return str(table.get_row(str(marker))[5]) if len(table.rows) == 1 else "—"
+
+            await settle(pilot, app, lambda: cell() != "—")
+            assert cell().startswith("~") and cell().endswith("±?")
+            for k in (j - 1, j + 1):  # the front track on either side: interpolated, the sd known
+                b = front[(front.frame == k) & (front.marker == marker)].iloc[0]
+                seed_marker(app.project, marker, "front", k, b.x_px, b.y_px)
+            app.after_edit()
+            await settle(pilot, app, lambda: "±?" not in cell())
+            value = cell().split("±")
+            assert not value[0].startswith("~") and 0 < float(value[1]) < 1.0
+
+    run()
