@@ -10,6 +10,7 @@ import pytest
 
 from conftest import SAMPLE_DATA, write_clip
 from sandtrack_tui.camera import Calibration, Camera, CameraUncertainty
+from sandtrack_tui.errors import SandtrackError
 from sandtrack_tui.regression.spread import coverage
 from sandtrack_tui.regression.synthetic import study_rig
 from sandtrack_tui.store import Project
@@ -105,6 +106,11 @@ def test_the_calibration_file_keeps_the_covariance_and_older_files_load_without(
     assert np.allclose(back.uncertainty["front"].covariance, C) and back.uncertainty["front"].sigma_px == 0.21
     old = Calibration.load(SAMPLE_DATA / "ground_truth" / "cameras.toml")
     assert old.uncertainty == {}
+    bad = (tmp_path / "cal.toml").read_text().replace("sigma_px = 0.21", "sigma_px = 0.21\ncovariance = [[1, 2]]")
+    bad = bad.replace("covariance = [\n", "old_covariance = [\n", 1)
+    (tmp_path / "bad.toml").write_text(bad)
+    with pytest.raises(SandtrackError, match="uncertainty of camera front: malformed"):
+        Calibration.load(tmp_path / "bad.toml")
 
 
 def test_pixels_csv_reads_each_cameras_sd(tmp_path):
