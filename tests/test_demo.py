@@ -55,8 +55,12 @@ def test_demo_fast_end_to_end(tmp_path):
     assert within(xyz["mean_error_mm"], claimed("demo", "xyz"))
     assert within(xyz["p95_error_mm"], claimed("demo", "xyz_p95"))
     assert xyz["mlp_mean_error_mm"] < 4.7  # the few-epoch network (measured 3.1 mm)
+    # the tracked markers' triangulation sd (each point's from its match score): measured 95.8 / 95.9 / 94.9 %
+    assert all(92.0 <= xyz[f"triangulation_coverage95_pct_{a}"] <= 98.5 for a in "xyz")
 
     cmp = stages["compare"]
     assert cmp["particles"] == 8 and within(cmp["shift_error_frames"], claimed("compare", "tracked"))
     assert cmp["flagged_particles"] == cmp["drifting_particles"]
+    # in units of the triangulation's sd, the DEM's drifting particles and only they disagree
+    assert cmp["triangulation_inconsistent_particles"] == cmp["drifting_particles"]
     assert (tmp_path / "trajectories.csv").stat().st_size > 0

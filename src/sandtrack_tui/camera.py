@@ -158,12 +158,47 @@ def euler_angles_deg(R: np.ndarray) -> tuple[float, float, float]:
 
 
 @dataclass
+class CameraUncertainty:
+    """Covariance of a camera's calibrated parameters (from its bundle adjustment: (JᵀJ)⁻¹ σ² at the
+    solution, the board poses marginalised). parameters: names in `triangulation_sd` terms (rx ry rz
+    tx ty tz: the pose, fx fy cx cy: the camera matrix, dK: the K-th distortion coefficient)."""
+
+    parameters: list[str]
+    covariance: np.ndarray  # (P, P) in the parameters' units (rad, mm, px, 1)
+    sigma_px: float | None = None  # the fit's residual sd
+
+    def __post_init__(self) -> None:
+        self.parameters = [str(p) for p in self.parameters]
+        self.covariance = np.asarray(self.covariance, dtype=np.float64).reshape(len(self.parameters),
+                                                                               len(self.parameters))
+
+    def to_dict(self) -> dict:
+        d = {"parameters": list(self.parameters), "covariance": self.covariance.tolist()}
+        if self.sigma_px is not None:
+            d["sigma_px"] = float(self.sigma_px)
+        return d
+
+    @classmethod
+    def from_dict(cls, name: str, d: dict) -> CameraUncertainty:
+        try:
+            unc = cls(list(d["parameters"]), np.array(d["covariance"], dtype=float),
+                      None if d.get("sigma_px") is None else float(d["sigma_px"]))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise SandtrackError(f"uncertainty of camera {name}: malformed entry ({exc})") from None
+        if not np.isfinite(unc.covariance).all():
+            raise SandtrackError(f"uncertainty of camera {name}: a covariance value is not a finite number")
+        return unc
+
+
+@dataclass
 class Calibration:
-    """A calibrated rig: cameras (rig frame, mm) and the rig -> sand-box world transform."""
+    """A calibrated rig: cameras (rig frame, mm) and the rig -> sand-box world transform; `uncertainty`:
+    per camera, the covariance of its parameters (absent in files written before it was kept)."""
 
     cameras: dict[str, Camera]
     world_from_rig: np.ndarray = field(default_factory=lambda: np.eye(4))
     report: dict = field(default_factory=dict)
+    uncertainty: dict[str, CameraUncertainty] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.world_from_rig = np.asarray(self.world_from_rig, dtype=np.float64).reshape(4, 4)
@@ -195,6 +230,8 @@ class Calibration:
                 "angles_deg_xyz": list(euler_angles_deg(self.world_from_rig[:3, :3])),
             },
         }
+        if self.uncertainty:
+            doc["uncertainty"] = {n: u.to_dict() for n, u in self.uncertainty.items() if n in self.cameras}
         if self.report:
             doc["report"] = _plain(self.report)
         return tomli_w.dumps(doc)
@@ -220,7 +257,10 @@ class Calibration:
             raise SandtrackError(f"{source}: world_from_rig must be a 4x4 matrix") from None
         if not np.isfinite(world).all():
             raise SandtrackError(f"{source}: world_from_rig has a value that is not a finite number")
-        return cls(cameras=cameras, world_from_rig=world, report=doc.get("report", {}))
+        unc = doc.get("uncertainty", {})
+        unc = {n: CameraUncertainty.from_dict(n, d) for n, d in unc.items() if n in cameras and isinstance(d, dict)} \
+            if isinstance(unc, dict) else {}
+        return cls(cameras=cameras, world_from_rig=world, report=doc.get("report", {}), uncertainty=unc)
 
     @classmethod
     def load(cls, path: str | Path) -> Calibration:

@@ -25,9 +25,17 @@ side/front project), marker and method, with the columns `xyz_columns(cameras)`:
   the image's axes; Z_mm is NaN. Where no method can give millimetres (one camera without a scale,
   cameras without a calibration or network: `NoXYZ`), `compute_pixels` gives the same table with
   method "pixels" and X_mm, Y_mm, Z_mm NaN: the pixel trajectories alone.
-- ``sd_X_mm, sd_Y_mm, sd_Z_mm``: 1-sigma uncertainty of X, Y, Z (mm). For "mlp" and "residual" rows the
-  network's spread (`regression.spread`: its error on calibration points it never saw, plus the pixels'
-  noise above theirs); NaN outside the training volume and for a model file without a spread.
+- ``sd_X_mm, sd_Y_mm, sd_Z_mm``: 1-sigma uncertainty of X, Y, Z (mm). For "triangulation" rows each
+  pixel's sd (the tracker's estimate where the points table has one, else the camera's calibration RMSE)
+  and the calibration's parameter covariance, propagated to first order (`triangulation_sd`). For "mlp"
+  and "residual" rows the network's spread (`regression.spread`: its error on calibration points it never
+  saw, plus the pixels' noise above theirs); NaN outside the training volume and for a model file without
+  a spread. NaN where a pixel's sd is not known.
+- ``xyz_source``: "interpolated" (every camera's pixels at the reference time: its own frame or the two
+  around it), or "nearest_frame": a camera had a point in only one of the two frames around (a seed
+  frame, a track's first or last frame; never next to a "lost" one), so its pixels are that frame's and
+  their sd grows by the marker's motion over the time between (its speed from that frame and the next one
+  beyond; NaN when the track has no such frame yet).
 - ``residual_px``: RMS reprojection error of the XYZ through the calibration (px); a large value
   means the views do not agree (a bad track or a poor model). NaN without a calibration.
 
@@ -73,10 +81,11 @@ def xyz_columns(cameras) -> list[str]:
     """Columns of the XYZ table of a project with these cameras (the first is the reference)."""
     return ["frame", "time_s", "marker", *(f"status_{c}" for c in cameras),
             *(col for c in cameras for col in pixel_columns(c)), "X_mm", "Y_mm", "Z_mm", *SD_COLUMNS, "method",
-            "residual_px"]
+            "residual_px", "xyz_source"]
 
 
 XYZ_COLUMNS = xyz_columns(NETWORK_CAMERAS)
+XYZ_SOURCES = ("interpolated", "nearest_frame")
 
 
 class Timeline:
@@ -313,20 +322,26 @@ def _observations(project, timeline: Timeline, frames) -> dict:
     if timeline.frames.get(ref) is not None:
         keys = keys[keys[:, 0] < timeline.frames[ref]]
     frame, marker = keys[:, 0], keys[:, 1]
-    obs = {"frame": frame, "marker": marker, "time_s": timeline.time(ref, frame), "pixels": {}, "status": {}}
-    x, y, status, _ = _lookup(points[ref], marker, frame)
+    obs = {"frame": frame, "marker": marker, "time_s": timeline.time(ref, frame), "pixels": {}, "status": {},
+           "sd": {}, "extra": {}, "nearest": np.zeros(len(frame), bool)}
+    x, y, status, _, sd = _lookup(points[ref], marker, frame)
     lost = status == "lost"
     x[lost], y[lost] = np.nan, np.nan
-    obs["pixels"][ref], obs["status"][ref] = np.stack([x, y], axis=1), status
+    obs["pixels"][ref], obs["status"][ref], obs["sd"][ref] = np.stack([x, y], axis=1), status, sd
+    obs["extra"][ref] = np.zeros(len(frame))
     for c in others:
-        obs["pixels"][c], obs["status"][c] = _interpolated(points[c], marker, timeline.position(c, frame))
+        got = _interpolated(points[c], marker, timeline.position(c, frame))
+        obs["pixels"][c], obs["status"][c], obs["sd"][c], obs["extra"][c] = (got["pixels"], got["status"], got["sd"],
+                                                                             got["extra"])
+        obs["nearest"] |= got["nearest"]
     return obs
 
 
 def _lookup(points: pd.DataFrame, marker: np.ndarray, frame: np.ndarray):
-    """x, y, status (\"missing\" where absent) and usability of each (marker, frame) in `points`."""
+    """x, y, status (\"missing\" where absent), usability and the tracker's pixel sd (NaN: not known) of
+    each (marker, frame) in `points`."""
     n = len(marker)
-    x, y = np.full(n, np.nan), np.full(n, np.nan)
+    x, y, sd = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
     status = np.full(n, "missing", dtype=object)
     if len(points) and n:
         pk = points["marker"].to_numpy(np.int64) * _KEY + points["frame"].to_numpy(np.int64)
@@ -339,42 +354,64 @@ def _lookup(points: pd.DataFrame, marker: np.ndarray, frame: np.ndarray):
         x[hit] = points["x_px"].to_numpy(float)[src]
         y[hit] = points["y_px"].to_numpy(float)[src]
         status[hit] = points["status"].to_numpy(object)[src]
+        if "sd_px" in points.columns:
+            sd[hit] = points["sd_px"].to_numpy(float, na_value=np.nan)[src]
+        elif "score" in points.columns:
+            from .tracking.pixel_sd import point_sd_px
+
+            sd[hit] = point_sd_px(points["score"].to_numpy(float, na_value=np.nan)[src], status[hit])
     usable = (status != "lost") & (status != "missing") & np.isfinite(x) & np.isfinite(y)
-    return x, y, status, usable
+    return x, y, status, usable, sd
 
 
-def _interpolated(points: pd.DataFrame, marker: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(N, 2) pixels and statuses of a camera at continuous frame indices u, from the two frames around."""
+def _interpolated(points: pd.DataFrame, marker: np.ndarray, u: np.ndarray) -> dict:
+    """A camera's pixels (N, 2), statuses, pixel sd (NaN: not known), extra sd from a nearest frame (px;
+    NaN where the motion is not known) and which rows took a nearest frame, at continuous frame indices u:
+    from the two frames around; where only one of them has a point (a seed frame, the start or end of a
+    track; not next to a "lost" one), from that one, its sd enlarged by the marker's motion over the time
+    between (the speed from that frame and the one beyond it)."""
     n = len(u)
     j0 = np.floor(np.nan_to_num(u, nan=-10) + _EPS).astype(np.int64)
     w = np.where(np.isfinite(u), u - j0, np.nan)
     w[np.abs(w) < _EPS] = 0.0
-    x0, y0, s0, ok0 = _lookup(points, marker, j0)
-    x1, y1, s1, ok1 = _lookup(points, marker, j0 + 1)
+    x0, y0, s0, ok0, sd0 = _lookup(points, marker, j0)
+    x1, y1, s1, ok1, sd1 = _lookup(points, marker, j0 + 1)
     exact = w == 0.0
     one = exact & ok0
     both = ok0 & ok1 & ~exact & np.isfinite(w)
-    x, y = np.full(n, np.nan), np.full(n, np.nan)
-    x[one], y[one] = x0[one], y0[one]
+    x, y, sd = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
+    x[one], y[one], sd[one] = x0[one], y0[one], sd0[one]
     x[both] = (1 - w[both]) * x0[both] + w[both] * x1[both]
     y[both] = (1 - w[both]) * y0[both] + w[both] * y1[both]
+    sd[both] = (1 - w[both]) * sd0[both] + w[both] * sd1[both]
     sev0 = np.array([_SEVERITY.get(v, 6) for v in s0], dtype=int)
     sev1 = np.array([_SEVERITY.get(v, 6) for v in s1], dtype=int)
     status = np.where(exact | (sev0 >= sev1), s0, s1).astype(object)
+    extra = np.zeros(n)
+    near0 = ok0 & (s1 == "missing") & ~exact & np.isfinite(w)  # a "lost" neighbour still spoils the row
+    near1 = ok1 & (s0 == "missing") & ~exact & np.isfinite(w)
+    for near, j, step, dist, xs, ys, ss, st in ((near0, j0, -1, w, x0, y0, sd0, s0),
+                                                  (near1, j0 + 1, 1, 1 - w, x1, y1, sd1, s1)):
+        if not near.any():
+            continue
+        x[near], y[near], sd[near], status[near] = xs[near], ys[near], ss[near], st[near]
+        xb, yb, _, okb, _ = _lookup(points, marker[near], j[near] + step)
+        speed = np.where(okb, np.hypot(xs[near] - xb, ys[near] - yb), np.nan)  # px per frame
+        extra[near] = speed * dist[near]
     status[~np.isfinite(u)] = "missing"
-    return np.stack([x, y], axis=1), status
+    return {"pixels": np.stack([x, y], axis=1), "status": status, "sd": sd, "extra": extra,
+            "nearest": near0 | near1}
 
 
 # -- XYZ --------------------------------------------------------------------------------------------
 def _solve(obs: dict, cameras: list[str], methods: list[str], model, calibration, outside: str,
            refine: bool) -> pd.DataFrame:
-    from .triangulation import triangulate
-
     n = len(obs["frame"])
     pix = obs["pixels"]
     tri_cams = [c for c in cameras if calibration is not None and c in calibration.cameras]
     seen = np.sum([np.isfinite(pix[c]).all(axis=1) for c in tri_cams], axis=0) if tri_cams else np.zeros(n)
     ok = seen >= 2
+    psd = {c: pixel_sd(obs["sd"][c], obs["extra"][c], calibration, c) for c in cameras}
     blocks = []
     for m in methods:
         xyz, sd = np.full((n, 3), np.nan), np.full((n, 3), np.nan)
@@ -382,13 +419,35 @@ def _solve(obs: dict, cameras: list[str], methods: list[str], model, calibration
         label = np.full(n, m, dtype=object)
         if m == "triangulation":
             if ok.any():
-                xyz[ok], res[ok] = triangulate(calibration, {c: pix[c][ok] for c in tri_cams}, refine=refine,
-                                               world=True)
+                used = {c: pix[c][ok] for c in tri_cams}
+                xyz[ok], res[ok], sd[ok] = triangulate_with_sd(calibration, used, {c: psd[c][ok] for c in tri_cams},
+                                                               refine)
         elif n:
             network_rows(m, model, calibration, np.hstack([pix[c] for c in NETWORK_CAMERAS]), outside, xyz, res,
-                         label, sd)
+                         label, sd, np.repeat(np.stack([psd[c] for c in NETWORK_CAMERAS], axis=1), 2, axis=1))
+            unknown = ~np.isfinite(np.stack([obs["extra"][c] for c in NETWORK_CAMERAS], axis=1)).all(axis=1)
+            sd[unknown] = np.nan  # a nearest frame whose motion is not known
         blocks.append((xyz, res, label, sd))
     return _table(obs, cameras, blocks)
+
+
+def pixel_sd(sd: np.ndarray, extra: np.ndarray, calibration, camera: str) -> np.ndarray:
+    """Each pixel's sd (px): its own (the tracker's, `tracking.pixel_sd`, or the table's), else (NaN) the
+    camera's calibration RMSE per axis (NaN without either), combined with `extra` (motion to a nearest
+    frame; NaN: unknown). inf (a predicted point) stays inf: its XYZ gets no sd."""
+    cam = calibration.cameras.get(camera) if calibration is not None else None
+    base = np.where(np.isnan(sd), axis_sd(cam), sd)
+    return np.hypot(base, extra)
+
+
+def triangulate_with_sd(calibration, pixels: dict, sd: dict, refine: bool):
+    """XYZ (world, mm), residual (px) and sd per world axis (mm) of `triangulation.triangulate`, the sd by
+    `triangulation_sd` (pixel noise and the calibration's parameter covariance)."""
+    from .triangulation import triangulate
+    from .triangulation_sd import triangulation_sd
+
+    xyz, res = triangulate(calibration, pixels, refine=refine, world=False)
+    return calibration.to_world(xyz), res, triangulation_sd(calibration, pixels, xyz, sd)
 
 
 def _solve_scaled(project, obs: dict, camera: str, calibration) -> pd.DataFrame:
@@ -426,24 +485,26 @@ def _table(obs: dict, cameras: list[str], blocks: list) -> pd.DataFrame:
             cols[c].append(sd[:, k])
         cols["method"].append(label)
         cols["residual_px"].append(res)
+        cols["xyz_source"].append(np.where(obs.get("nearest", np.zeros(n, bool)), XYZ_SOURCES[1],
+                                           XYZ_SOURCES[0]).astype(object))
     table = pd.DataFrame({c: np.concatenate(v) if v else np.zeros(0) for c, v in cols.items()})
     order = np.lexsort((np.repeat(np.arange(len(blocks)), n), table["marker"].to_numpy(),
                         table["frame"].to_numpy()))
     table = table.iloc[order].reset_index(drop=True)
     table["frame"] = table["frame"].astype(np.int64)
     table["marker"] = table["marker"].astype(np.int64)
-    for c in [*(f"status_{c}" for c in cameras), "method"]:
+    for c in [*(f"status_{c}" for c in cameras), "method", "xyz_source"]:
         table[c] = table[c].astype(object)
     return table
 
 
 def network_rows(m: str, model, calibration, x: np.ndarray, outside: str, xyz: np.ndarray, res: np.ndarray,
-                 label: np.ndarray, sd: np.ndarray) -> None:
+                 label: np.ndarray, sd: np.ndarray, pixel_sd: np.ndarray | None = None) -> None:
     """Fill xyz, res, label and sd (in place) for the rows of x (N, 4: xs, ys, xf, yf) without a
     missing pixel, by the network ("mlp") or its residual variant: the reprojection residual through the
-    calibration (else the model's own), the sd of `regression.predict_with_sd` (each pixel's sd: the
-    camera's calibration RMSE), MLP rows outside the training volume flagged "mlp_outside"
-    (outside="flag"), emptied ("nan") or left ("keep"; their sd stays NaN)."""
+    calibration (else the model's own), the sd of `regression.predict_with_sd` (each pixel's sd:
+    `pixel_sd` (N, 4) px where finite, else the camera's calibration RMSE), MLP rows outside the training
+    volume flagged "mlp_outside" (outside="flag"), emptied ("nan") or left ("keep"; their sd stays NaN)."""
     from .regression import outside_training, predict_with_sd
     from .triangulation import reprojection_residual
 
@@ -451,7 +512,11 @@ def network_rows(m: str, model, calibration, x: np.ndarray, outside: str, xyz: n
     if not ok.any():
         return
     cal = calibration if calibration is not None else model.calibration
-    xyz[ok], sd[ok] = predict_with_sd(model, x[ok], method=m, pixel_sd=_camera_pixel_sd(cal))
+    psd = _camera_pixel_sd(cal)
+    if pixel_sd is not None:
+        given = np.asarray(pixel_sd, float)[ok]
+        psd = np.where(np.isfinite(given), given, np.nan if psd is None else psd)
+    xyz[ok], sd[ok] = predict_with_sd(model, x[ok], method=m, pixel_sd=psd)
     if cal is not None and {"side", "front"} <= set(cal.cameras):
         res[ok] = reprojection_residual(cal, {"side": x[ok, :2], "front": x[ok, 2:]}, cal.to_rig(xyz[ok]))
     if m == "mlp" and outside != "keep":
@@ -466,7 +531,14 @@ def network_rows(m: str, model, calibration, x: np.ndarray, outside: str, xyz: n
 def _camera_pixel_sd(calibration) -> np.ndarray | None:
     """(4,) px for xs, ys, xf, yf: the side and front cameras' calibration RMSE, None if not known."""
     cams = calibration.cameras if calibration is not None else {}
-    rmse = [getattr(cams.get(c), "rmse_px", None) for c in NETWORK_CAMERAS]
-    if any(r is None for r in rmse):
+    sd = [axis_sd(cams.get(c)) for c in NETWORK_CAMERAS]
+    if not np.isfinite(sd).all():
         return None
-    return np.repeat(np.asarray(rmse, float), 2)
+    return np.repeat(np.asarray(sd, float), 2)
+
+
+def axis_sd(camera) -> float:
+    """A camera's pixel noise per image axis (px): its calibration RMSE, a 2-D distance, over √2; NaN
+    when not known."""
+    rmse = getattr(camera, "rmse_px", None)
+    return float(rmse) / math.sqrt(2.0) if rmse is not None and np.isfinite(rmse) else math.nan

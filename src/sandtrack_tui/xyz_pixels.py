@@ -8,6 +8,9 @@ for their meaning);
 with several methods each input row appears once per method, in input order. Triangulation uses every
 camera that saw a point (two or more); the network and its residual variant read the side and front
 pixels, as they were trained.
+
+Each pixel's sd (px, 1 sigma) may be given: ``sd_px`` for every camera, ``sd_px_NAME`` for camera NAME
+(side, front or any other); an empty field or no column: the camera's calibration RMSE.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ from .xyz import (
     check_choices,
     network_rows,
     pixel_columns,
+    pixel_sd,
     resolve_methods,
     wanted_methods,
 )
@@ -73,7 +77,7 @@ def xyz_from_pixels(df: pd.DataFrame, cams: dict[str, tuple[str, str]], calibrat
                     method: str = "both", outside: str = "flag", refine: bool = True) -> tuple[pd.DataFrame, list[str]]:
     """The table with XYZ by each method, and notes for the user (renamed columns)."""
     check_choices(method, outside)
-    from .triangulation import triangulate
+    from .xyz import triangulate_with_sd
 
     if calibration is not None and "triangulation" in wanted_methods(method):
         unknown = [c for c in cams if c not in calibration.cameras]
@@ -90,6 +94,7 @@ def xyz_from_pixels(df: pd.DataFrame, cams: dict[str, tuple[str, str]], calibrat
         notes.append(f"input columns {', '.join(clash)} are kept as {', '.join(c + '_input' for c in clash)}")
     pix = {n: df[list(xy)].to_numpy(float) for n, xy in cams.items()}
     n = len(df)
+    psd = {c: pixel_sd(given_sd(df, c), np.zeros(n), calibration, c) for c in cams}
     blocks = []
     for m in methods:
         xyz, res, sd = np.full((n, 3), np.nan), np.full(n, np.nan), np.full((n, 3), np.nan)
@@ -97,10 +102,10 @@ def xyz_from_pixels(df: pd.DataFrame, cams: dict[str, tuple[str, str]], calibrat
         if m == "triangulation":
             used = {c: p for c, p in pix.items() if c in calibration.cameras}
             if n:
-                xyz, res = triangulate(calibration, used, refine=refine, world=True)
+                xyz, res, sd = triangulate_with_sd(calibration, used, {c: psd[c] for c in used}, refine)
         else:
             network_rows(m, model, calibration, np.hstack([pix[c] for c in NETWORK_CAMERAS]), outside, xyz, res,
-                         label, sd)
+                         label, sd, np.repeat(np.stack([psd[c] for c in NETWORK_CAMERAS], axis=1), 2, axis=1))
         out = base.copy()
         out["X_mm"], out["Y_mm"], out["Z_mm"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
         for k, c in enumerate(SD_COLUMNS):
@@ -113,6 +118,15 @@ def xyz_from_pixels(df: pd.DataFrame, cams: dict[str, tuple[str, str]], calibrat
     table = pd.concat(blocks, ignore_index=True)
     order = np.argsort(np.tile(np.arange(n), len(blocks)), kind="stable")
     return table.iloc[order].reset_index(drop=True), notes
+
+
+def given_sd(df: pd.DataFrame, camera: str) -> np.ndarray:
+    """The pixel sd (px) the table gives for a camera (``sd_px_NAME``, else ``sd_px``); NaN where none."""
+    for col in (f"sd_px_{camera}", "sd_px"):
+        if col in df.columns:
+            v = pd.to_numeric(df[col], errors="coerce").to_numpy(dtype=float, na_value=np.nan)
+            return np.where(np.isfinite(v) & (v >= 0), v, np.nan)
+    return np.full(len(df), np.nan)
 
 
 def write_table(table: pd.DataFrame, path: str | Path | None) -> None:

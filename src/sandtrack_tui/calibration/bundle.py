@@ -342,3 +342,62 @@ def bundle_adjust(state: BundleState, obs: Observations, free_intrinsics: bool =
         "observations": len(obs),
     }
     return out, info
+
+
+def camera_covariances(state: BundleState, obs: Observations, free_intrinsics: bool = True, loss: str = "soft_l1",
+                       f_scale: float = 2.0, weights: np.ndarray | None = None) -> dict:
+    """Covariance of each camera's parameters at a bundle adjustment's solution: (JᵀWJ)⁻¹ σ², the board
+    poses marginalised (Schur complement), W the robust loss's weights, σ² the weighted residuals' sum of
+    squares over the degrees of freedom. {camera index: (parameter names, covariance)}; the first camera's
+    pose defines the rig frame and has none. Names: rx ry rz tx ty tz (pose, rig -> camera), fx fy cx cy,
+    dK (the K-th distortion coefficient)."""
+    layout = _Layout(state, free_intrinsics, True, True)
+    x = layout.pack(state)
+    scale = None if weights is None else np.repeat(np.sqrt(np.asarray(weights, dtype=float)), 2)
+
+    def fun(xv):
+        r = residuals(layout.unpack(xv, state), obs).ravel()
+        return r if scale is None else r * scale
+
+    S = layout.sparsity(obs).tocsc()
+    S.sort_indices()
+    r = fun(x)
+    J = _jacobian(fun, x, r, S, _groups(layout, obs))
+    _, w = _robust(np.nan_to_num(np.linalg.norm(r.reshape(-1, 2), axis=1), nan=1e6), loss, f_scale)
+    wr = np.repeat(w, 2)
+    A = (J.T.multiply(wr[None, :]).tocsr() @ J).tocsc()
+    dof = max(len(r) - layout.n, 1)
+    sigma2 = float(np.sum(wr * r * r)) / dof
+    cov = _head_inverse(A, layout.frame0, layout.F) * sigma2
+    out = {}
+    for c in range(layout.C):
+        names, idx = [], []
+        if c in layout.cam_pose:
+            o = layout.cam_pose[c]
+            names += ["rx", "ry", "rz", "tx", "ty", "tz"]
+            idx += list(range(o, o + 6))
+        if c in layout.intr:
+            o, n, mask = layout.intr[c]
+            names += ["fx", "fy", "cx", "cy", *(f"d{k}" for k in np.nonzero(mask)[0])]
+            idx += list(range(o, o + n))
+        if idx:
+            out[c] = (names, cov[np.ix_(idx, idx)])
+    return out
+
+
+def _head_inverse(A, n_head: int, F: int) -> np.ndarray:
+    """The leading n_head x n_head block of A⁻¹ (the trailing 6F frame-pose block is block-diagonal):
+    the inverse of its Schur complement."""
+    A = A.tocsr()
+    U = A[:n_head, :n_head].toarray()
+    if F == 0:
+        return np.linalg.pinv(U)
+    Vsub = A[n_head:, n_head:].tocoo()
+    Vb = np.zeros((F, 6, 6))
+    fr, fc = Vsub.row // 6, Vsub.col // 6
+    same = fr == fc
+    Vb[fr[same], Vsub.row[same] % 6, Vsub.col[same] % 6] = Vsub.data[same]
+    Vinv = np.linalg.pinv(Vb)
+    W = A[:n_head, n_head:].toarray().reshape(n_head, F, 6)
+    Sm = U - np.einsum("afi,fij,bfj->ab", W, Vinv, W)
+    return np.linalg.pinv(Sm)

@@ -24,6 +24,7 @@ from .bundle import BundleState
 from .geometry import from_T, inv_T, radial_is_monotonic, to_T
 from .intrinsics import opencv_flags
 from .lens_select import report, select_lens
+from .point_uncertainty import into_rig, point_fit_uncertainty
 
 MIN_POINTS = 12
 
@@ -162,11 +163,16 @@ def calibrate_from_points(df: pd.DataFrame, cams: dict[str, tuple[str, str]],
     first = next(iter(cameras))
     T0w = to_T(cameras[first].rvec, cameras[first].tvec)
     world_from_rig = inv_T(T0w)
-    for cam in cameras.values():
+    uncertainty = {}
+    for name, cam in cameras.items():
+        uv = df[list(cams[name])].to_numpy(float)
+        unc = point_fit_uncertainty(cam, X_all, uv)
+        if unc is not None:
+            uncertainty[name] = into_rig(unc, cam, world_from_rig)
         r, t = from_T(to_T(cam.rvec, cam.tvec) @ world_from_rig)
         cam.rvec, cam.tvec = r, t
     rmse = float(np.sqrt(np.mean([r["rmse_px"] ** 2 for r in reports.values()])))
-    cal = Calibration(cameras=cameras, world_from_rig=world_from_rig)
+    cal = Calibration(cameras=cameras, world_from_rig=world_from_rig, uncertainty=uncertainty)
     # how well the fitted cameras give the known points back (triangulated from their own pixels)
     from ..triangulation import triangulate
 

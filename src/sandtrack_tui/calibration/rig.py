@@ -10,10 +10,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..board import BoardSpec
-from ..camera import Calibration, Camera
+from ..camera import Calibration, Camera, CameraUncertainty
 from ..errors import SandtrackError
 from ..lens import LENSES, padded
-from .bundle import BundleState, Observations, bundle_adjust, residuals, view_weights
+from .bundle import BundleState, Observations, bundle_adjust, camera_covariances, residuals, view_weights
 from .detect import BoardView
 from .geometry import from_T, inv_T, mean_rotation, rotation_angle_deg, to_T
 from .intrinsics import IntrinsicsResult, board_pose, calibrate_intrinsics
@@ -258,7 +258,10 @@ def calibrate_rig(views: Views, board: BoardSpec, sizes: dict[str, tuple[int, in
                             rmse_px=float(np.sqrt(np.mean(err[m] ** 2))) if m.any() else None,
                             lens=intr[n].lens)
     warnings = [w for n in names for w in intr[n].warnings]
-    return RigResult(calibration=Calibration(cameras=cameras), intrinsics=intr, state=state, frames=frames, obs=obs,
+    uncertainty = {names[c]: CameraUncertainty(p, cov, info["rmse_px"])
+                   for c, (p, cov) in camera_covariances(state, obs, free_intr, weights=weights).items()}
+    return RigResult(calibration=Calibration(cameras=cameras, uncertainty=uncertainty), intrinsics=intr, state=state,
+                     frames=frames, obs=obs,
                      bundle=info, skipped_duplicates=skipped, skipped_blurred=blurred,
                      warnings=warnings)
 

@@ -154,6 +154,7 @@ def run(args) -> int:
         summary = track_project(proj, markers=markers, start=args.start, stop=args.stop,
                                 direction="backward" if args.backward else "forward", progress=progress)
         bar.close()
+        summary.update(xyz_uncertainty(proj, summary))
     summary["project"] = str(args.project)
     summary["seed_points"] = seeded
     for p in summary.get("problems", []):
@@ -163,6 +164,31 @@ def run(args) -> int:
         log(f"note: {len(one)} marker(s) placed in one camera only (no 3D for them): {', '.join(map(str, one))}")
     emit(summary, args.json, _text(summary))
     return 0 if summary.get("frames", 0) > 0 else 1
+
+
+def xyz_uncertainty(project, summary: dict) -> dict:
+    """The median 1-sigma sd per axis (mm) of the triangulated XYZ over the tracked frames, and how many
+    points had one: {"xyz_sd_median_mm": {"X": .., "Y": .., "Z": ..}, "xyz_points_with_sd": n}; empty
+    without a calibration."""
+    import numpy as np
+
+    from ..xyz import SD_COLUMNS, compute_xyz
+
+    first, last = summary.get("first_frame"), summary.get("last_frame")
+    if first is None or last is None or project.calibration() is None:
+        return {}
+    lo, hi = sorted((int(first), int(last)))
+    try:
+        table = compute_xyz(project, method="triangulation", frames=range(lo, hi + 1))
+    except SandtrackError:
+        return {}
+    sd = table[list(SD_COLUMNS)].to_numpy(float)
+    ok = np.isfinite(sd).all(axis=1)
+    if not ok.any():
+        return {"xyz_points_with_sd": 0}
+    med = np.median(sd[ok], axis=0)
+    return {"xyz_sd_median_mm": {a: round(float(v), 4) for a, v in zip("XYZ", med, strict=True)},
+            "xyz_points_with_sd": int(ok.sum())}
 
 
 def _text(s: dict) -> str:
@@ -187,6 +213,10 @@ def _text(s: dict) -> str:
         lines.append(f"  {len(s['ambiguous'])} ambiguous re-acquisitions left to the operator")
     if s.get("never_found"):
         lines.append("  never found: " + ", ".join(s["never_found"]))
+    if s.get("xyz_sd_median_mm"):
+        sd = s["xyz_sd_median_mm"]
+        lines.append(f"  XYZ by triangulation, median sd (1 sigma): X {sd['X']:.3f}, Y {sd['Y']:.3f}, "
+                     f"Z {sd['Z']:.3f} mm over {s['xyz_points_with_sd']} points")
     if s.get("stopped"):
         lines.append("  stopped early; what was tracked is saved")
     return "\n".join(lines)

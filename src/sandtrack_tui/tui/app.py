@@ -536,11 +536,13 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, MarkersMixin, App):
             if r is None:
                 continue
             val = (rec.X_mm, rec.Y_mm, rec.Z_mm)
+            sd = (rec.sd_X_mm, rec.sd_Y_mm, rec.sd_Z_mm)
+            r.nearest_frame = r.nearest_frame or getattr(rec, "xyz_source", "") == "nearest_frame"
             if str(rec.method).lower().startswith("tri"):
-                r.xyz_tri = val
+                r.xyz_tri, r.sd_tri = val, sd
                 r.residual_px = rec.residual_px
             else:
-                r.xyz_net = val
+                r.xyz_net, r.sd_net = val, sd
 
     def _scale(self, project: Project | None = None):
         """(mm per px, source) of a one-camera project, or None."""

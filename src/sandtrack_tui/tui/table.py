@@ -1,6 +1,8 @@
 """Live per-marker table for the current frame: status and pixels in every camera, then XYZ by
 triangulation and by the network (a side and a front camera), XYZ by triangulation (other rigs
-of two or more cameras), or x, y in mm through the scale (one camera)."""
+of two or more cameras), or x, y in mm through the scale (one camera). An XYZ cell ends with
+"± sd": the largest of its three 1-sigma sd (mm; "±?" where not known), and "~" when a camera's
+pixels came from its nearest frame instead of the two around (a seed frame)."""
 
 from __future__ import annotations
 
@@ -25,6 +27,9 @@ class MarkerRow:
     score: float | None = None
     xyz_tri: tuple[float, float, float] | None = None
     xyz_net: tuple[float, float, float] | None = None
+    sd_tri: tuple[float, float, float] | None = None
+    sd_net: tuple[float, float, float] | None = None
+    nearest_frame: bool = False
     residual_px: float | None = None
     xy_mm: tuple[float, float] | None = None  # one camera: image position in mm
 
@@ -43,10 +48,21 @@ def columns(cameras: list[str]) -> list[tuple[str, int]]:
     cols += [(f"{c[:8]} px", 13) for c in cameras]
     if len(cameras) == 1:
         return [*cols, ("x, y mm", 15)]
-    cols.append(("XYZ triang. mm", 20))
+    cols.append(("XYZ triang. mm ± sd", XYZ_WIDTH))
     if cameras == ["side", "front"]:
-        cols += [("XYZ network mm", 20), ("Δ mm", 5)]
+        cols += [("XYZ network mm ± sd", XYZ_WIDTH), ("Δ mm", 5)]
     return [*cols, ("res px", 6)]
+
+
+XYZ_WIDTH = 28
+
+
+def format_xyz(v, sd, nearest: bool = False) -> str:
+    """"X, Y, Z ±sd" (mm; sd the largest axis's 1 sigma, "±?" unknown), "~" first for a nearest-frame row."""
+    if not _finite(v):
+        return "—"
+    text = f"{'~' if nearest else ''}{v[0]:.1f},{v[1]:.1f},{v[2]:.1f}"
+    return f"{text} ±{max(sd):.2f}" if _finite(sd) else f"{text} ±?"
 
 
 def _finite(v) -> bool:
@@ -64,9 +80,6 @@ def format_row(row: MarkerRow, cameras: list[str]) -> list:
     def px(v):
         return f"{v[0]:6.1f},{v[1]:6.1f}" if _finite(v) else "—"
 
-    def xyz(v):
-        return f"{v[0]:6.1f},{v[1]:6.1f},{v[2]:6.1f}" if _finite(v) else "—"
-
     parts = []
     for k, cam in enumerate(cameras):
         if k:
@@ -77,10 +90,10 @@ def format_row(row: MarkerRow, cameras: list[str]) -> list:
     cells += [px(row.px.get(cam)) for cam in cameras]
     if len(cameras) == 1:
         return [*cells, f"{row.xy_mm[0]:6.1f},{row.xy_mm[1]:6.1f}" if _finite(row.xy_mm) else "—"]
-    cells.append(xyz(row.xyz_tri))
+    cells.append(format_xyz(row.xyz_tri, row.sd_tri, row.nearest_frame))
     if cameras == ["side", "front"]:
         diff = row.difference_mm
-        cells += [xyz(row.xyz_net), f"{diff:.1f}" if diff is not None else "—"]
+        cells += [format_xyz(row.xyz_net, row.sd_net, row.nearest_frame), f"{diff:.1f}" if diff is not None else "—"]
     cells.append(Text(f"{row.residual_px:.2f}", style="red" if row.residual_px > 2.0 else "")
                  if _finite(row.residual_px) else "—")
     return cells

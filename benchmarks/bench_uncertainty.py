@@ -1,0 +1,168 @@
+"""Do the XYZ sd columns hold what they claim? The share of true errors inside ±1.96 sd, per axis (95 % if
+honest), for triangulation and the network.
+
+1. The rendered sample (sample_data, the small preset; truth from its renderer): calibrated from its
+   calibration videos (the bundle adjustment's covariance kept), then
+   a. its calibration points (every board corner both cameras saw) through `xyz PIXELS.csv`'s path, and
+   b. its tracked markers: auto-seed, track both ways, `compute_xyz` (each tracked point's sd from its
+      match score), on the frames both cameras tracked; the network is the sample's own model.pt.
+2. The real stepped target (../shared/data/myptv_target, three cameras, surveyed dots): each camera fitted
+   to two depth planes (`calibrate --from-points`, lens auto), the third plane triangulated, cameras 1+2
+   and 1+2+3 (no network: three planes cannot train one).
+3. `sandtrack xyz PIXELS.csv` on 1 M rows with that calibration (its covariance kept, so every row gets
+   its sd): wall time of the whole command, best of `repeats`.
+
+Run: `python benchmarks/bench_uncertainty.py` (prints JSON), or `run()` from benchmarks/run_all.py.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "src"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+SAMPLE = ROOT / "sample_data"
+PLANES = (-12.0, -6.0, 0.0)
+
+
+def _pct(c) -> list[float]:
+    return [round(100 * float(v), 1) for v in c]
+
+
+def calibrate_sample():
+    from sandtrack_tui.board import load_board
+    from sandtrack_tui.calibration.pipeline import calibrate_videos
+    from sandtrack_tui.calibration.world import load_reference
+
+    board = load_board(SAMPLE / "board.toml")
+    frame, origin = load_reference(SAMPLE / "calibration" / "reference.toml")
+    return calibrate_videos({c: SAMPLE / "calibration" / f"{c}.mp4" for c in ("side", "front")}, board,
+                            reference_frame=frame, origin_mm=origin, with_points=True)
+
+
+def calibration_points(res, model) -> dict:
+    from sandtrack_tui.groundtruth import load_truth, true_points_xyz
+    from sandtrack_tui.regression.spread import coverage
+    from sandtrack_tui.xyz_pixels import camera_columns, xyz_from_pixels
+
+    pts = res.points
+    truth = true_points_xyz(pts, load_truth(SAMPLE))
+    pixels = pts[["xs", "ys", "xf", "yf"]].reset_index(drop=True)
+    out = {"points": int(len(pixels))}
+    for method in ("triangulation", "mlp", "residual"):
+        if method != "triangulation" and (model is None or (method == "residual" and not model.has_residual)):
+            continue
+        table, _ = xyz_from_pixels(pixels, camera_columns(pixels.columns), res.calibration, model, method=method)
+        err = table[["X_mm", "Y_mm", "Z_mm"]].to_numpy(float) - truth
+        out[f"{method}_pct"] = _pct(coverage(err, table[["sd_X_mm", "sd_Y_mm", "sd_Z_mm"]].to_numpy(float)))
+    return out
+
+
+def tracked_markers(calibration, work: Path) -> dict:
+    from sandtrack_tui.groundtruth import load_truth, match_marker_ids, xyz_truth
+    from sandtrack_tui.regression.spread import coverage
+    from sandtrack_tui.store import Project
+    from sandtrack_tui.tracking.run import accept_seeds, auto_seed, track_project
+    from sandtrack_tui.video import FramePair
+    from sandtrack_tui.xyz import compute_xyz
+
+    truth = load_truth(SAMPLE)
+    exp = SAMPLE / "experiment"
+    proj = Project.create(work / "t.sandtrack", {c: exp / f"{c}.mp4" for c in ("side", "front")}, overwrite=True)
+    try:
+        proj.set("sync_offset_s", truth.sync_offset_s)
+        proj.set_calibration(calibration)
+        if (SAMPLE / "model.pt").is_file():
+            proj.set("model", {"path": str(SAMPLE / "model.pt")})
+        sources = proj.open_sources()
+        first, _ = FramePair(sources["side"], sources["front"], truth.sync_offset_s).side_range()
+        accept_seeds(proj, auto_seed(proj, frame=first, sources=sources))
+        track_project(proj, sources=sources)
+        if first > 0:
+            track_project(proj, sources=sources, start=first, direction="backward")
+        for s in sources.values():
+            s.close()
+        id_map = match_marker_ids(proj.points(), truth)
+        xyz = compute_xyz(proj, method="all")
+    finally:
+        proj.close()
+    both = xyz[xyz["status_side"].isin(("tracked",)) & xyz["status_front"].isin(("tracked",))]
+    out = {"nearest_frame_rows": int((xyz["xyz_source"] == "nearest_frame").sum())}
+    for method, rows in both.groupby("method"):
+        err = rows[["X_mm", "Y_mm", "Z_mm"]].to_numpy(float) - xyz_truth(rows, truth, id_map)
+        sd = rows[["sd_X_mm", "sd_Y_mm", "sd_Z_mm"]].to_numpy(float)
+        out[f"{method}_pct"] = _pct(coverage(err, sd))
+        out[f"{method}_rows_with_sd"] = int(np.isfinite(sd).all(axis=1).sum())
+        out[f"{method}_median_sd_mm"] = [round(float(v), 3) for v in np.nanmedian(sd, axis=0)]
+    return out
+
+
+def myptv() -> dict:
+    from bench_lens import DATA, table
+    from sandtrack_tui.calibration.from_points import calibrate_from_points
+    from sandtrack_tui.regression.spread import coverage
+    from sandtrack_tui.xyz import axis_sd, triangulate_with_sd
+
+    if not DATA.is_dir():
+        return {"skipped": f"{DATA} absent"}
+    df = table()
+    out, every = {}, []
+    for cams in (("cam1", "cam2"), ("cam1", "cam2", "cam3")):
+        for plane in PLANES:
+            fit, test = df[df.Z_mm != plane], df[df.Z_mm == plane]
+            cal = calibrate_from_points(fit, {n: (f"x_{n}", f"y_{n}") for n in cams}, lens="auto")
+            pix = {n: test[[f"x_{n}", f"y_{n}"]].to_numpy(float) for n in cams}
+            sd = {n: np.full(len(test), axis_sd(cal.cameras[n])) for n in cams}
+            xyz, _, s = triangulate_with_sd(cal, pix, sd, refine=True)
+            c = _pct(coverage(xyz - test[["X_mm", "Y_mm", "Z_mm"]].to_numpy(float), s))
+            out[f"Z{plane:g}_held_out_{'+'.join(n[-1] for n in cams)}_pct"] = c
+            every += c
+    out["range_pct"] = [min(every), max(every)]
+    return out
+
+
+def xyz_cli(calibration, repeats: int = 2) -> dict:
+    import bench_xyz
+
+    with tempfile.TemporaryDirectory() as tmp:
+        cal_path, csv, out = Path(tmp) / "cal.toml", Path(tmp) / "pixels.csv", Path(tmp) / "xyz.csv"
+        calibration.save(cal_path)
+        bench_xyz.pixels_table(calibration, 1_000_000).to_csv(csv, index=False)
+        bench_xyz.CAMERAS = cal_path
+        bench_xyz.cli_run(csv, out)  # the compiled kernels into the cache once
+        runs = [bench_xyz.cli_run(csv, out) for _ in range(repeats)]
+        import pandas as pd
+
+        sd = pd.read_csv(out, usecols=["sd_X_mm"])["sd_X_mm"]
+    return {"cli_wall_s_runs": [round(w, 2) for w, _ in runs], "cli_wall_s_best": round(min(w for w, _ in runs), 2),
+            "cli_cpu_s_best": round(min(c for _, c in runs), 2), "rows_with_sd": int(sd.notna().sum())}
+
+
+def run(repeats: int = 2) -> dict:
+    from sandtrack_tui.regression import load_model
+
+    if not (SAMPLE / "ground_truth" / "cameras.toml").is_file():
+        return {"skipped": "sample_data absent"}
+    t0 = time.perf_counter()
+    res = calibrate_sample()
+    model = load_model(SAMPLE / "model.pt") if (SAMPLE / "model.pt").is_file() else None
+    out = {"calibration_seconds": round(time.perf_counter() - t0, 1),
+           "calibration_points": calibration_points(res, model)}
+    with tempfile.TemporaryDirectory() as tmp:
+        out["tracked_markers"] = tracked_markers(res.calibration, Path(tmp))
+    out["myptv"] = myptv()
+    out["xyz_cli_1m"] = xyz_cli(res.calibration, repeats)
+    out["seconds"] = round(time.perf_counter() - t0, 1)
+    return out
+
+
+if __name__ == "__main__":
+    print(json.dumps(run(), indent=2, default=float))

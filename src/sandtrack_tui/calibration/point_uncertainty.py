@@ -1,0 +1,76 @@
+"""The covariance of a camera fitted to known 3D points (`from_points`): (GᵀG)⁻¹ σ² at the fit, G = d(pixel) /
+d(parameters) by central differences, σ² the residuals' sum of squares over the degrees of freedom; the
+pose block carried into the rig frame (the first camera's) through the fixed world -> rig transform."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from ..camera import Camera, CameraUncertainty, rotate
+from ..lens import LENSES, project
+from .geometry import from_T, to_T
+
+_STEPS = {"r": 1e-6, "t": 1e-4, "f": 1e-3, "c": 1e-3, "d": 1e-6}
+
+
+def parameter_names(cam: Camera) -> list[str]:
+    """The camera's fitted parameters: pose, camera matrix and its lens model's free distortion terms."""
+    free = np.nonzero(LENSES[cam.lens].free)[0] if cam.lens in LENSES else np.arange(len(cam.distortion))
+    return ["rx", "ry", "rz", "tx", "ty", "tz", "fx", "fy", "cx", "cy",
+            *(f"d{k}" for k in free if k < len(cam.distortion))]
+
+
+def point_fit_uncertainty(cam: Camera, X: np.ndarray, uv: np.ndarray) -> CameraUncertainty | None:
+    """Covariance of `cam`'s parameters (pose world -> camera) fitted to world points X and pixels uv; None
+    when the points cannot fix them (fewer residuals than parameters, a singular G)."""
+    names = parameter_names(cam)
+    ok = np.isfinite(X).all(axis=1) & np.isfinite(uv).all(axis=1)
+    X, uv = X[ok], uv[ok]
+    dof = 2 * len(X) - len(names)
+    if dof <= 0:
+        return None
+    r = (cam.project(X) - uv).ravel()
+    G = np.stack([(_moved(cam, p, +1, X) - _moved(cam, p, -1, X)).ravel() / (2 * _step(p)) for p in names], axis=1)
+    sigma2 = float(np.sum(r ** 2)) / dof
+    try:
+        cov = np.linalg.inv(G.T @ G) * sigma2
+    except np.linalg.LinAlgError:
+        return None
+    return CameraUncertainty(names, cov, float(np.sqrt(sigma2))) if np.isfinite(cov).all() else None
+
+
+def into_rig(unc: CameraUncertainty, cam_world: Camera, world_from_rig: np.ndarray) -> CameraUncertainty:
+    """The same covariance for the camera's rig-frame pose (T_rig = T_world @ world_from_rig, the transform
+    held fixed): the pose block through the numerical Jacobian of that map."""
+    def rig_pose(v):
+        r, t = from_T(to_T(v[:3], v[3:]) @ world_from_rig)
+        return np.concatenate([r, t])
+
+    v0 = np.concatenate([cam_world.rvec, cam_world.tvec])
+    A = np.eye(len(unc.parameters))
+    for k in range(6):
+        h = 1e-4 if k < 3 else _STEPS["t"]  # cv2.Rodrigues returns 0 for rotations below ~1e-5 rad
+        e = np.zeros(6)
+        e[k] = h
+        A[:6, k] = (rig_pose(v0 + e) - rig_pose(v0 - e)) / (2 * h)
+    return CameraUncertainty(unc.parameters, A @ unc.covariance @ A.T, unc.sigma_px)
+
+
+def _step(p: str) -> float:
+    return _STEPS[p[0]]
+
+
+def _moved(cam: Camera, p: str, sign: int, X: np.ndarray) -> np.ndarray:
+    """The pixels of X with parameter p moved by sign steps."""
+    h = sign * _step(p)
+    rvec, tvec, K, d = cam.rvec.copy(), cam.tvec.copy(), cam.matrix.copy(), cam.distortion.copy()
+    if p[0] == "r":
+        rvec["xyz".index(p[1])] += h
+    elif p[0] == "t":
+        tvec["xyz".index(p[1])] += h
+    elif p in ("fx", "fy", "cx", "cy"):
+        K[{"fx": (0, 0), "fy": (1, 1), "cx": (0, 2), "cy": (1, 2)}[p]] += h
+    else:
+        d[int(p[1:])] += h
+    return project(rotate(X, cv2.Rodrigues(rvec)[0]) + tvec, K, d, cam.model)

@@ -1,0 +1,243 @@
+"""The standard deviation of a triangulated point: first-order propagation of the pixels' noise and of the
+calibration's own uncertainty.
+
+For each point and camera, J = d(distorted pixel) / d(point) at the triangulated point (the camera matrix,
+the lens's local Jacobian and the perspective division). The refinement of `triangulation.triangulate` is a
+weighted least-squares fit with weights ω = 1 / RMSE² per camera, so a pixel error δp moves the point by
+δX = H⁻¹ Σ ω Jᵀ δp with H = Σ ω JᵀJ, and the point's covariance is the sandwich
+H⁻¹ (Σ ω² Jᵀ Σp J) H⁻¹, where Σp is each camera's pixel covariance at that point:
+
+- the pixel's own noise, sd² · I (the tracker's estimate, a pixel table's column, else the camera's RMSE);
+- the calibration's: G Σθ Gᵀ, with Σθ the covariance of the camera's parameters from its bundle
+  adjustment (`CameraUncertainty`, kept in calibration.toml) and G = d(pixel) / d(parameters) at the point
+  (analytic for the translation and the camera matrix, finite differences for the rotation and the lens).
+
+Left out: correlations between the cameras' calibration errors (each camera's block is used alone), the
+uncertainty of the rig-to-world transform and of the board's own dimensions, and anything the calibration
+residuals cannot show (a lens model that does not fit the whole image, a rig that moved after calibrating).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .camera import Calibration, Camera, rotate
+from .jit import jit
+from .lens import distort_fisheye, distort_normalised
+
+POSE_PARAMETERS = ("rx", "ry", "rz", "tx", "ty", "tz")
+MATRIX_PARAMETERS = ("fx", "fy", "cx", "cy")
+_ROTATION_STEP = 1e-6
+_LENS_STEP = 1e-7
+
+
+def triangulation_sd(calibration: Calibration, pixels: dict[str, np.ndarray], points_rig: np.ndarray,
+                     pixel_sd: dict[str, np.ndarray] | None = None, with_calibration: bool = True) -> np.ndarray:
+    """(N, 3) sd per world axis (mm) of points (rig frame) triangulated from `pixels` ((N, 2) per camera,
+    NaN where unseen). pixel_sd: per camera, a scalar or (N,) px (default: the camera's RMSE, else 1 px).
+    NaN where fewer than two cameras saw the point or a needed sd is unknown."""
+    H, M, count = _accumulated(calibration, pixels, points_rig, pixel_sd, with_calibration)
+    return _world_sd(H, M, count, calibration.world_from_rig[:3, :3].copy())
+
+
+def triangulation_covariance(calibration: Calibration, pixels: dict[str, np.ndarray], points_rig: np.ndarray,
+                             pixel_sd: dict[str, np.ndarray] | None = None,
+                             with_calibration: bool = True) -> np.ndarray:
+    """(N, 3, 3) covariance (mm², rig frame) of the points of `triangulation_sd`."""
+    H, M, count = _accumulated(calibration, pixels, points_rig, pixel_sd, with_calibration)
+    out = np.full((len(H), 3, 3), np.nan)
+    good = count >= 2
+    if good.any():
+        Hi = np.linalg.inv(H[good])
+        out[good] = Hi @ M[good] @ Hi
+    return out
+
+
+def world_sd(calibration: Calibration, cov_rig: np.ndarray) -> np.ndarray:
+    """(N, 3) sd per world axis (mm) of rig-frame covariances."""
+    R = calibration.world_from_rig[:3, :3]
+    var = np.einsum("ij,njk,ik->ni", R, cov_rig, R)
+    return np.sqrt(np.clip(var, 0.0, None))
+
+
+def _camera_sigma(cam: Camera) -> float:
+    """The camera's noise level as the refinement weighs it (its RMSE, else 1 px)."""
+    r = cam.rmse_px
+    return float(r) if r and np.isfinite(r) and r > 0 else 1.0
+
+
+def _accumulated(calibration, pixels, points_rig, pixel_sd, with_calibration):
+    X = np.ascontiguousarray(np.asarray(points_rig, dtype=np.float64).reshape(-1, 3))
+    n = len(X)
+    H = np.zeros((n, 3, 3))
+    M = np.zeros((n, 3, 3))
+    count = np.zeros(n, dtype=np.int64)
+    ok_x = np.isfinite(X).all(axis=1)
+    for name, px in pixels.items():
+        cam = calibration.cameras.get(name)
+        if cam is None:
+            continue
+        seen = np.isfinite(np.asarray(px, float).reshape(-1, 2)).all(axis=1) & ok_x
+        if not seen.any():
+            continue
+        sigma = _camera_sigma(cam)
+        given = None if pixel_sd is None else pixel_sd.get(name)
+        sd = np.ascontiguousarray(np.broadcast_to(np.asarray(sigma if given is None else given, float), (n,)))
+        unc = calibration.uncertainty.get(name) if with_calibration else None
+        idx = np.nonzero(seen)[0]
+        parts = _camera_parts(cam, X[idx], unc)
+        _accumulate(H, M, count, idx, sd, 1.0 / sigma ** 2, *parts)
+    return H, M, count
+
+
+def _camera_parts(cam: Camera, X: np.ndarray, unc) -> tuple:
+    """What the kernel needs of one camera at points X: normalised point (a, b), depth z, the lens's
+    Jacobian, the distorted normalised point, K's 2 x 2 part, R, and for the calibration part the
+    parameters' kinds, their covariance, the rotation's and the lens terms' finite differences."""
+    R = cam.R
+    xc = rotate(X, R) + cam.tvec
+    z = xc[:, 2]
+    a, b = xc[:, 0] / z, xc[:, 1] / z
+    distort = distort_fisheye if cam.model == "fisheye" else distort_normalised
+    xd, yd = distort(a, b, cam.distortion)
+    eps = 1e-6
+    xa, ya = distort(a + eps, b, cam.distortion)
+    xb, yb = distort(a, b + eps, cam.distortion)
+    Jd = np.stack([(xa - xd) / eps, (xb - xd) / eps, (ya - yd) / eps, (yb - yd) / eps], axis=1)
+    K = cam.matrix
+    K2 = np.array([[K[0, 0], K[0, 1]], [0.0, K[1, 1]]])
+    n = len(X)
+    names = list(unc.parameters) if unc is not None else []
+    kinds = np.array([_KINDS.get(p, -1) if not p.startswith("d") else 100 + int(p[1:]) for p in names],
+                     dtype=np.int64)
+    cov = unc.covariance if unc is not None else np.zeros((0, 0))
+    drot = np.zeros((n, 3, 3))
+    if np.any((kinds >= 0) & (kinds < 3)):
+        import cv2
+
+        for k in range(3):
+            rv = cam.rvec.copy()
+            rv[k] += _ROTATION_STEP
+            drot[:, k] = (rotate(X, cv2.Rodrigues(rv)[0]) + cam.tvec - xc) / _ROTATION_STEP
+    lens_terms = [int(k) - 100 for k in kinds if k >= 100]
+    dlens = np.zeros((n, len(lens_terms), 2))
+    for j, k in enumerate(lens_terms):
+        if k < len(cam.distortion):
+            d = cam.distortion.copy()
+            d[k] += _LENS_STEP
+            x2, y2 = distort(a, b, d)
+            dlens[:, j, 0], dlens[:, j, 1] = (x2 - xd) / _LENS_STEP, (y2 - yd) / _LENS_STEP
+    return (a, b, z, Jd, xd, yd, K2, R, kinds, np.ascontiguousarray(cov), drot, dlens)
+
+
+_KINDS = {"rx": 0, "ry": 1, "rz": 2, "tx": 3, "ty": 4, "tz": 5, "fx": 6, "fy": 7, "cx": 8, "cy": 9}
+
+
+@jit
+def _accumulate(H, M, count, idx, sd, w, a, b, z, Jd, xd, yd, K2, R, kinds, cov, drot, dlens):
+    """Add one camera's terms to H = Σ ω JᵀJ and M = Σ ω² Jᵀ Σp J at the points idx."""
+    n_par = len(kinds)
+    P = np.empty((2, 3))
+    J = np.empty((2, 3))
+    G = np.empty((2, n_par))
+    S = np.empty((2, 2))
+    for q in range(len(idx)):
+        i = idx[q]
+        s = sd[i]
+        iz = 1.0 / z[q]
+        a00 = K2[0, 0] * Jd[q, 0] + K2[0, 1] * Jd[q, 2]
+        a01 = K2[0, 0] * Jd[q, 1] + K2[0, 1] * Jd[q, 3]
+        a10 = K2[1, 1] * Jd[q, 2]
+        a11 = K2[1, 1] * Jd[q, 3]
+        # d pixel / d camera-frame point: A @ [[1/z, 0, -a/z], [0, 1/z, -b/z]]
+        P[0, 0], P[0, 1], P[0, 2] = a00 * iz, a01 * iz, -(a00 * a[q] + a01 * b[q]) * iz
+        P[1, 0], P[1, 1], P[1, 2] = a10 * iz, a11 * iz, -(a10 * a[q] + a11 * b[q]) * iz
+        for r in range(2):
+            for c in range(3):
+                J[r, c] = P[r, 0] * R[0, c] + P[r, 1] * R[1, c] + P[r, 2] * R[2, c]
+        S[0, 0], S[0, 1], S[1, 0], S[1, 1] = s * s, 0.0, 0.0, s * s
+        if n_par:
+            lens = 0
+            for p in range(n_par):
+                k = kinds[p]
+                g0, g1 = 0.0, 0.0
+                if k < 3 and k >= 0:
+                    for c in range(3):
+                        g0 += P[0, c] * drot[q, k, c]
+                        g1 += P[1, c] * drot[q, k, c]
+                elif k < 6 and k >= 3:
+                    g0, g1 = P[0, k - 3], P[1, k - 3]
+                elif k == 6:
+                    g0 = xd[q]
+                elif k == 7:
+                    g1 = yd[q]
+                elif k == 8:
+                    g0 = 1.0
+                elif k == 9:
+                    g1 = 1.0
+                elif k >= 100:
+                    dx, dy = dlens[q, lens, 0], dlens[q, lens, 1]
+                    g0, g1 = K2[0, 0] * dx + K2[0, 1] * dy, K2[1, 1] * dy
+                    lens += 1
+                G[0, p], G[1, p] = g0, g1
+            for r in range(2):
+                for c in range(2):
+                    acc = 0.0
+                    for p in range(n_par):
+                        gp = G[r, p]
+                        if gp != 0.0:
+                            for m in range(n_par):
+                                acc += gp * cov[p, m] * G[c, m]
+                    S[r, c] += acc
+        for u in range(3):
+            for v in range(3):
+                H[i, u, v] += w * (J[0, u] * J[0, v] + J[1, u] * J[1, v])
+                M[i, u, v] += w * w * (J[0, u] * (S[0, 0] * J[0, v] + S[0, 1] * J[1, v])
+                                       + J[1, u] * (S[1, 0] * J[0, v] + S[1, 1] * J[1, v]))
+        count[i] += 1
+
+
+@jit
+def _world_sd(H, M, count, Rw):
+    """sd per world axis of the sandwich H⁻¹ M H⁻¹ rotated into the world frame; NaN below two cameras."""
+    n = len(H)
+    out = np.full((n, 3), np.nan)
+    Hi = np.empty((3, 3))
+    C = np.empty((3, 3))
+    T = np.empty((3, 3))
+    for i in range(n):
+        if count[i] < 2:
+            continue
+        h = H[i]
+        c00 = h[1, 1] * h[2, 2] - h[1, 2] * h[2, 1]
+        c01 = h[1, 2] * h[2, 0] - h[1, 0] * h[2, 2]
+        c02 = h[1, 0] * h[2, 1] - h[1, 1] * h[2, 0]
+        det = h[0, 0] * c00 + h[0, 1] * c01 + h[0, 2] * c02
+        if not abs(det) > 1e-300:
+            continue
+        Hi[0, 0], Hi[1, 0], Hi[2, 0] = c00 / det, c01 / det, c02 / det
+        Hi[0, 1] = (h[0, 2] * h[2, 1] - h[0, 1] * h[2, 2]) / det
+        Hi[1, 1] = (h[0, 0] * h[2, 2] - h[0, 2] * h[2, 0]) / det
+        Hi[2, 1] = (h[0, 1] * h[2, 0] - h[0, 0] * h[2, 1]) / det
+        Hi[0, 2] = (h[0, 1] * h[1, 2] - h[0, 2] * h[1, 1]) / det
+        Hi[1, 2] = (h[0, 2] * h[1, 0] - h[0, 0] * h[1, 2]) / det
+        Hi[2, 2] = (h[0, 0] * h[1, 1] - h[0, 1] * h[1, 0]) / det
+        for u in range(3):
+            for v in range(3):
+                acc = 0.0
+                for k in range(3):
+                    acc += Hi[u, k] * M[i, k, v]
+                T[u, v] = acc
+        for u in range(3):
+            for v in range(3):
+                acc = 0.0
+                for k in range(3):
+                    acc += T[u, k] * Hi[k, v]
+                C[u, v] = acc
+        for ax in range(3):
+            var = 0.0
+            for u in range(3):
+                for v in range(3):
+                    var += Rw[ax, u] * C[u, v] * Rw[ax, v]
+            out[i, ax] = np.sqrt(max(var, 0.0)) if np.isfinite(var) else np.nan
+    return out
