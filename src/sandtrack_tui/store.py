@@ -707,6 +707,26 @@ class _Edit:
 
         self.project._write(fn)
 
+    def add_markers(self, marker_ids) -> int:
+        """Add markers (label = id) that do not exist yet, as part of this edit, in one transaction."""
+        conn = self.project.conn
+        ids = sorted({int(m) for m in marker_ids})
+
+        def fn():
+            have = {int(r[0]) for r in conn.execute("SELECT id FROM markers")}
+            new = [m for m in ids if m not in have]
+            if not new:
+                return 0
+            if self.edit_id is None:
+                self.edit_id = self.project._new_edit(self.kind, self.description)
+            for m in new:
+                self.project._log_row(self.edit_id, self.seq, "markers", str(m), None, json.dumps(str(m)))
+                self.seq += 1
+            conn.executemany("INSERT INTO markers VALUES (?, ?)", [(m, str(m)) for m in new])
+            return len(new)
+
+        return self.project._write(fn)
+
     def delete_marker(self, marker_id: int) -> None:
         """Remove a marker's row (its points are this edit's business) as part of this edit."""
         conn = self.project.conn

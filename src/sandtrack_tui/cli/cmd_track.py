@@ -31,6 +31,11 @@ def register(sub) -> None:
                    help="seed every marker found in frame --from (default: the first frame both cameras "
                         "recorded) that looks like the project's first seeded marker (with none seeded: every "
                         "blue marker), paired across cameras by epipolar distance")
+    p.add_argument("--all", dest="every", action="store_true",
+                   help="with --auto-seed: every particle like the seeded one (hundreds), detected in every frame "
+                        "and linked (forward from --from, or from the seed's frame); each camera on its own")
+    p.add_argument("--new-particles", action="store_true",
+                   help="with --all: particles entering the view later get new ids")
     p.add_argument("--like", type=int, metavar="MARKER",
                    help="with --auto-seed: find markers that look like this seeded marker (default: the first "
                         "seeded marker)")
@@ -123,6 +128,15 @@ def run(args) -> int:
             raise SandtrackError(f"--markers: give ids separated by commas, not {args.markers!r}") from None
     if args.like is not None and not args.auto_seed:
         raise SandtrackError("--like goes with --auto-seed")
+    if args.every and not args.auto_seed:
+        raise SandtrackError("--all goes with --auto-seed")
+    if args.new_particles and not args.every:
+        raise SandtrackError("--new-particles goes with --auto-seed --all")
+    if args.every:
+        if args.backward or markers or args.seeds:
+            raise SandtrackError("--all tracks every particle forward from one seeded particle: leave out "
+                                 "--backward, --markers and --seeds")
+        return _run_every(args)
     with Project.open(args.project) as proj:
         _check_sync(proj, args)
         seeded = 0
@@ -189,6 +203,32 @@ def xyz_uncertainty(project, summary: dict) -> dict:
     med = np.median(sd[ok], axis=0)
     return {"xyz_sd_median_mm": {a: round(float(v), 4) for a, v in zip("XYZ", med, strict=True)},
             "xyz_points_with_sd": int(ok.sum())}
+
+
+def _run_every(args) -> int:
+    from ..store import Project
+    from ..tracking.particles import track_every_particle
+
+    with Project.open(args.project) as proj:
+        bar = Progress(1, "track")
+
+        def progress(done, total):
+            bar.total = max(total, 1)
+            bar.update(done)
+
+        summary = track_every_particle(proj, like=args.like, start=args.start, stop=args.stop,
+                                       new_particles=args.new_particles, progress=progress)
+        bar.close()
+    summary["project"] = str(args.project)
+    lines = []
+    for c, v in summary["cameras"].items():
+        lines.append(f"{c}: frames {v['first_frame']}..{v['last_frame']}: {v['seeded']} particles seeded, "
+                     f"{v['tracked']} points tracked, {v['new']} new, {v['flagged']} flagged "
+                     f"({v['occluded']} occluded, {v['lost']} lost); "
+                     f"{v['cpu_ms_per_particle_frame']:.3f} ms CPU per particle-frame")
+    lines.append(f"{summary['rows_written']} points written (one edit: `u` in the TUI undoes it)")
+    emit(summary, args.json, "\n".join(lines))
+    return 0 if summary.get("frames", 0) > 0 else 1
 
 
 def _text(s: dict) -> str:

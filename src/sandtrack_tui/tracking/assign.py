@@ -1,0 +1,98 @@
+"""One global assignment per frame: every track to at most one detection, "not seen" and "new
+particle" as costed choices.
+
+`assign(S, X, reach, det_xy, motion, missed)` gates every (track, detection) pair by the Mahalanobis
+distance of the track's prediction, splits the gated graph into connected groups and solves each
+group on its own (a group of one track and one detection needs no solver): the cost of a pair is its
+squared Mahalanobis distance, of leaving a track unseen `gate_d2`, of leaving a detection to a new
+particle 0. Then the margin rule: a track that missed frames keeps its detection only when no other
+track reaches it almost as cheaply and no unclaimed detection lies almost as near the prediction;
+otherwise it stays unseen (flagged), never guessed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from .predict import Motion, mahalanobis
+
+MARGIN_D2 = 4.0  # a coasting track's detection must be this much cheaper than any other explanation
+
+
+def gated_pairs(S, X, reach, det_xy, motion: Motion) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(track index, detection index, squared Mahalanobis distance) of every pair inside the gate."""
+    if len(X) == 0 or len(det_xy) == 0:
+        e = np.zeros(0, int)
+        return e, e, np.zeros(0)
+    hits = cKDTree(det_xy).query_ball_point(X[:, :2], reach)
+    counts = np.fromiter((len(h) for h in hits), int, len(hits))
+    ti = np.repeat(np.arange(len(X)), counts)
+    dj = np.fromiter((j for h in hits for j in h), int, int(counts.sum()))
+    d2 = mahalanobis(S, X, ti, det_xy[dj])
+    ok = d2 <= motion.gate_d2
+    return ti[ok], dj[ok], d2[ok]
+
+
+def assign(S, X, reach, det_xy, motion: Motion, missed: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per track: the detection index it takes (-1: not seen) and that pair's cost; per track also
+    True where the margin rule withheld a detection (ambiguous)."""
+    n_t, n_d = len(X), len(det_xy)
+    taken = np.full(n_t, -1)
+    cost = np.full(n_t, np.nan)
+    ambiguous = np.zeros(n_t, bool)
+    ti, dj, d2 = gated_pairs(S, X, reach, det_xy, motion)
+    if len(ti) == 0:
+        return taken, cost, ambiguous
+    graph = coo_matrix((np.ones(len(ti)), (ti, n_t + dj)), shape=(n_t + n_d, n_t + n_d))
+    _, label = connected_components(graph, directed=False)
+    tdeg = np.bincount(ti, minlength=n_t)
+    ddeg = np.bincount(dj, minlength=n_d)
+    single = (tdeg[ti] == 1) & (ddeg[dj] == 1)
+    taken[ti[single]] = dj[single]
+    cost[ti[single]] = d2[single]
+    rest = ~single
+    if rest.any():
+        order = np.argsort(label[ti[rest]], kind="stable")
+        rt, rd, rc = ti[rest][order], dj[rest][order], d2[rest][order]
+        bounds = np.flatnonzero(np.diff(label[rt])) + 1
+        for gt, gd, gc in zip(np.split(rt, bounds), np.split(rd, bounds), np.split(rc, bounds), strict=True):
+            _solve_group(gt, gd, gc, motion.gate_d2, taken, cost)
+    _margin(ti, dj, d2, taken, cost, missed, ambiguous)
+    return taken, cost, ambiguous
+
+
+def _solve_group(gt, gd, gc, miss_cost: float, taken, cost) -> None:
+    tracks, t_idx = np.unique(gt, return_inverse=True)
+    dets, d_idx = np.unique(gd, return_inverse=True)
+    nt, nd = len(tracks), len(dets)
+    big = 1e9
+    m = np.full((nt + nd, nd + nt), big)
+    m[t_idx, d_idx] = gc
+    m[np.arange(nt), nd + np.arange(nt)] = miss_cost  # track not seen
+    m[nt + np.arange(nd), np.arange(nd)] = 0.0  # detection left to a new particle
+    m[nt:, nd:] = 0.0
+    rows, cols = linear_sum_assignment(m)
+    for r, c in zip(rows, cols, strict=True):
+        if r < nt and c < nd and m[r, c] < big:
+            taken[tracks[r]] = dets[c]
+            cost[tracks[r]] = m[r, c]
+
+
+def _margin(ti, dj, d2, taken, cost, missed, ambiguous) -> None:
+    coasting = np.flatnonzero((taken >= 0) & (missed > 0))
+    if len(coasting) == 0:
+        return
+    claimed = np.zeros(int(dj.max()) + 1 if len(dj) else 0, bool)
+    claimed[taken[taken >= 0]] = True
+    for t in coasting:
+        j, c = taken[t], cost[t]
+        rival_track = (dj == j) & (ti != t) & (d2 < c + MARGIN_D2)
+        rival_det = (ti == t) & (dj != j) & ~claimed[dj] & (d2 < c + MARGIN_D2)
+        if rival_track.any() or rival_det.any():
+            taken[t] = -1
+            cost[t] = np.nan
+            ambiguous[t] = True

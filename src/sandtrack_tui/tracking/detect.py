@@ -1,0 +1,243 @@
+"""Detect every particle that looks like one seeded particle, in a whole frame (or a part of it).
+
+`learn_particle(frame, x, y, diameter_px)` learns the look of the particle at (x, y): the colour
+direction that separates it from what surrounds it (grey frames: darker or brighter) and its radial
+profile along that direction, as a rotationally symmetric template. `detect(frame, model, roi)` is a
+matched filter (normalised cross-correlation with that template) over the frame, non-maximum
+suppression at `NMS_DIAMETERS` of a diameter (touching beads of a packed bed each give one peak) and
+a sub-pixel centre from a parabola through the peak. Returns a DataFrame with DETECTION_COLUMNS.
+Frames may be grey or colour (BGR), of any integer or float type.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import pandas as pd
+
+from ..errors import SandtrackError
+
+DETECTION_COLUMNS = ["x_px", "y_px", "size_px", "contrast", "confidence"]
+NMS_DIAMETERS = 0.7  # two peaks closer than this many diameters are one particle
+MIN_CONFIDENCE = 0.7  # normalised cross-correlation with the learnt template
+# A particle with a pattern inside (a glass bead's bright centre) is matched by that pattern alone, out
+# to this share of its radius: in a packed bed the rim touches other beads and is no clue.
+PATTERN_RADIUS = 0.6
+PATTERN_MIN = 0.2  # a pattern: the profile inside varies by this share of the particle's contrast
+# The body check: along every one of BODY_RAYS rays, the ring from BODY_RING[0] to BODY_RING[1] radii
+# must look at least BODY_MIN like the seed's body (1) rather than its surroundings (0). A bright gap
+# between three touching beads also looks like a bright centre, but bright arms cross that ring.
+BODY_RAYS, BODY_RING, BODY_MIN = 16, (0.45, 0.85), 0.9
+
+
+@dataclass(frozen=True)
+class ParticleModel:
+    """The look of the seeded particle: what detect() matches."""
+
+    weights: np.ndarray  # per channel: the projection on which the particle is brighter than its ring
+    template: np.ndarray  # float32, odd square, rotationally symmetric
+    diameter_px: float
+    body: float  # the projected frame's mean over the body ring (BODY_RING), at the seed
+    ring: float  # ... and just outside the particle
+    patterned: bool
+    min_confidence: float = MIN_CONFIDENCE
+    body_min: float = BODY_MIN
+
+    @property
+    def half(self) -> int:
+        return self.template.shape[0] // 2
+
+    def describe(self) -> dict:
+        return {"diameter_px": round(self.diameter_px, 2), "patterned": self.patterned,
+                "template_px": int(self.template.shape[0]), "min_confidence": self.min_confidence}
+
+
+def as_float(frame: np.ndarray) -> np.ndarray:
+    img = np.asarray(frame)
+    if img.ndim == 3 and img.shape[2] == 4:
+        img = img[:, :, :3]
+    return img.astype(np.float32, copy=False)
+
+
+def project(frame: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """The frame along the model's colour direction (one float32 channel; the particle bright)."""
+    img = as_float(frame)
+    if img.ndim == 2:
+        return img * float(weights.sum())
+    if img.shape[2] == 1:
+        return img[:, :, 0] * float(weights.sum())
+    out = cv2.transform(img, weights.reshape(1, -1).astype(np.float32))
+    return out if out.ndim == 2 else out[:, :, 0]
+
+
+def _radial_means(patch: np.ndarray, cx: float, cy: float, r_max: int) -> np.ndarray:
+    """Mean of each channel of `patch` in 1 px rings round (cx, cy): shape (r_max + 1, channels)."""
+    h, w = patch.shape[:2]
+    yy, xx = np.mgrid[0:h, 0:w]
+    r = np.hypot(xx - cx, yy - cy)
+    ring = np.clip(np.round(r).astype(int), 0, r_max + 1)
+    flat = patch.reshape(h * w, -1)
+    out = np.zeros((r_max + 1, flat.shape[1]))
+    for k in range(r_max + 1):
+        sel = ring.ravel() == k
+        if sel.any():
+            out[k] = flat[sel].mean(axis=0)
+    return out
+
+
+def learn_particle(frame: np.ndarray, x: float, y: float, diameter_px: float,
+                   min_confidence: float = MIN_CONFIDENCE) -> ParticleModel:
+    """The look of the particle of diameter `diameter_px` at (x, y) (a click: within a third of a
+    diameter). Its centre is found first (the template learnt there matched round it, three times),
+    as a radial profile learnt off-centre is blurred and matches nothing well."""
+    for _ in range(3):
+        model = _learn_at(frame, x, y, diameter_px, min_confidence)
+        r = diameter_px / 3
+        chan = project(frame, model.weights)
+        res, x0, y0 = response(chan, model, (x - r, y - r, x + r + 1, y + r + 1))
+        j, i = np.unravel_index(int(np.argmax(res)), res.shape)
+        H, W = res.shape
+        ic, jc = min(max(i, 1), W - 2), min(max(j, 1), H - 2)
+        dx = float(_vertex(*(res[jc, ic - 1:ic + 2, None]))[0]) if W >= 3 else 0.0
+        dy = float(_vertex(*(res[jc - 1:jc + 2, ic, None]))[0]) if H >= 3 else 0.0
+        nx, ny = x0 + ic + dx, y0 + jc + dy
+        if np.hypot(nx - x, ny - y) < 0.02:
+            break
+        x, y = nx, ny
+    return _learn_at(frame, x, y, diameter_px, min_confidence)
+
+
+def _learn_at(frame: np.ndarray, x: float, y: float, diameter_px: float, min_confidence: float) -> ParticleModel:
+    img = as_float(frame)
+    if img.ndim == 2:
+        img = img[:, :, None]
+    H, W = img.shape[:2]
+    if not (np.isfinite(diameter_px) and 3.0 <= diameter_px <= 200.0):
+        raise SandtrackError(f"particle diameter {diameter_px} px out of 3..200")
+    r = diameter_px / 2
+    R = int(np.ceil(r + 5))
+    xi, yi = int(round(x)), int(round(y))
+    if not (R <= xi < W - R and R <= yi < H - R):
+        raise SandtrackError(f"the seed ({x:.1f}, {y:.1f}) is too near the image border to learn its look")
+    patch = img[yi - R:yi + R + 1, xi - R:xi + R + 1]
+    prof = _radial_means(patch, x - (xi - R), y - (yi - R), R)
+    inner = int(np.floor(r * 0.8))
+    disc = prof[:inner + 1].mean(axis=0)
+    ring = prof[int(np.ceil(r + 1)):].mean(axis=0)
+    diff = disc - ring
+    norm = float(np.linalg.norm(diff))
+    if norm < 1e-6 * max(float(np.abs(ring).max()), 1.0):
+        raise SandtrackError("the seeded particle does not stand out from what surrounds it")
+    weights = diff / norm
+    prof1 = prof @ weights
+    radii = np.arange(len(prof1))
+    inner = prof1[radii <= PATTERN_RADIUS * r]
+    patterned = bool(inner.max() - inner.min() > PATTERN_MIN * norm)
+    reach = PATTERN_RADIUS * r if patterned else r + 1.0
+    half = max(int(np.ceil(reach)), 1)
+    yy, xx = np.mgrid[-half:half + 1, -half:half + 1]
+    rr = np.hypot(xx, yy)
+    template = np.interp(np.minimum(rr, reach), radii, prof1).astype(np.float32)
+    if float(template.std()) < 1e-6 * norm:
+        raise SandtrackError("the seeded particle shows no shape to match")
+    body = float(prof1[(radii >= BODY_RING[0] * r) & (radii <= BODY_RING[1] * r)].mean())
+    ring = float(prof1[radii >= r + 1.5].mean())
+    return ParticleModel(weights.astype(np.float32), template, float(diameter_px), body, ring, patterned,
+                         min_confidence)
+
+
+def response(chan: np.ndarray, model: ParticleModel, roi: tuple | None = None) -> tuple[np.ndarray, int, int]:
+    """Normalised cross-correlation with the template at every pixel of the projected frame (or of
+    roi = (x0, y0, x1, y1)): (map, x0, y0), map[j, i] being the score of a centre at (x0 + i, y0 + j)."""
+    H, W = chan.shape
+    x0, y0, x1, y1 = (0, 0, W, H) if roi is None else (max(int(roi[0]), 0), max(int(roi[1]), 0),
+                                                      min(int(roi[2]), W), min(int(roi[3]), H))
+    h = model.half
+    # pad by the template's half size (edge pixels repeated) so that a centre near the border is scored
+    a0, b0, a1, b1 = max(x0 - h, 0), max(y0 - h, 0), min(x1 + h, W), min(y1 + h, H)
+    sub = chan[b0:b1, a0:a1]
+    sub = cv2.copyMakeBorder(sub, h - (y0 - b0), h - (b1 - y1), h - (x0 - a0), h - (a1 - x1), cv2.BORDER_REPLICATE)
+    res = cv2.matchTemplate(sub, model.template, cv2.TM_CCOEFF_NORMED)
+    return res, x0, y0
+
+
+def peaks(res: np.ndarray, model: ParticleModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Local maxima of the response (at least NMS_DIAMETERS diameters apart) above the model's
+    confidence: (x, y) sub-pixel in the map's pixels, and their scores."""
+    k = max(3, int(round(NMS_DIAMETERS * model.diameter_px)) | 1)
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
+    dil = cv2.dilate(res, kernel)
+    ys, xs = np.nonzero((res >= dil) & (res >= model.min_confidence))
+    if len(xs) == 0:
+        return np.zeros(0), np.zeros(0), np.zeros(0)
+    score = res[ys, xs]
+    # plateaus (equal neighbours) give several maxima: keep the strongest within the NMS radius
+    keep = _suppress(xs, ys, score, k / 2)
+    xs, ys, score = xs[keep], ys[keep], score[keep]
+    H, W = res.shape
+    xc, yc = np.clip(xs, 1, W - 2), np.clip(ys, 1, H - 2)
+    dx = _vertex(res[yc, xc - 1], res[yc, xc], res[yc, xc + 1])
+    dy = _vertex(res[yc - 1, xc], res[yc, xc], res[yc + 1, xc])
+    return xc + dx, yc + dy, score
+
+
+def _vertex(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    den = a - 2 * b + c
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = np.where(den < 0, 0.5 * (a - c) / den, 0.0)
+    return np.clip(d, -0.5, 0.5)
+
+
+def _suppress(xs: np.ndarray, ys: np.ndarray, score: np.ndarray, radius: float) -> np.ndarray:
+    """Indices of the peaks to keep: strongest first, none within `radius` of a kept one."""
+    if len(xs) < 2:
+        return np.arange(len(xs))
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(np.c_[xs, ys]).query_pairs(radius, output_type="ndarray")
+    if len(pairs) == 0:
+        return np.arange(len(xs))
+    order = np.argsort(-score, kind="stable")
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    drop = np.zeros(len(xs), bool)
+    # a pair drops its weaker member unless that weaker one's stronger partner was itself dropped
+    for i, j in sorted(pairs.tolist(), key=lambda p: min(rank[p[0]], rank[p[1]])):
+        a, b = (i, j) if rank[i] < rank[j] else (j, i)
+        if not drop[a]:
+            drop[b] = True
+    return np.nonzero(~drop)[0]
+
+
+def detect(frame: np.ndarray, model: ParticleModel, roi: tuple | None = None) -> pd.DataFrame:
+    """Every particle like the model's in the frame (or roi = (x0, y0, x1, y1) px), DETECTION_COLUMNS:
+    sub-pixel centre, size (the model's diameter), contrast (its body against the background, as the
+    seed's = 1) and confidence (the normalised cross-correlation with the template, 0..1)."""
+    chan = project(frame, model.weights)
+    res, x0, y0 = response(chan, model, roi)
+    px, py, score = peaks(res, model)
+    px, py = px + x0, py + y0
+    body = body_levels(chan, model, px, py)
+    keep = body.min(axis=1) >= model.body_min if len(px) else np.zeros(0, bool)
+    return pd.DataFrame({"x_px": px[keep], "y_px": py[keep], "size_px": np.full(int(keep.sum()), model.diameter_px),
+                         "contrast": body[keep].mean(axis=1) if len(px) else np.zeros(0),
+                         "confidence": score[keep].astype(float)})
+
+
+def body_levels(chan: np.ndarray, model: ParticleModel, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Per centre and ray: the projected frame's mean over the body ring, 0 = the seed's surroundings,
+    1 = the seed's body; shape (len(x), BODY_RAYS)."""
+    if len(x) == 0:
+        return np.zeros((0, BODY_RAYS))
+    r = model.diameter_px / 2
+    ang = np.linspace(0, 2 * np.pi, BODY_RAYS, endpoint=False)
+    rad = np.linspace(BODY_RING[0] * r, BODY_RING[1] * r, 5)
+    dx = (np.cos(ang)[:, None] * rad[None, :]).astype(np.float32)
+    dy = (np.sin(ang)[:, None] * rad[None, :]).astype(np.float32)
+    mx = (np.asarray(x, np.float32)[:, None, None] + dx[None]).reshape(len(x) * BODY_RAYS, -1)
+    my = (np.asarray(y, np.float32)[:, None, None] + dy[None]).reshape(len(x) * BODY_RAYS, -1)
+    vals = cv2.remap(chan, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    level = vals.mean(axis=1).reshape(len(x), BODY_RAYS)
+    return (level - model.ring) / (model.body - model.ring)
