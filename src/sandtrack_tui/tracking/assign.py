@@ -5,9 +5,12 @@ particle" as costed choices.
 distance of the track's prediction, splits the gated graph into connected groups and solves each
 group on its own (a group of one track and one detection needs no solver): the cost of a pair is its
 squared Mahalanobis distance, of leaving a track unseen `gate_d2`, of leaving a detection to a new
-particle 0. Then the margin rule: a track that missed frames keeps its detection only when no other
-track reaches it almost as cheaply and no unclaimed detection lies almost as near the prediction;
-otherwise it stays unseen (flagged), never guessed.
+particle 0. Then the margin rule for an unsure track (one that missed frames, or a new one not yet
+confirmed: its gate is wide): it keeps its detection only when no other track reaches it almost as
+cheaply, no unclaimed detection lies almost as near its prediction, and no other track's prediction
+lies nearer the detection in pixels (whatever that track's gate: a bead that stopped short of its
+track's gate is still that track's bead, not the unsure one's); otherwise it stays unseen (flagged),
+never guessed.
 """
 
 from __future__ import annotations
@@ -37,7 +40,7 @@ def gated_pairs(S, X, reach, det_xy, motion: Motion) -> tuple[np.ndarray, np.nda
     return ti[ok], dj[ok], d2[ok]
 
 
-def assign(S, X, reach, det_xy, motion: Motion, missed: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def assign(S, X, reach, det_xy, motion: Motion, unsure: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per track: the detection index it takes (-1: not seen) and that pair's cost; per track also
     True where the margin rule withheld a detection (ambiguous)."""
     n_t, n_d = len(X), len(det_xy)
@@ -61,7 +64,8 @@ def assign(S, X, reach, det_xy, motion: Motion, missed: np.ndarray) -> tuple[np.
         bounds = np.flatnonzero(np.diff(label[rt])) + 1
         for gt, gd, gc in zip(np.split(rt, bounds), np.split(rd, bounds), np.split(rc, bounds), strict=True):
             _solve_group(gt, gd, gc, motion.gate_d2, taken, cost)
-    _margin(ti, dj, d2, taken, cost, missed, ambiguous)
+    _margin(ti, dj, d2, taken, cost, unsure, ambiguous)
+    _nearer_owner(X, det_xy, taken, cost, unsure, ambiguous)
     return taken, cost, ambiguous
 
 
@@ -82,8 +86,8 @@ def _solve_group(gt, gd, gc, miss_cost: float, taken, cost) -> None:
             cost[tracks[r]] = m[r, c]
 
 
-def _margin(ti, dj, d2, taken, cost, missed, ambiguous) -> None:
-    coasting = np.flatnonzero((taken >= 0) & (missed > 0))
+def _margin(ti, dj, d2, taken, cost, unsure, ambiguous) -> None:
+    coasting = np.flatnonzero((taken >= 0) & unsure)
     if len(coasting) == 0:
         return
     claimed = np.zeros(int(dj.max()) + 1 if len(dj) else 0, bool)
@@ -96,3 +100,18 @@ def _margin(ti, dj, d2, taken, cost, missed, ambiguous) -> None:
             taken[t] = -1
             cost[t] = np.nan
             ambiguous[t] = True
+
+
+def _nearer_owner(X, det_xy, taken, cost, unsure, ambiguous) -> None:
+    """An unsure track gives up a detection that lies nearer another track's prediction than its own."""
+    mine = np.flatnonzero((taken >= 0) & unsure)
+    if len(mine) == 0 or len(X) < 2:
+        return
+    z = det_xy[taken[mine]]
+    own = np.hypot(*(z - X[mine, :2]).T)
+    d, k = cKDTree(X[:, :2]).query(z, k=2)
+    other = np.where(k[:, 0] == mine, d[:, 1], d[:, 0])
+    drop = mine[other < own]
+    taken[drop] = -1
+    cost[drop] = np.nan
+    ambiguous[drop] = True

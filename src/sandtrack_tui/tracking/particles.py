@@ -29,6 +29,7 @@ from .seeding import marker_box
 TRACKED, OCCLUDED, LOST, MANUAL = "tracked", "occluded", "lost", "manual"
 BOX_MARGIN_PX = 5.0  # marker_box: the marker and ~2.5 px of background each side
 NEW_CLEAR_DIAMETERS = 0.5  # a new particle starts no nearer than this to a track's prediction
+CONFIRM_FRAMES = 3  # a new particle's track is unsure (its velocity unknown) until seen this many frames
 
 
 @dataclass(frozen=True)
@@ -48,6 +49,7 @@ class ParticleTracker:
         self.P = np.zeros((0, 4, 4))
         self.ids = np.zeros(0, int)
         self.missed = np.zeros(0, int)
+        self.seen_n = np.zeros(0, int)  # frames each track was seen since it started
         self.counts = {"seeded": 0, TRACKED: 0, OCCLUDED: 0, LOST: 0, "new": 0, "ambiguous": 0}
         self.cpu_s = 0.0
         self.particle_frames = 0
@@ -75,12 +77,13 @@ class ParticleTracker:
         return [(frame, int(m), float(x), float(y), MANUAL, float(c))
                 for m, (x, y), c in zip(ids, seeds_xy, conf, strict=True)]
 
-    def _add(self, xy: np.ndarray, ids: np.ndarray) -> None:
+    def _add(self, xy: np.ndarray, ids: np.ndarray, seen_n: int = CONFIRM_FRAMES) -> None:
         X, P = kf.start(xy, self.params.motion)
         self.X = np.concatenate([self.X, X])
         self.P = np.concatenate([self.P, P])
         self.ids = np.concatenate([self.ids, ids])
         self.missed = np.concatenate([self.missed, np.zeros(len(ids), int)])
+        self.seen_n = np.concatenate([self.seen_n, np.full(len(ids), seen_n)])
 
     def step(self, frame: int, image) -> list[tuple]:
         c0 = time.process_time()
@@ -90,7 +93,8 @@ class ParticleTracker:
         motion = self.params.motion
         X, P = kf.predict(self.X, self.P, motion)
         S, reach = kf.gate(P, motion)
-        taken, _cost, ambiguous = assign(S, X, reach, dxy, motion, self.missed)
+        unsure = (self.missed > 0) | (self.seen_n < CONFIRM_FRAMES)
+        taken, _cost, ambiguous = assign(S, X, reach, dxy, motion, unsure)
         seen = np.flatnonzero(taken >= 0)
         X, P = kf.update(X, P, seen, dxy[taken[seen]], motion)
         rows = []
@@ -98,6 +102,7 @@ class ParticleTracker:
             j = taken[k]
             rows.append((frame, int(self.ids[k]), float(dxy[j, 0]), float(dxy[j, 1]), TRACKED, float(conf[j])))
         self.missed[seen] = 0
+        self.seen_n[seen] += 1
         unseen = np.flatnonzero(taken < 0)
         self.missed[unseen] += 1
         self.counts["ambiguous"] += int(ambiguous.sum())
@@ -116,7 +121,8 @@ class ParticleTracker:
         self.counts[LOST] += len(ends)
         keep = np.ones(len(X), bool)
         keep[ends] = False
-        self.X, self.P, self.ids, self.missed = X[keep], P[keep], self.ids[keep], self.missed[keep]
+        self.X, self.P, self.ids = X[keep], P[keep], self.ids[keep]
+        self.missed, self.seen_n = self.missed[keep], self.seen_n[keep]
         if self.params.new_particles:
             rows += self._new(frame, dxy, conf, taken)
         self.cpu_s += time.process_time() - c0
@@ -138,7 +144,7 @@ class ParticleTracker:
             return []
         ids = np.arange(self.next_id, self.next_id + len(cand))
         self.next_id += len(cand)
-        self._add(dxy[cand], ids)
+        self._add(dxy[cand], ids, seen_n=1)
         self.counts["new"] += len(cand)
         return [(frame, int(m), float(dxy[j, 0]), float(dxy[j, 1]), TRACKED, float(conf[j]))
                 for m, j in zip(ids, cand, strict=True)]
