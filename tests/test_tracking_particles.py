@@ -110,3 +110,26 @@ def test_cli_all_flags(tmp_path, bed, capsys):
         assert proj.points(frame=3).status.eq("tracked").sum() >= 290
         proj.undo()
         assert proj.points(frame=3).empty
+
+
+def test_unsure_track_leaves_a_stopped_bead_to_its_own_track():
+    """A bead landing stops short of its track's gate; a coasting neighbour whose wide gate reaches
+    it must not take it (an identity switch nobody flags): it stays unseen and is flagged instead."""
+    from sandtrack_tui.tracking import predict as kf
+    from sandtrack_tui.tracking.assign import assign
+
+    motion = kf.Motion()
+    X, P = kf.start(np.array([[0.0, 100.0], [85.0, 118.0]]), motion)
+    for k in range(1, 7):  # track 0 follows a bead at 15 px per frame; track 1 a resting bead, hidden after 4
+        X, P = kf.predict(X, P, motion)
+        seen = np.array([0, 1]) if k <= 4 else np.array([0])
+        X, P = kf.update(X, P, seen, np.array([[15.0 * k, 100.0], [85.0, 118.0]])[seen], motion)
+    X, P = kf.predict(X, P, motion)
+    S, reach = kf.gate(P, motion)
+    z = np.array([[95.0, 100.0]])  # the bead of track 0 landed 10 px short of its prediction
+    d2 = kf.mahalanobis(S, X, np.array([0, 1]), np.repeat(z, 2, axis=0))
+    assert d2[0] > motion.gate_d2 >= d2[1]  # only the coasting track's gate reaches it
+    taken, _c, _a = assign(S, X, reach, z, motion, np.array([False, False]))
+    assert taken[1] == 0  # without the rule: the switch
+    taken, _c, ambiguous = assign(S, X, reach, z, motion, np.array([False, True]))
+    assert taken.tolist() == [-1, -1] and ambiguous[1]
