@@ -25,7 +25,8 @@ def test_every_particle_from_the_a_key(tmp_path, bed):  # noqa: F811
             await pilot.press("A")
             await settle(pilot, app, lambda: isinstance(app.screen, AutoSeedChoice))
             await pilot.press("e")
-            await settle(pilot, app, lambda: app.bg_task is None and len(proj.points()) > 1)
+            assert app.bg_task is not None and app.bg_task.name == "tracking every particle"
+            await settle(pilot, app, lambda: app.bg_task is None)
             pts = proj.points(camera="side")
             tracked = pts[pts.status.isin(["tracked", "manual"]) & pts.x_px.notna()]
             assert tracked.marker.nunique() >= 0.99 * inside[0]  # every bead of the first frame
