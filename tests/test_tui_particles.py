@@ -25,8 +25,7 @@ def test_every_particle_from_the_a_key(tmp_path, bed):  # noqa: F811
             await pilot.press("A")
             await settle(pilot, app, lambda: isinstance(app.screen, AutoSeedChoice))
             await pilot.press("e")
-            assert app.bg_task is not None and app.bg_task.name == "tracking every particle"
-            await settle(pilot, app, lambda: app.bg_task is None)
+            await settle(pilot, app, lambda: app.bg_task is None and len(proj.points()) > 1, timeout=30)
             pts = proj.points(camera="side")
             tracked = pts[pts.status.isin(["tracked", "manual"]) & pts.x_px.notna()]
             assert tracked.marker.nunique() >= 0.99 * inside[0]  # every bead of the first frame
@@ -38,6 +37,25 @@ def test_every_particle_from_the_a_key(tmp_path, bed):  # noqa: F811
             left = proj.points()
             assert len(left) == 1 and int(left.marker.iloc[0]) == 1  # only the seed
             assert len(app.marker_list) <= 1
+
+    run()
+    proj.close()
+
+
+def test_every_particle_without_a_seed_says_so(tmp_path, bed):  # noqa: F811
+    from sandtrack_tui.store import Project
+
+    proj = Project.create(tmp_path / "empty.sandtrack", {"side": bed[0]})
+
+    @aio
+    async def run():
+        app = SandtrackApp(proj)
+        async with app.run_test(size=(100, 30)) as pilot:
+            await settle(pilot, app)
+            await pilot.press("A", "y")
+            await settle(pilot, app, lambda: any("seed one particle first" in n.message for n in app._notifications),
+                         timeout=30)
+            assert proj.points().empty and app.bg_task is None
 
     run()
     proj.close()
