@@ -246,7 +246,7 @@ async def test_auto_seed_confirm_list_then_swap_over_range(tmp_path, frames):
     app = SandtrackApp(project)
     async with app.run_test(size=SIZE) as pilot:
         await settle(pilot, app)
-        await pilot.press("A")
+        await pilot.press("A", "m")  # A asks: m, the markers like the seeded one
         await settle(pilot, app, lambda: isinstance(app.screen, AutoSeedScreen))
         assert len(app.screen.markers) == 3
         await pilot.press("space", "enter")  # skip the first proposal, accept the others

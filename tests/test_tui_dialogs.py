@@ -13,7 +13,7 @@ from sandtrack_tui.tui.app import SandtrackApp
 from sandtrack_tui.tui.screens import SCREENS, open_screen
 from sandtrack_tui.tui.screens.autoseed import AutoSeedScreen
 from sandtrack_tui.tui.screens.picker import MarkerPicker, PickerRow
-from sandtrack_tui.tui.screens.prompts import AskNumber, AskText, Confirm, SyncFirst
+from sandtrack_tui.tui.screens.prompts import AskNumber, AskText, AutoSeedChoice, Confirm, SyncFirst
 from test_tui_app import aio, settle
 from tui_synth import make_project
 
@@ -26,6 +26,7 @@ def _dialogs(app) -> dict:
                          columns=["marker", "camera", "frame", "x_px", "y_px", "w", "h", "epipolar_px"])
     screens = {
         "sync first": lambda: SyncFirst("side and front"),
+        "auto-seed choice": AutoSeedChoice,
         "confirm": lambda: Confirm("tracking is running; quit anyway? (points so far are saved)"),
         "ask text": lambda: AskText("Length between the two ends (301.2 px apart), in mm:"),
         "ask number": lambda: AskNumber("Marker 3 is the same bead as which marker? (that id stays; 3 goes: its "
@@ -65,6 +66,9 @@ def test_every_dialog_wraps_its_text_to_its_width(tmp_path):
                     if name == "sync first":  # the whole prompt is on screen, every line of it
                         shown = " ".join(str(w.render()) for w in app.screen.query(Static) if w.region.height)
                         assert "track anyway (cameras that start together)" in shown and "escape" in shown
+                    if name == "auto-seed choice":
+                        shown = " ".join(str(w.render()) for w in app.screen.query(Static) if w.region.height)
+                        assert "paired across cameras" in shown and "new ids" in shown and "escape" in shown
                     app.pop_screen()
                     await pilot.pause()
 

@@ -116,7 +116,7 @@ async def test_auto_seed_again_keeps_the_markers_ids(tmp_path, frames):
     app = SandtrackApp(project)
     async with app.run_test(size=SIZE) as pilot:
         await settle(pilot, app)
-        await pilot.press("A")
+        await pilot.press("A", "m")  # A asks: m, the markers like the seeded one
         await settle(pilot, app, lambda: isinstance(app.screen, AutoSeedScreen))
         await pilot.press("enter")
         await settle(pilot, app, lambda: app.screen is app._main_screen)
@@ -125,7 +125,7 @@ async def test_auto_seed_again_keeps_the_markers_ids(tmp_path, frames):
         await pilot.press("r")
         await until_idle(pilot, app)
         # undo the run, seed again at the start: the same beads keep their ids
-        await pilot.press("u", "home", "A")
+        await pilot.press("u", "home", "A", "m")
         await settle(pilot, app, lambda: isinstance(app.screen, AutoSeedScreen))
         assert sorted(app.screen.markers) == [1, 2, 3] and app.screen.seeds["existing"].all()
         await pilot.press("enter")
@@ -136,7 +136,7 @@ async def test_auto_seed_again_keeps_the_markers_ids(tmp_path, frames):
         await until_idle(pilot, app)
         for _ in range(20):
             await pilot.press("right")
-        await pilot.press("A")
+        await pilot.press("A", "m")  # A asks: m, the markers like the seeded one
         await settle(pilot, app, lambda: isinstance(app.screen, AutoSeedScreen))
         seeds = app.screen.seeds
         assert sorted(app.screen.markers) == [1, 2, 3]

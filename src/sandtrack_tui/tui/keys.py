@@ -25,7 +25,7 @@ KEYS = [
     ("M", "merge", "merge the selected marker into another (two ids on one bead)", "Markers", False),
     ("h,j,k,l", "", "move the cursor (H J K L: 8x)", "Seed", False),
     ("enter", "seed_cursor", "place the selected marker at the cursor", "Seed", True),
-    ("A", "auto_seed", "auto-seed all markers (confirm list)", "Seed", False),
+    ("A", "auto_seed", "auto-seed: the markers like the seeded one, or every particle", "Seed", False),
     ("t", "track(1,0)", "track the selected marker forward", "Track", True),
     ("T", "track(-1,0)", "track the selected marker backward", "Track", False),
     ("r", "track(1,1)", "track all markers forward", "Track", False),

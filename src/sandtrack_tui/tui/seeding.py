@@ -136,6 +136,54 @@ class SeedingMixin:
             self.notify(message, timeout=3)
 
     def action_auto_seed(self) -> None:
+        """Ask: the markers like the seeded one (paired across cameras), or every particle like it."""
+        from .screens.prompts import AutoSeedChoice
+
+        def chosen(choice) -> None:
+            if choice == "markers":
+                self.auto_seed_markers()
+            elif choice in ("every", "every+new"):
+                self.track_every_particle(new_particles=choice == "every+new")
+
+        self.push_screen(AutoSeedChoice(), chosen)
+
+    def _like(self) -> int | None:
+        """The selected marker when it was seeded by hand (its look is the one to find), else None: the
+        core then takes the lowest marker seeded by hand."""
+        pts = self.points
+        if self.selected is None or not len(pts):
+            return None
+        own = pts[(pts["marker"] == self.selected) & (pts["status"] == "manual")]
+        return self.selected if len(own) else None
+
+    def track_every_particle(self, new_particles: bool = False) -> None:
+        """Every particle like the seeded one, detected and linked frame by frame from the seed's frame to the
+        end in a worker, written as one edit."""
+        try:
+            particles = core("tracking.particles", "track_every_particle")
+        except NotAvailableYet as exc:
+            self.notify(str(exc), severity="warning")
+            return
+        like = self._like()
+
+        def job(progress, should_stop):
+            proj = self._worker_project()
+            try:
+                return particles.track_every_particle(proj, like=like, new_particles=new_particles,
+                                                      progress=progress)
+            finally:
+                proj.close()
+
+        self.run_task("tracking every particle", job, on_result=self._every_done)
+
+    def _every_done(self, summary) -> None:
+        cams = summary.get("cameras", {}) if isinstance(summary, dict) else {}
+        parts = [f"{c}: {v['particles']} particles, frames {v['first_frame']}-{v['last_frame']}, "
+                 f"{v['flagged']} flagged" for c, v in cams.items()]
+        rows = summary.get("rows_written", 0) if isinstance(summary, dict) else 0
+        self.notify(f"every particle: {rows} points written ({'; '.join(parts)}); u undoes it", timeout=8)
+
+    def auto_seed_markers(self) -> None:
         try:
             tracking = core("tracking.run", "auto_seed", "accept_seeds")
         except NotAvailableYet as exc:

@@ -118,3 +118,30 @@ class SyncFirst(ModalScreen[str | None]):
 
     def action_choose(self, choice: str) -> None:
         self.dismiss(choice or None)
+
+
+class AutoSeedChoice(ModalScreen[str | None]):
+    """`A`: seed the few markers like the seeded one, or track every particle like it."""
+
+    DEFAULT_CSS = """
+    AutoSeedChoice { align: center middle; }
+    AutoSeedChoice > Vertical { width: 80; max-width: 95%; height: auto; border: round $accent; padding: 0 1;
+                                background: $surface; }
+    AutoSeedChoice Label { width: 100%; }
+    AutoSeedChoice #title { margin-bottom: 1; }
+    """
+    BINDINGS = [Binding("m,enter", "choose('markers')", "markers"), Binding("e", "choose('every')", "every particle"),
+                Binding("y", "choose('every+new')", "every particle, new ones too"),
+                Binding("escape,c", "choose('')", "cancel")]
+
+    def compose(self) -> ComposeResult:
+        with Vertical():
+            yield Label("[b]Auto-seed[/]: what to find like the seeded one?", id="title")
+            yield Label("[b]m[/] / enter: the markers like the seeded one (paired across cameras, a list to confirm)")
+            yield Label("[b]e[/]: every particle like it, tracked by detection from the seed's frame to the end "
+                        "(hundreds, one edit: u undoes); particles entering later are left out")
+            yield Label("[b]y[/]: every particle like it, and particles entering later get new ids too")
+            yield Label("[b]escape[/]: cancel")
+
+    def action_choose(self, choice: str) -> None:
+        self.dismiss(choice or None)
