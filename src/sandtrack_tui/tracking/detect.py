@@ -30,6 +30,14 @@ PATTERN_MIN = 0.2  # a pattern: the profile inside varies by this share of the p
 # must look at least BODY_MIN like the seed's body (1) rather than its surroundings (0). A bright gap
 # between three touching beads also looks like a bright centre, but bright arms cross that ring.
 BODY_RAYS, BODY_RING, BODY_MIN = 16, (0.45, 0.85), 0.9
+# A solid particle (no pattern) is matched with its rim, so no gap looks like it; its body check is
+# against its OWN surroundings, as a marker in shade or on darker sand is darker all round: along all but
+# SOLID_RAYS_MISSED rays (a marker partly hidden by a grain or a neighbour) the body ring must stand out
+# of the local background (the darker quarter of the ring SOLID_BACKGROUND radii out) by SOLID_MIN of
+# the seed's own contrast. Shade, depth (size) and partial hiding lower the template match, so a solid
+# particle's match may be weaker; the body check keeps what is not a particle out.
+SOLID_RAYS_MISSED, SOLID_BACKGROUND, SOLID_MIN = 4, (1.3, 1.8), 0.35
+SOLID_MIN_CONFIDENCE = 0.4
 
 
 @dataclass(frozen=True)
@@ -88,10 +96,11 @@ def _radial_means(patch: np.ndarray, cx: float, cy: float, r_max: int) -> np.nda
 
 
 def learn_particle(frame: np.ndarray, x: float, y: float, diameter_px: float,
-                   min_confidence: float = MIN_CONFIDENCE) -> ParticleModel:
+                   min_confidence: float | None = None) -> ParticleModel:
     """The look of the particle of diameter `diameter_px` at (x, y) (a click: within a third of a
     diameter). Its centre is found first (the template learnt there matched round it, three times),
-    as a radial profile learnt off-centre is blurred and matches nothing well."""
+    as a radial profile learnt off-centre is blurred and matches nothing well. `min_confidence`:
+    default MIN_CONFIDENCE for a patterned particle, SOLID_MIN_CONFIDENCE for a solid one."""
     for _ in range(3):
         model = _learn_at(frame, x, y, diameter_px, min_confidence)
         r = diameter_px / 3
@@ -109,7 +118,8 @@ def learn_particle(frame: np.ndarray, x: float, y: float, diameter_px: float,
     return _learn_at(frame, x, y, diameter_px, min_confidence)
 
 
-def _learn_at(frame: np.ndarray, x: float, y: float, diameter_px: float, min_confidence: float) -> ParticleModel:
+def _learn_at(frame: np.ndarray, x: float, y: float, diameter_px: float,
+              min_confidence: float | None) -> ParticleModel:
     img = as_float(frame)
     if img.ndim == 2:
         img = img[:, :, None]
@@ -144,6 +154,8 @@ def _learn_at(frame: np.ndarray, x: float, y: float, diameter_px: float, min_con
         raise SandtrackError("the seeded particle shows no shape to match")
     body = float(prof1[(radii >= BODY_RING[0] * r) & (radii <= BODY_RING[1] * r)].mean())
     ring = float(prof1[radii >= r + 1.5].mean())
+    if min_confidence is None:
+        min_confidence = MIN_CONFIDENCE if patterned else SOLID_MIN_CONFIDENCE
     return ParticleModel(weights.astype(np.float32), template, float(diameter_px), body, ring, patterned,
                          min_confidence)
 
@@ -220,7 +232,13 @@ def detect(frame: np.ndarray, model: ParticleModel, roi: tuple | None = None) ->
     px, py, score = peaks(res, model)
     px, py = px + x0, py + y0
     body = body_levels(chan, model, px, py)
-    keep = body.min(axis=1) >= model.body_min if len(px) else np.zeros(0, bool)
+    if not len(px):
+        keep = np.zeros(0, bool)
+    elif model.patterned:
+        keep = body.min(axis=1) >= model.body_min
+    else:
+        local = body - local_background(chan, model, px, py)[:, None]
+        keep = np.sort(local, axis=1)[:, SOLID_RAYS_MISSED] >= SOLID_MIN
     return pd.DataFrame({"x_px": px[keep], "y_px": py[keep], "size_px": np.full(int(keep.sum()), model.diameter_px),
                          "contrast": body[keep].mean(axis=1) if len(px) else np.zeros(0),
                          "confidence": score[keep].astype(float)})
@@ -229,15 +247,26 @@ def detect(frame: np.ndarray, model: ParticleModel, roi: tuple | None = None) ->
 def body_levels(chan: np.ndarray, model: ParticleModel, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Per centre and ray: the projected frame's mean over the body ring, 0 = the seed's surroundings,
     1 = the seed's body; shape (len(x), BODY_RAYS)."""
+    return _ray_levels(chan, model, x, y, BODY_RING, BODY_RAYS)
+
+
+def local_background(chan: np.ndarray, model: ParticleModel, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Per centre: its surroundings' level on body_levels' scale (the darker quarter of 2 * BODY_RAYS
+    rays over SOLID_BACKGROUND radii; brighter neighbours there are other particles)."""
+    return np.percentile(_ray_levels(chan, model, x, y, SOLID_BACKGROUND, 2 * BODY_RAYS), 25, axis=1)
+
+
+def _ray_levels(chan: np.ndarray, model: ParticleModel, x: np.ndarray, y: np.ndarray, ring: tuple,
+                rays: int) -> np.ndarray:
     if len(x) == 0:
-        return np.zeros((0, BODY_RAYS))
+        return np.zeros((0, rays))
     r = model.diameter_px / 2
-    ang = np.linspace(0, 2 * np.pi, BODY_RAYS, endpoint=False)
-    rad = np.linspace(BODY_RING[0] * r, BODY_RING[1] * r, 5)
+    ang = np.linspace(0, 2 * np.pi, rays, endpoint=False)
+    rad = np.linspace(ring[0] * r, ring[1] * r, 5)
     dx = (np.cos(ang)[:, None] * rad[None, :]).astype(np.float32)
     dy = (np.sin(ang)[:, None] * rad[None, :]).astype(np.float32)
-    mx = (np.asarray(x, np.float32)[:, None, None] + dx[None]).reshape(len(x) * BODY_RAYS, -1)
-    my = (np.asarray(y, np.float32)[:, None, None] + dy[None]).reshape(len(x) * BODY_RAYS, -1)
+    mx = (np.asarray(x, np.float32)[:, None, None] + dx[None]).reshape(len(x) * rays, -1)
+    my = (np.asarray(y, np.float32)[:, None, None] + dy[None]).reshape(len(x) * rays, -1)
     vals = cv2.remap(chan, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    level = vals.mean(axis=1).reshape(len(x), BODY_RAYS)
+    level = vals.mean(axis=1).reshape(len(x), rays)
     return (level - model.ring) / (model.body - model.ring)
