@@ -1,0 +1,49 @@
+"""Every-particle detection of solid markers in shade: blue discs on textured sand under light that
+falls off across the view, some smaller (farther), some partly hidden by a sand grain."""
+
+import cv2
+import numpy as np
+
+from sandtrack_tui.tracking.detect import detect, learn_particle
+
+W, H, N, DIAM = 480, 320, 120, 12.0
+
+
+def _scene():
+    rng = np.random.default_rng(3)
+    sand = rng.normal(0, 1, (H, W, 3)).astype(np.float32)
+    sand = cv2.GaussianBlur(sand, (0, 0), 1.5) * 40 + np.array([110, 160, 190], np.float32)  # BGR: tan
+    xy, placed = [], 0
+    while placed < N:
+        p = rng.uniform([20, 20], [W - 20, H - 20])
+        if xy and np.hypot(*(np.array(xy) - p).T).min() < 1.6 * DIAM:
+            continue
+        xy.append(p)
+        placed += 1
+    xy = np.array(xy)
+    img = sand.copy()
+    blue = np.array([170, 60, 30], np.float32)
+    yy, xx = np.mgrid[0:H, 0:W]
+    for k, (x, y) in enumerate(xy):
+        r = DIAM / 2 * (0.8 + 0.4 * (y / H))  # nearer the bottom: larger
+        cover = np.clip(r + 0.5 - np.hypot(xx - x, yy - y), 0, 1)[..., None]
+        img = img * (1 - cover) + blue * cover
+        if k % 4 == 0:  # a grain hides part of the marker's rim
+            a = rng.uniform(0, 2 * np.pi)
+            gx, gy = x + 0.9 * r * np.cos(a), y + 0.9 * r * np.sin(a)
+            grain = np.clip(0.35 * DIAM + 0.5 - np.hypot(xx - gx, yy - gy), 0, 1)[..., None]
+            img = img * (1 - grain) + np.array([120, 170, 200], np.float32) * grain
+    light = (1.0 - 0.65 * xx / W)[..., None]  # shade: the right side gets a third of the light
+    img = np.clip(img * light + rng.normal(0, 3, img.shape), 0, 255).astype(np.uint8)
+    return img, xy
+
+
+def test_shaded_partly_hidden_markers_found_and_nothing_else():
+    img, xy = _scene()
+    seed = xy[np.argmin(xy[:, 0] + np.abs(xy[:, 1] - H / 2))]  # a lit, whole marker at the left
+    model = learn_particle(img, seed[0] + 1.0, seed[1] - 1.0, DIAM)
+    det = detect(img, model)[["x_px", "y_px"]].to_numpy()
+    d = np.hypot(*(det[None] - xy[:, None]).transpose(2, 0, 1))
+    found = d.min(axis=1) <= 1.5
+    assert found.mean() >= 0.95
+    assert (d.min(axis=0) > 3.0).sum() <= 2  # detections on no marker (sand, grains)
