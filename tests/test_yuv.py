@@ -163,7 +163,20 @@ def test_frame_from_a_cached_lazy_frame_is_bgr(tmp_path):
         assert isinstance(lazy, yuv.Yuv420Frame)
         img = src.frame(5)
         assert isinstance(img, np.ndarray) and np.array_equal(img, np.asarray(lazy))
-        assert src.lazy_frame(5) is img  # the cache now holds the converted frame
+        assert src.lazy_frame(5) is lazy  # the cache keeps the planes
+        assert src.frame(5) is img  # and the conversion is kept beside it
+
+
+def test_a_frame_is_cached_in_one_form_whoever_reads_it_first(tmp_path):
+    # A tracking run reads windows of lazy frames while seeds and views read BGR frames of the same
+    # source: the form the tracker gets must not depend on which thread decoded a frame first.
+    clip = write_clip(tmp_path / "c.mp4", n_frames=10)
+    with FrameSource(clip) as src:
+        img = src.frame(7)  # decodes frames 0..7 on its way
+        assert isinstance(img, np.ndarray)
+        for i in range(8):
+            assert isinstance(src.lazy_frame(i), yuv.Yuv420Frame)
+        assert np.array_equal(np.asarray(src.lazy_frame(7)), img)
 
 
 def test_video_without_a_window_converter_reads_as_bgr(tmp_path):

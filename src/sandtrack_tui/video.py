@@ -36,6 +36,7 @@ from av.video.reformatter import VideoReformatter
 from .errors import SandtrackError
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
+BGR_KEPT = 3  # whole-frame conversions FrameSource.frame keeps (a view stepping to and fro)
 # Each video file's packet index (its frames' and key frames' timestamps, the last group of pictures decoded
 # once to find frames that do not decode), by (path, size, mtime): a session opens one video many times (views,
 # tracking, sync), and reading the index costs ~0.25 s at 1080p.
@@ -134,6 +135,7 @@ class FrameSource:
         # context, with a new pool of threads, for every frame (~10 % of the decoding time).
         self._reformatter = VideoReformatter()
         self._lazy_ok = True  # False once a frame had no exact window converter (yuv.py)
+        self._bgr_kept: dict[int, np.ndarray] = {}  # frame index -> BGR, most recent last
         if not self.path.exists():
             raise SandtrackError(f"file not found: {self.path}")
         if self.path.is_dir():
@@ -254,13 +256,22 @@ class FrameSource:
         return self.frame(i)
 
     def frame(self, i: int) -> np.ndarray:
-        """Frame i as a BGR array."""
+        """Frame i as a BGR array. A video with an exact window converter (yuv.py) keeps its frames in
+        the cache as decoded planes whoever reads them first, so a tracking run is handed every frame in
+        one form (the same kernels, the same figures, run after run) while another thread seeds from or
+        shows the same frames; the last few whole-frame conversions are kept beside the cache."""
         with self._lock:
-            img = self._get(i, lazy=False)
-            if not isinstance(img, np.ndarray):  # a lazy frame from the cache: converted once, kept
-                img = img.bgr()
-                self._cache.put(i, img, replace=True)
-            return img
+            img = self._get(i, lazy=True)
+            if isinstance(img, np.ndarray):
+                return img
+            key = i % len(self)
+            bgr = self._bgr_kept.pop(key, None)
+            if bgr is None:
+                bgr = img.bgr(self._reformatter)
+            self._bgr_kept[key] = bgr
+            while len(self._bgr_kept) > BGR_KEPT:
+                self._bgr_kept.pop(next(iter(self._bgr_kept)))
+            return bgr
 
     def lazy_frame(self, i: int):
         """Frame i for reading in windows: a `yuv.Yuv420Frame` (the decoded planes; `f[y0:y1, x0:x1]`

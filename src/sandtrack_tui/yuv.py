@@ -243,9 +243,12 @@ class Yuv420Frame:
         """linear_mask's `found` for each window (x0, y0, x1, y1) of `boxes` (n x 4 int64), in one call."""
         return _linear_found(self._y, self._u, self._v, boxes, *self._tables, *coeffs, _passing(self._tables, coeffs))
 
-    def bgr(self) -> np.ndarray:
-        """The whole frame as BGR (FFmpeg's conversion, as FrameSource.frame gives it)."""
-        return _swscale_bgr(self._frame)
+    def bgr(self, reformatter=None) -> np.ndarray:
+        """The whole frame as BGR (FFmpeg's conversion, as FrameSource.frame gives it); `reformatter`:
+        an av VideoReformatter to reuse (one per thread)."""
+        if reformatter is None:
+            return _swscale_bgr(self._frame)
+        return reformatter.reformat(self._frame, format="bgr24", threads=1).to_ndarray()
 
     def __array__(self, dtype=None, copy=None):
         a = self.bgr()
