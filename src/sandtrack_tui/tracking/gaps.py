@@ -9,10 +9,11 @@ one's first point - its first velocity x gap, each within the gate of the other'
 GATE_DIAMETERS of a diameter, widened by GATE_PX_PER_FRAME per frame of gap). A piece seen once has no
 known motion: it is joined on the other piece's, and two such pieces are never joined (a fast particle
 may pass where another one was lost). It is joined to the earliest candidate, provided no other started
-track lies within DOUBT x the gate of it at that frame or before (by any motion, or none), and no other
-ended track might reach that start first. A particle lost again and again (short pieces) is joined piece
-by piece, in time order, each joined piece's motion then known from the one before it. Plain data: points
-in, chains of ids out; `gap_rows` gives the points that flag the frames between two joined pieces.
+track lies within DOUBT x the gate of it at that frame or before (by any motion, or none), no later
+candidate fits clearly better (by half a gate), and no other ended track might reach that start first.
+A particle lost again and again (short pieces) is joined piece by piece, in time order, each joined
+piece's motion then known from the one before it. Plain data: points in, chains of ids out; `gap_rows`
+gives the points that flag the frames between two joined pieces.
 """
 
 from __future__ import annotations
@@ -58,13 +59,13 @@ def find_joins(points: pd.DataFrame, diameter_px: float, first_frame: int, last_
     starts = starts[starts.frame > first_frame].sort_values("frame")
     reach = _Reach(starts, max(MIN_GATE_PX, GATE_DIAMETERS * diameter_px), max_gap)
     tips = {int(e): [int(r.frame), r.x, r.y, r.vx, r.vy] for e, r in ends.iterrows()}
-    choice, claims_of, claims = {}, {}, {}
+    choice, claims_of, claims, doubtful = {}, {}, {}, {}
     taken: set[int] = set()
 
     def evaluate(e: int) -> None:
         for s in claims_of.pop(e, ()):
             claims[s].discard(e)
-        choice[e], claims_of[e] = reach.of(*tips[e], taken)
+        choice[e], claims_of[e], doubtful[e] = reach.of(*tips[e], taken)
         for s in claims_of[e]:
             claims.setdefault(s, set()).add(e)
 
@@ -86,7 +87,7 @@ def find_joins(points: pd.DataFrame, diameter_px: float, first_frame: int, last_
                 gap = tip[0] - tips[e][0]
                 tip[3], tip[4] = (tip[1] - tips[e][1]) / gap, (tip[2] - tips[e][2]) / gap
                 evaluate(s)
-    return joins, sum(s is not None for s in choice.values())
+    return joins, sum(s is not None or doubtful[e] for e, s in choice.items())
 
 
 class _Reach:
@@ -99,13 +100,14 @@ class _Reach:
         self.v = starts[["vx", "vy"]].to_numpy(float)
         self.ids = starts.index.to_numpy(np.int64)
 
-    def of(self, frame: int, x: float, y: float, vx: float, vy: float, taken: set) -> tuple[int | None, list]:
-        """(the started piece it continues as, or None; the pieces it might continue as, first in time)."""
+    def of(self, frame: int, x: float, y: float, vx: float, vy: float, taken: set) -> tuple[int | None, list, bool]:
+        """(the started piece it continues as, or None; the pieces it might continue as, first in time; whether
+        it was left apart as doubtful)."""
         lo = np.searchsorted(self.frame, frame, "right")
         hi = np.searchsorted(self.frame, frame + self.max_gap, "right")
         free = [k for k in range(lo, hi) if int(self.ids[k]) not in taken]
         if not free:
-            return None, []
+            return None, [], False
         k = np.array(free)
         f = self.frame[k]
         gap = (f - frame)[:, None]
@@ -121,16 +123,16 @@ class _Reach:
             maybe_d = np.fmin(np.fmin(ahead, back), still)  # anything that might be the particle
         maybe = np.flatnonzero(maybe_d <= self.doubt)
         if not len(maybe):
-            return None, []
+            return None, [], False
         # the pieces it would reach first (a later one is that piece's own next piece, not a rival for it)
         claimed = [int(self.ids[k[m]]) for m in maybe[f[maybe] == f[maybe].min()]]
         near = np.flatnonzero(d <= self.gate + GATE_PX_PER_FRAME * gap[:, 0])
         if not len(near):
-            return None, claimed
+            return None, claimed, False
         best = near[np.argmin(f[near])]
-        if np.count_nonzero(f[maybe] <= f[best]) > 1:
-            return None, claimed
-        return int(self.ids[k[best]]), claimed
+        if np.count_nonzero(f[maybe] <= f[best]) > 1 or np.any(d[near] < d[best] - self.gate / 2):
+            return None, claimed, True  # another piece as near, or a later one that fits clearly better
+        return int(self.ids[k[best]]), claimed, False
 
 
 def chains(joins: list[tuple[int, int]]) -> list[list[int]]:
