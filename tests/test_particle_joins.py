@@ -11,7 +11,7 @@ import pytest
 from conftest import SAMPLE_DATA, claimed
 from sandtrack_tui.camera import Calibration
 from sandtrack_tui.store import Project
-from sandtrack_tui.tracking.gaps import chains, find_joins, gap_rows
+from sandtrack_tui.tracking.gaps import chains, find_joins, gap_rows, pieces_of
 from sandtrack_tui.tracking.particle_joins import join_tracks
 from sandtrack_tui.tracking.particle_pairs import pair_tracks
 from sandtrack_tui.xyz import Timeline, compute_xyz
@@ -110,8 +110,7 @@ def test_gaps_closed_only_where_nothing_else_explains_them():
     assert [owner[c[0]] for c in chains(joins) if len(c) == 3] == [1]  # three pieces, one particle
     # the frames between two joined pieces are flagged, never filled by a guess
     head = chains(joins)[0]
-    by_marker = dict(tuple(pts.groupby("marker")))
-    writes, deletes = gap_rows(by_marker, head, "side")
+    writes, deletes = gap_rows(pieces_of(pts), head, "side")
     assert {w[0] for w in writes} == {10, 11, 12, 25, 26, 27, 28, 29, 30}
     assert {w[5] for w in writes} == {"occluded"}
     assert {w[0] for w in writes if w[3] is None} == {28, 29, 30}  # the tracker's coasting kept, nothing more

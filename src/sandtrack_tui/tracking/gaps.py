@@ -58,7 +58,8 @@ def find_joins(points: pd.DataFrame, diameter_px: float, first_frame: int, last_
     ends = ends[ends.frame < last_frame]
     starts = starts[starts.frame > first_frame].sort_values("frame")
     reach = _Reach(starts, max(MIN_GATE_PX, GATE_DIAMETERS * diameter_px), max_gap)
-    tips = {int(e): [int(r.frame), r.x, r.y, r.vx, r.vy] for e, r in ends.iterrows()}
+    tips = {int(e): [int(f), x, y, vx, vy] for e, f, x, y, vx, vy in zip(
+        ends.index, ends.frame, ends.x, ends.y, ends.vx, ends.vy, strict=True)}
     choice, claims_of, claims, doubtful = {}, {}, {}, {}
     taken: set[int] = set()
 
@@ -150,25 +151,34 @@ def chains(joins: list[tuple[int, int]]) -> list[list[int]]:
     return out
 
 
+def pieces_of(points: pd.DataFrame) -> dict:
+    """One camera's points by id, as gap_rows reads them: id -> (frames, measured, x, y, status) arrays."""
+    p = points.sort_values(["marker", "frame"])
+    frame, marker = p.frame.to_numpy(np.int64), p.marker.to_numpy(np.int64)
+    x, y, status = p.x_px.to_numpy(float), p.y_px.to_numpy(float), p.status.to_numpy(object)
+    measured = np.isin(status, MEASURED) & np.isfinite(x) & np.isfinite(y)
+    cut = np.flatnonzero(np.diff(marker)) + 1
+    return {int(marker[i]): (frame[i:j], measured[i:j], x[i:j], y[i:j], status[i:j])
+            for i, j in zip(np.r_[0, cut], np.r_[cut, len(marker)], strict=True) if j > i}
+
+
 def gap_rows(by_marker: dict, pieces: list[int], camera: str) -> tuple[list[tuple], list[tuple]]:
     """(rows to write, keys to delete) that make the pieces (ids of one camera, in time order, measured at no
-    common frame; by_marker: each id's points) one track (once merged into the first id): each piece's rows
-    after its last measured point and before the next piece's first become `occluded` (the coasting
-    prediction kept, a `lost` one emptied), frames without a row get an empty `occluded` row, and rows at or
-    after the next piece's first frame go (that piece has the particle from there). Rows are (frame, camera,
-    marker, x, y, status, confidence, sd, score)."""
+    common frame; by_marker: `pieces_of` the camera's points) one track (once merged into the first id):
+    each piece's rows after its last measured point and before the next piece's first become `occluded` (the
+    coasting prediction kept, a `lost` one emptied), frames without a row get an empty `occluded` row, and
+    rows at or after the next piece's first frame go (that piece has the particle from there). Rows are
+    (frame, camera, marker, x, y, status, confidence, sd, score)."""
     writes, deletes = [], []
     for cur, nxt in zip(pieces[:-1], pieces[1:], strict=True):
-        mine, theirs = by_marker[cur], by_marker[nxt]
-        f_end = int(mine.frame[mine.status.isin(MEASURED) & mine.x_px.notna()].max())
-        f_next = int(theirs.frame[theirs.status.isin(MEASURED) & theirs.x_px.notna()].min())
-        after = mine[mine.frame > f_end]
-        deletes += [(int(f), camera, int(cur)) for f in after.frame[after.frame >= f_next]]
-        have = {int(f): (st, x, y) for f, st, x, y in zip(after.frame, after.status, after.x_px, after.y_px,
-                                                          strict=True) if f < f_next}
+        frames, measured, x, y, status = by_marker[cur]
+        f_end = int(frames[measured].max())
+        f_next = int(by_marker[nxt][0][by_marker[nxt][1]].min())
+        deletes += [(int(f), camera, int(cur)) for f in frames[frames >= f_next]]
+        have = {int(f): k for k, f in enumerate(frames) if f_end < f < f_next}
         for f in range(f_end + 1, f_next):
-            st, x, y = have.get(f, (None, None, None))
-            coast = st == "occluded" and pd.notna(x) and pd.notna(y)
-            writes.append((f, camera, int(cur), float(x) if coast else None, float(y) if coast else None,
+            k = have.get(f)
+            coast = k is not None and status[k] == "occluded" and np.isfinite(x[k]) and np.isfinite(y[k])
+            writes.append((f, camera, int(cur), float(x[k]) if coast else None, float(y[k]) if coast else None,
                            "occluded", None, None, None))
     return writes, deletes

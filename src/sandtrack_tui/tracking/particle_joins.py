@@ -58,7 +58,7 @@ def join_tracks(project, ed, runs: dict, run_ids: set, gap_closing: bool = True,
     for c in cams:
         groups += [{c: ch} for ch in chains[c] if (c, ch[0]) not in grouped]
     merges, writes, deletes = [], [], []
-    by_marker = {c: dict(tuple(pts[pts.camera == c].groupby("marker"))) for c in cams}
+    by_marker = {c: gaps.pieces_of(pts[pts.camera == c]) for c in cams}
     meas = pts[pts.status.isin(gaps.MEASURED) & pts.x_px.notna()]
     first = {c: meas[meas.camera == c].groupby("marker").frame.min().to_dict() for c in cams}
     for g in groups:
