@@ -11,7 +11,12 @@ like it seeded in frame 0 and tracked to frame FRAMES - 1. Scored against the ex
   a particle that lost its track and got a new id is still covered);
 - mean / p95 error of the reported points on visible frames, identity switches (a `tracked` point
   within 3 px of another particle, groundtruth.identity_switches), tracks that follow no particle;
-- CPU per particle-frame of detection + linking (decoding excluded), per reported point.
+- CPU per particle-frame of detection + linking (decoding excluded), per reported point;
+- the joins at the end of the run (particle_joins.join_tracks, timed on their own): pieces joined across
+  gaps, and fragments per true particle before / after (tracks whose measured points lie mostly on a
+  particle, per particle having one); with two calibrated views, the particles paired across the views,
+  right / wrong against the truth (both views' tracks mostly on the same particle), the tracks left unpaired
+  as ambiguous, and the 3D error of the paired markers' triangulated points on frames both views see them.
 trackpy 0.7 gets the same frames as one float channel: the frame along the seed's colour direction
 (detect.project: the particle bright), with a grey closing of a third of a diameter (it fills a
 glass bead's dark-after-projection centre, which otherwise pulls trackpy's centroid onto a ring);
@@ -40,9 +45,11 @@ sys.path.insert(0, str(ROOT / "src"))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from bench_variants import CLICK_OFF, _truth, ensure_variant  # noqa: E402
+from sandtrack_tui.camera import Calibration  # noqa: E402
 from sandtrack_tui.groundtruth import REPORTED, identity_switches, match_marker_ids, score_tracking  # noqa: E402
 from sandtrack_tui.store import Project  # noqa: E402
 from sandtrack_tui.tracking.detect import project as project_colour  # noqa: E402
+from sandtrack_tui.tracking.particle_joins import join_tracks  # noqa: E402
 from sandtrack_tui.tracking.particles import seed_look, track_every_particle  # noqa: E402
 from sandtrack_tui.tracking.run import accept_seeds  # noqa: E402
 from sandtrack_tui.tracking.seeding import marker_box, snap_to_marker  # noqa: E402
@@ -110,6 +117,44 @@ def score(points: pd.DataFrame, truth: dict, frames: int) -> dict:
     return out
 
 
+def owners(points: pd.DataFrame, truth: dict, cam: str) -> dict:
+    """Track id -> the true particle most of its measured points lie on (within NEAR_PX)."""
+    p = points[(points.camera == cam) & points.status.isin(REPORTED) & points.x_px.notna()]
+    t = truth[cam]
+    m = p.merge(t[t.visible][["frame", "marker", "x_px", "y_px"]], on="frame", suffixes=("", "_t"))
+    m = m[np.hypot(m.x_px - m.x_px_t, m.y_px - m.y_px_t) <= NEAR_PX]
+    n = m.groupby(["marker", "marker_t"]).size().reset_index(name="n").sort_values("n")
+    n = n.drop_duplicates("marker", keep="last")
+    return dict(zip(n.marker.astype(int), n.marker_t.astype(int), strict=True))
+
+
+def score_joins(before: pd.DataFrame, after: pd.DataFrame, truth: dict, proj) -> dict:
+    cams = list(truth)
+    out = {}
+    for tag, pts in (("before", before), ("after", after)):
+        own = [owners(pts, truth, c) for c in cams]
+        out[f"fragments_per_particle_{tag}"] = sum(len(o) for o in own) / max(sum(len(set(o.values())) for o in own), 1)
+    if len(cams) == 2 and proj.calibration() is not None:
+        from sandtrack_tui.xyz import compute_xyz
+
+        oa, ob = (owners(after, truth, c) for c in cams)
+        both = sorted(set(oa) & set(ob))
+        right = [m for m in both if oa[m] == ob[m]]
+        out.update(pairs=len(both), pairs_right=len(right), pairs_wrong=len(both) - len(right))
+        xyz = compute_xyz(proj, method="triangulation")
+        xyz = xyz[xyz.marker.isin(right) & xyz.X_mm.notna()]
+        xyz = xyz.assign(true_marker=xyz.marker.map(oa))
+        t = truth[cams[0]]
+        m = xyz.merge(t[t.visible], left_on=["frame", "true_marker"], right_on=["frame", "marker"],
+                      suffixes=("", "_t"))
+        err = np.linalg.norm(m[["X_mm", "Y_mm", "Z_mm"]].to_numpy(float)
+                             - m[["X_mm_t", "Y_mm_t", "Z_mm_t"]].to_numpy(float), axis=1)
+        out["xyz_points"] = int(len(err))
+        out["xyz_mean_error_mm"] = float(np.mean(err)) if len(err) else float("nan")
+        out["xyz_p95_error_mm"] = float(np.percentile(err, 95)) if len(err) else float("nan")
+    return out
+
+
 def run_ours(name: str, frames: int = FRAMES) -> tuple[dict, dict]:
     folder = ensure_variant(name)
     info = json.loads((folder / "variant.json").read_text())
@@ -117,14 +162,25 @@ def run_ours(name: str, frames: int = FRAMES) -> tuple[dict, dict]:
     truth = _truth(folder, cams)
     with tempfile.TemporaryDirectory() as tmp:
         proj = Project.create(Path(tmp) / "p.sandtrack", {c: folder / info["videos"][c] for c in cams})
+        if (folder / "ground_truth" / "cameras.toml").is_file():
+            proj.set_calibration(Calibration.load(folder / "ground_truth" / "cameras.toml"))
         proj.set("sync_offset_s", 0.0)
         accept_seeds(proj, _operator_seed(folder, info, truth))
         sources = proj.open_sources(cache_mb=32)
         looks = {c: v[0] for c, v in seed_look(proj, sources, cams).items()}
         c0 = time.process_time()
-        summary = track_every_particle(proj, start=0, stop=frames - 1, new_particles=True, sources=sources)
+        summary = track_every_particle(proj, start=0, stop=frames - 1, new_particles=True, sources=sources,
+                                       gap_closing=False, pairing=False)
         cpu = time.process_time() - c0
+        before = proj.points()
+        # the joins the run makes at its end (the same call on the same tracks), timed and scored on their own
+        runs = {c: (0, frames - 1, looks[c].diameter_px) for c in cams}
+        c0 = time.process_time()
+        with proj.edit("joins") as ed:
+            joins = join_tracks(proj, ed, runs, set(before.marker.unique()))
+        join_cpu = time.process_time() - c0
         points = proj.points()
+        joined = score_joins(before, points, truth, proj)
         proj.close()
     out = {"case": name, "frames": frames, "particles_visible_per_frame": round(float(np.mean(
         [truth[c][(truth[c].frame < frames) & truth[c].visible].groupby("frame").size().mean() for c in cams])), 1)}
@@ -137,6 +193,14 @@ def run_ours(name: str, frames: int = FRAMES) -> tuple[dict, dict]:
     out["flagged_points"] = int(sum(v["flagged"] for v in cams_s.values()))
     out["new_particles"] = int(sum(v["new"] for v in cams_s.values()))
     out["ambiguous_withheld"] = int(sum(v["ambiguous"] for v in cams_s.values()))
+    out["tracks_before_joins"] = int(before.marker.nunique())
+    out["gaps_closed"] = int(sum(v["gaps_closed"] for v in joins["gaps"].values()))
+    if joins["pairing"]:
+        out["pairs_made"] = int(joins["pairing"]["paired"])
+    if joins["pairing"]:
+        out["unpaired_ambiguous"] = int(sum(joins["pairing"]["unpaired_ambiguous"].values()))
+    out.update(joined)
+    out["join_cpu_s"] = round(join_cpu, 2)
     return out, {"looks": looks, "truth": truth, "folder": folder, "info": info}
 
 

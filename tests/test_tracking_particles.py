@@ -102,10 +102,15 @@ def test_cli_all_flags(tmp_path, bed, capsys):
     assert "--all goes with --auto-seed" in capsys.readouterr().err
     assert main(["track", path, "--auto-seed", "--new-particles"]) != 0
     assert "--new-particles goes with" in capsys.readouterr().err
+    assert main(["track", path, "--auto-seed", "--no-pairing"]) != 0
+    assert "--no-pairing goes with --auto-seed --all" in capsys.readouterr().err
+    assert main(["track", path, "--auto-seed", "--all", "--max-gap", "0"]) != 0
+    assert "--max-gap must be at least 1 frame" in capsys.readouterr().err
     assert main(["track", path, "--auto-seed", "--all", "--to", "3", "--json"]) == 0
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     side = out["cameras"]["side"]
     assert side["seeded"] >= 290 and side["last_frame"] == 3 and side["new"] == 0
+    assert out["joins"]["gaps"]["side"]["gaps_closed"] == 0 and out["joins"]["pairing"] is None  # one camera
     with Project.open(path) as proj:
         assert proj.points(frame=3).status.eq("tracked").sum() >= 290
         proj.undo()

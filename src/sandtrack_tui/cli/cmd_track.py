@@ -33,9 +33,16 @@ def register(sub) -> None:
                         "blue marker), paired across cameras by epipolar distance")
     p.add_argument("--all", dest="every", action="store_true",
                    help="with --auto-seed: every particle like the seeded one (hundreds), detected in every frame "
-                        "and linked (forward from --from, or from the seed's frame); each camera on its own")
+                        "and linked (forward from --from, or from the seed's frame), then pieces of a track joined "
+                        "across short gaps and, with two calibrated cameras, tracks paired across the views (3D)")
     p.add_argument("--new-particles", action="store_true",
                    help="with --all: particles entering the view later get new ids")
+    p.add_argument("--max-gap", type=int, default=None, metavar="N",
+                   help="with --all: join a lost track to one starting at most N frames later where its motion "
+                        "predicts it, when nothing else explains either as well (default 8)")
+    p.add_argument("--no-gap-closing", action="store_true", help="with --all: leave lost tracks and new ones apart")
+    p.add_argument("--no-pairing", action="store_true",
+                   help="with --all: do not pair the tracks of two calibrated cameras across the views")
     p.add_argument("--like", type=int, metavar="MARKER",
                    help="with --auto-seed: find markers that look like this seeded marker (default: the first "
                         "seeded marker)")
@@ -132,6 +139,10 @@ def run(args) -> int:
         raise SandtrackError("--all goes with --auto-seed")
     if args.new_particles and not args.every:
         raise SandtrackError("--new-particles goes with --auto-seed --all")
+    for flag, given in (("--max-gap", args.max_gap is not None), ("--no-gap-closing", args.no_gap_closing),
+                        ("--no-pairing", args.no_pairing)):
+        if given and not args.every:
+            raise SandtrackError(f"{flag} goes with --auto-seed --all")
     if args.every:
         if args.backward or markers or args.seeds:
             raise SandtrackError("--all tracks every particle forward from one seeded particle: leave out "
@@ -207,8 +218,12 @@ def xyz_uncertainty(project, summary: dict) -> dict:
 
 def _run_every(args) -> int:
     from ..store import Project
+    from ..tracking.gaps import MAX_GAP_FRAMES
     from ..tracking.particles import track_every_particle
 
+    max_gap = MAX_GAP_FRAMES if args.max_gap is None else args.max_gap
+    if max_gap < 1:
+        raise SandtrackError(f"--max-gap must be at least 1 frame, not {max_gap}")
     with Project.open(args.project) as proj:
         bar = Progress(1, "track")
 
@@ -217,7 +232,9 @@ def _run_every(args) -> int:
             bar.update(done)
 
         summary = track_every_particle(proj, like=args.like, start=args.start, stop=args.stop,
-                                       new_particles=args.new_particles, progress=progress)
+                                       new_particles=args.new_particles, progress=progress,
+                                       gap_closing=not args.no_gap_closing, pairing=not args.no_pairing,
+                                       max_gap=max_gap)
         bar.close()
     summary["project"] = str(args.project)
     lines = []
@@ -226,9 +243,24 @@ def _run_every(args) -> int:
                      f"{v['tracked']} points tracked, {v['new']} new, {v['flagged']} flagged "
                      f"({v['occluded']} occluded, {v['lost']} lost); "
                      f"{v['cpu_ms_per_particle_frame']:.3f} ms CPU per particle-frame")
+    lines += _joins_text(summary.get("joins"))
     lines.append(f"{summary['rows_written']} points written (one edit: `u` in the TUI undoes it)")
     emit(summary, args.json, "\n".join(lines))
     return 0 if summary.get("frames", 0) > 0 else 1
+
+
+def _joins_text(joins: dict | None) -> list[str]:
+    if not joins:
+        return []
+    lines = [f"{c}: {v['gaps_closed']} gaps closed (pieces of one track joined), {v['gaps_left_apart']} left apart "
+             f"(another piece as likely)" for c, v in joins["gaps"].items()]
+    pairing = joins.get("pairing")
+    if pairing:
+        amb = ", ".join(f"{c} {n}" for c, n in pairing["unpaired_ambiguous"].items())
+        alone = ", ".join(f"{c} {n}" for c, n in pairing["unpaired_alone"].items())
+        lines.append(f"{pairing['paired']} particles paired across the views (one marker each, 3D); left unpaired: "
+                     f"{amb} tracks with another track on their epipolar line as well, {alone} with none")
+    return lines
 
 
 def _text(s: dict) -> str:

@@ -4,8 +4,9 @@ global assignment per frame (`sandtrack track PROJECT --auto-seed --all`).
 The step, per camera and frame: detect (detect.py) -> predict (predict.py) -> assign (assign.py) ->
 the detector's sub-pixel centre is the point. A track that is not seen coasts on its prediction
 (`occluded`) for up to `memory` frames, then is `lost` and ends; a detection no track explains starts
-a new particle with a new id when asked (`new_particles`: beads entering the view). Two cameras are
-tracked each on its own (ids do not pair across cameras).
+a new particle with a new id when asked (`new_particles`: beads entering the view). Each camera is
+tracked on its own; at the end of the run, pieces of one particle's track are joined across short gaps and
+the tracks of two calibrated cameras are paired across the views (particle_joins.py), in the same edit.
 
 `ParticleTracker` works on arrays and returns rows; `track_every_particle(project, ...)` seeds from the
 project's seeded marker and writes every point in one undoable edit.
@@ -24,6 +25,8 @@ from ..errors import SandtrackError
 from . import predict as kf
 from .assign import assign
 from .detect import ParticleModel, detect, learn_particle
+from .gaps import MAX_GAP_FRAMES
+from .particle_joins import join_tracks
 from .seeding import marker_box
 
 TRACKED, OCCLUDED, LOST, MANUAL = "tracked", "occluded", "lost", "manual"
@@ -187,10 +190,14 @@ def seed_look(project, sources: dict, cams: list[str], like: int | None = None) 
 
 def track_every_particle(project, like: int | None = None, start: int | None = None, stop: int | None = None,
                          new_particles: bool = False, progress=None, params: ParticleParams | None = None,
-                         sources: dict | None = None) -> dict:
+                         sources: dict | None = None, should_stop=None, gap_closing: bool = True,
+                         pairing: bool = True, max_gap: int = MAX_GAP_FRAMES) -> dict:
     """Seed every particle like the seeded marker `like` in frame `start` (each camera's own index;
     default: the seed's frame) and track them forward to `stop` (default: the end), per camera, into
-    one undoable edit. Returns the summary (per camera: seeded, tracked, new, flagged, timing)."""
+    one undoable edit; then join pieces across gaps of up to `max_gap` frames and pair the tracks across
+    two calibrated views (particle_joins.join_tracks). `should_stop()` true ends the run after the frame in
+    hand: what was written stays, as the same one edit, without the joins. Returns the summary (per camera:
+    seeded, tracked, new, flagged, timing; gaps closed; pairs)."""
     params = params or ParticleParams(new_particles=new_particles)
     if new_particles and not params.new_particles:
         params = ParticleParams(params.motion, params.memory, True)
@@ -204,10 +211,13 @@ def track_every_particle(project, like: int | None = None, start: int | None = N
         next_id = max([int(existing["id"].max()) if len(existing) else 0,
                        int(pts.marker.max()) if len(pts) else 0]) + 1
         summary = {"mode": "every particle", "cameras": {}, "new_particles": params.new_particles,
-                   "rows_written": 0}
+                   "rows_written": 0, "stopped": False}
+        runs, run_ids = {}, set()
         total = {c: len(sources[c]) for c in cams}
         with project.edit("track every particle", sync_each_write=False) as ed:
             for c in cams:
+                if summary["stopped"]:
+                    break
                 model, f_seed, sx, sy, marker = looks[c]
                 f0 = f_seed if start is None else int(start)
                 last = total[c] - 1 if stop is None else min(int(stop), total[c] - 1)
@@ -227,16 +237,23 @@ def track_every_particle(project, like: int | None = None, start: int | None = N
                 rows = t.start(f0, img, xy, ids)
                 buf = [_point(c, r) for r in rows if not (r[1] == marker and r[0] == f_seed)]
                 for i in range(f0 + 1, last + 1):
+                    if should_stop is not None and should_stop():
+                        summary["stopped"] = True
+                        last = i - 1
+                        break
                     buf += [_point(c, r) for r in t.step(i, sources[c].frame(i))]
                     if len(buf) > 20000:
+                        run_ids |= {p[2] for p in buf}
                         ed.add_markers({p[2] for p in buf})
                         summary["rows_written"] += ed.write(buf)
                         buf = []
                     if progress is not None:
                         progress(i - f0, last - f0)
+                run_ids |= {p[2] for p in buf}
                 ed.add_markers({p[2] for p in buf})
                 summary["rows_written"] += ed.write(buf)
                 next_id = t.next_id
+                runs[c] = (f0, last, model.diameter_px)
                 n_frames = last - f0 + 1
                 summary["cameras"][c] = {
                     "first_frame": f0, "last_frame": last, "frames": n_frames, **t.counts,
@@ -244,6 +261,8 @@ def track_every_particle(project, like: int | None = None, start: int | None = N
                     "flagged": int(t.counts[OCCLUDED] + t.counts[LOST]),
                     "cpu_ms_per_particle_frame": round(1000 * t.cpu_s / max(t.particle_frames, 1), 4),
                     "look": model.describe()}
+            if not summary["stopped"] and (gap_closing or pairing):
+                summary["joins"] = join_tracks(project, ed, runs, run_ids, gap_closing, pairing, max_gap)
         summary["frames"] = max((v["frames"] for v in summary["cameras"].values()), default=0)
         return summary
     finally:

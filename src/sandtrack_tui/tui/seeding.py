@@ -158,7 +158,7 @@ class SeedingMixin:
 
     def track_every_particle(self, new_particles: bool = False) -> None:
         """Every particle like the seeded one, detected and linked frame by frame from the seed's frame to the
-        end in a worker, written as one edit."""
+        end in a worker, written as one edit (escape stops it: what was written stays, as that one edit)."""
         try:
             particles = core("tracking.particles", "track_every_particle")
         except NotAvailableYet as exc:
@@ -170,7 +170,7 @@ class SeedingMixin:
             proj = self._worker_project()
             try:
                 return particles.track_every_particle(proj, like=like, new_particles=new_particles,
-                                                      progress=progress)
+                                                      progress=progress, should_stop=should_stop)
             finally:
                 proj.close()
 
@@ -181,7 +181,13 @@ class SeedingMixin:
         parts = [f"{c}: {v['particles']} particles, frames {v['first_frame']}-{v['last_frame']}, "
                  f"{v['flagged']} flagged" for c, v in cams.items()]
         rows = summary.get("rows_written", 0) if isinstance(summary, dict) else 0
-        self.notify(f"every particle: {rows} points written ({'; '.join(parts)}); u undoes it", timeout=8)
+        joins = summary.get("joins") if isinstance(summary, dict) else None
+        if joins:
+            parts.append(f"{sum(v['gaps_closed'] for v in joins['gaps'].values())} gaps closed")
+            if joins.get("pairing"):
+                parts.append(f"{joins['pairing']['paired']} paired across the views")
+        stopped = "; cancelled, kept what was tracked" if isinstance(summary, dict) and summary.get("stopped") else ""
+        self.notify(f"every particle: {rows} points written ({'; '.join(parts)}){stopped}; u undoes it", timeout=8)
 
     def auto_seed_markers(self) -> None:
         try:
