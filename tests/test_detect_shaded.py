@@ -4,7 +4,7 @@ falls off across the view, some smaller (farther), some partly hidden by a sand 
 import cv2
 import numpy as np
 
-from sandtrack_tui.tracking.detect import detect, learn_particle
+from sandtrack_tui.tracking.detect import detect, learn_particle, local_background, project
 
 W, H, N, DIAM = 480, 320, 120, 12.0
 
@@ -47,3 +47,16 @@ def test_shaded_partly_hidden_markers_found_and_nothing_else():
     found = d.min(axis=1) <= 1.5
     assert found.mean() >= 0.95
     assert (d.min(axis=0) > 3.0).sum() <= 2  # detections on no marker (sand, grains)
+
+
+def test_thousands_of_candidates_in_one_frame():
+    # A 1080p frame of sand holds thousands of candidate peaks; their rays are sampled in slices
+    # (cv2.remap takes maps of fewer than 32767 rows).
+    img, xy = _scene()
+    model = learn_particle(img, xy[0, 0], xy[0, 1], DIAM)
+    n = 1500
+    x = np.tile(xy[:, 0], n // len(xy) + 1)[:n]
+    y = np.tile(xy[:, 1], n // len(xy) + 1)[:n]
+    bg = local_background(project(img, model.weights), model, x, y)
+    assert bg.shape == (n,) and np.isfinite(bg).all()
+    assert np.array_equal(bg[:len(xy)], bg[len(xy):2 * len(xy)])

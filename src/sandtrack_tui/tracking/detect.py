@@ -22,6 +22,7 @@ from ..errors import SandtrackError
 DETECTION_COLUMNS = ["x_px", "y_px", "size_px", "contrast", "confidence"]
 NMS_DIAMETERS = 0.7  # two peaks closer than this many diameters are one particle
 MIN_CONFIDENCE = 0.7  # normalised cross-correlation with the learnt template
+REMAP_ROWS = 30000
 # A particle with a pattern inside (a glass bead's bright centre) is matched by that pattern alone, out
 # to this share of its radius: in a packed bed the rim touches other beads and is no clue.
 PATTERN_RADIUS = 0.6
@@ -265,8 +266,10 @@ def _ray_levels(chan: np.ndarray, model: ParticleModel, x: np.ndarray, y: np.nda
     rad = np.linspace(ring[0] * r, ring[1] * r, 5)
     dx = (np.cos(ang)[:, None] * rad[None, :]).astype(np.float32)
     dy = (np.sin(ang)[:, None] * rad[None, :]).astype(np.float32)
-    mx = (np.asarray(x, np.float32)[:, None, None] + dx[None]).reshape(len(x) * rays, -1)
-    my = (np.asarray(y, np.float32)[:, None, None] + dy[None]).reshape(len(x) * rays, -1)
-    vals = cv2.remap(chan, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    level = vals.mean(axis=1).reshape(len(x), rays)
+    mx = (np.asarray(x, np.float32)[:, None, None] + dx[None]).reshape(len(x), -1)
+    my = (np.asarray(y, np.float32)[:, None, None] + dy[None]).reshape(len(x), -1)
+    # cv2.remap takes maps of fewer than 32767 rows: thousands of candidates in a 1080p frame go in slices
+    vals = np.concatenate([cv2.remap(chan, mx[i:i + REMAP_ROWS], my[i:i + REMAP_ROWS], cv2.INTER_LINEAR,
+                                     borderMode=cv2.BORDER_REPLICATE) for i in range(0, len(x), REMAP_ROWS)])
+    level = vals.reshape(len(x), rays, -1).mean(axis=2)
     return (level - model.ring) / (model.body - model.ring)
