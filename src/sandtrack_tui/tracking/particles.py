@@ -63,10 +63,10 @@ class ParticleTracker:
     def detect(self, image) -> pd.DataFrame:
         return detect(image, self.model)
 
-    def start(self, frame: int, image, seeds_xy: np.ndarray | None = None, ids=None) -> list[tuple]:
-        """Seeds: the given positions, or every detection of this frame."""
+    def start(self, frame: int, image, seeds_xy: np.ndarray | None = None, ids=None, merged=None) -> list[tuple]:
+        """Seeds: the given positions (`merged`: those that are detections of merged particles), or
+        every detection of this frame."""
         c0 = time.process_time()
-        merged = None
         if seeds_xy is None:
             det = self.detect(image)
             seeds_xy = det[["x_px", "y_px"]].to_numpy()
@@ -243,7 +243,7 @@ def track_every_particle(project, like: int | None = None, start: int | None = N
                     k = int(np.argmin(d))
                     if d[k] <= model.diameter_px / 2:
                         ids[k] = marker
-                rows = t.start(f0, img, xy, ids)
+                rows = t.start(f0, img, xy, ids, det.merged.to_numpy())
                 buf = [_point(c, r) for r in rows if not (r[1] == marker and r[0] == f_seed)]
                 for i in range(f0 + 1, last + 1):
                     buf += [_point(c, r) for r in t.step(i, sources[c].frame(i))]
