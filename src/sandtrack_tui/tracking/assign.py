@@ -10,7 +10,9 @@ confirmed: its gate is wide): it keeps its detection only when no other track re
 cheaply, no unclaimed detection lies almost as near its prediction, and no other track's prediction
 lies nearer the detection in pixels (whatever that track's gate: a bead that stopped short of its
 track's gate is still that track's bead, not the unsure one's); otherwise it stays unseen (flagged),
-never guessed.
+never guessed. A track in doubt (its last detection was two merged particles, so it may sit on either)
+takes a detection only when that one is clearly the nearest to its prediction: every other detection
+lies at least `lead_px` farther.
 """
 
 from __future__ import annotations
@@ -40,7 +42,8 @@ def gated_pairs(S, X, reach, det_xy, motion: Motion) -> tuple[np.ndarray, np.nda
     return ti[ok], dj[ok], d2[ok]
 
 
-def assign(S, X, reach, det_xy, motion: Motion, unsure: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def assign(S, X, reach, det_xy, motion: Motion, unsure: np.ndarray, doubt: np.ndarray | None = None,
+           lead_px: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per track: the detection index it takes (-1: not seen) and that pair's cost; per track also
     True where the margin rule withheld a detection (ambiguous)."""
     n_t, n_d = len(X), len(det_xy)
@@ -66,6 +69,8 @@ def assign(S, X, reach, det_xy, motion: Motion, unsure: np.ndarray) -> tuple[np.
             _solve_group(gt, gd, gc, motion.gate_d2, taken, cost)
     _margin(ti, dj, d2, taken, cost, unsure, ambiguous)
     _nearer_owner(X, det_xy, taken, cost, unsure, ambiguous)
+    if doubt is not None:
+        _clear_lead(X, det_xy, taken, cost, doubt, ambiguous, lead_px)
     return taken, cost, ambiguous
 
 
@@ -112,6 +117,20 @@ def _nearer_owner(X, det_xy, taken, cost, unsure, ambiguous) -> None:
     d, k = cKDTree(X[:, :2]).query(z, k=2)
     other = np.where(k[:, 0] == mine, d[:, 1], d[:, 0])
     drop = mine[other < own]
+    taken[drop] = -1
+    cost[drop] = np.nan
+    ambiguous[drop] = True
+
+
+def _clear_lead(X, det_xy, taken, cost, doubt, ambiguous, lead_px: float) -> None:
+    """A track in doubt gives up its detection unless every other one lies `lead_px` farther from it."""
+    mine = np.flatnonzero((taken >= 0) & doubt)
+    if len(mine) == 0 or len(det_xy) < 2:
+        return
+    d, k = cKDTree(det_xy).query(X[mine, :2], k=2)
+    own = np.hypot(*(det_xy[taken[mine]] - X[mine, :2]).T)
+    second = np.where(k[:, 0] == taken[mine], d[:, 1], d[:, 0])
+    drop = mine[second - own < lead_px]
     taken[drop] = -1
     cost[drop] = np.nan
     ambiguous[drop] = True

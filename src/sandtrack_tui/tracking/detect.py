@@ -19,7 +19,7 @@ import pandas as pd
 
 from ..errors import SandtrackError
 
-DETECTION_COLUMNS = ["x_px", "y_px", "size_px", "contrast", "confidence"]
+DETECTION_COLUMNS = ["x_px", "y_px", "size_px", "contrast", "confidence", "merged"]
 NMS_DIAMETERS = 0.7  # two peaks closer than this many diameters are one particle
 MIN_CONFIDENCE = 0.7  # normalised cross-correlation with the learnt template
 REMAP_ROWS = 30000
@@ -39,6 +39,15 @@ BODY_RAYS, BODY_RING, BODY_MIN = 16, (0.45, 0.85), 0.9
 # particle's match may be weaker; the body check keeps what is not a particle out.
 SOLID_RAYS_MISSED, SOLID_BACKGROUND, SOLID_MIN = 4, (1.3, 1.8), 0.35
 SOLID_MIN_CONFIDENCE = 0.4
+EDGE_REACH = 1.8  # blob_axes: an edge farther than this many of the blob's radii is a touching neighbour's
+SIZE_SLACK = 1.5  # ... and is looked for out to this many times EDGE_REACH of the model's radius
+# Two overlapping solid particles (one partly behind the other) give one template peak: their union is
+# a blob longer than it is wide. Of two discs of radius r whose centres are s apart, the union's half
+# length is a = r + s/2 and its half width b = sqrt(r^2 - s^2/4), so 1 - (b/a)^2 = s/a: at
+# MERGED_ELONGATION the centres are ~0.6 radius apart. A single marker measures 0.17 (median), two
+# merged ones 0.61 (dense300's side view, 13 px markers). Such a detection is `merged`: its centre is
+# neither particle's.
+MERGED_ELONGATION = 0.4
 
 
 @dataclass(frozen=True)
@@ -227,22 +236,27 @@ def _suppress(xs: np.ndarray, ys: np.ndarray, score: np.ndarray, radius: float) 
 def detect(frame: np.ndarray, model: ParticleModel, roi: tuple | None = None) -> pd.DataFrame:
     """Every particle like the model's in the frame (or roi = (x0, y0, x1, y1) px), DETECTION_COLUMNS:
     sub-pixel centre, size (the model's diameter), contrast (its body against the background, as the
-    seed's = 1) and confidence (the normalised cross-correlation with the template, 0..1)."""
+    seed's = 1), confidence (the normalised cross-correlation with the template, 0..1) and merged
+    (a solid particle's blob that is two overlapping particles: see MERGED_ELONGATION)."""
     chan = project(frame, model.weights)
     res, x0, y0 = response(chan, model, roi)
     px, py, score = peaks(res, model)
     px, py = px + x0, py + y0
     body = body_levels(chan, model, px, py)
+    merged = np.zeros(len(px), bool)
     if not len(px):
         keep = np.zeros(0, bool)
     elif model.patterned:
         keep = body.min(axis=1) >= model.body_min
     else:
-        local = body - local_background(chan, model, px, py)[:, None]
-        keep = np.sort(local, axis=1)[:, SOLID_RAYS_MISSED] >= SOLID_MIN
+        background = local_background(chan, model, px, py)
+        keep = np.sort(body - background[:, None], axis=1)[:, SOLID_RAYS_MISSED] >= SOLID_MIN
+        a, b, _ = blob_axes(chan, model, px[keep], py[keep], background[keep])
+        with np.errstate(invalid="ignore"):
+            merged[keep] = 1 - (b / a) ** 2 >= MERGED_ELONGATION
     return pd.DataFrame({"x_px": px[keep], "y_px": py[keep], "size_px": np.full(int(keep.sum()), model.diameter_px),
                          "contrast": body[keep].mean(axis=1) if len(px) else np.zeros(0),
-                         "confidence": score[keep].astype(float)})
+                         "confidence": score[keep].astype(float), "merged": merged[keep]})
 
 
 def body_levels(chan: np.ndarray, model: ParticleModel, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -273,3 +287,50 @@ def _ray_levels(chan: np.ndarray, model: ParticleModel, x: np.ndarray, y: np.nda
                                      borderMode=cv2.BORDER_REPLICATE) for i in range(0, len(x), REMAP_ROWS)])
     level = vals.reshape(len(x), rays, -1).mean(axis=2)
     return (level - model.ring) / (model.body - model.ring)
+
+
+def blob_axes(chan: np.ndarray, model: ParticleModel, x: np.ndarray, y: np.ndarray,
+              background: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per centre: the half lengths of the bright blob round it along its longest and its shortest
+    axis (px) and the longest axis' angle. Along each of 2 * BODY_RAYS rays the blob's edge is where
+    the level first falls below half way from `background` to the centre's own body level; a ray
+    that runs on into a touching neighbour (no edge within EDGE_REACH of the blob's median radius)
+    leaves its axis out."""
+    n, rays = len(x), 2 * BODY_RAYS
+    if n == 0:
+        return np.zeros(0), np.zeros(0), np.zeros(0)
+    r = model.diameter_px / 2
+    rad = np.arange(0.4 * r, EDGE_REACH * SIZE_SLACK * r + 0.25, 0.25, dtype=np.float32)
+    ang = np.linspace(0, 2 * np.pi, rays, endpoint=False)
+    dx = (np.cos(ang)[:, None] * rad[None, :]).astype(np.float32)
+    dy = (np.sin(ang)[:, None] * rad[None, :]).astype(np.float32)
+    mx = (np.asarray(x, np.float32)[:, None, None] + dx[None]).reshape(n * rays, -1)
+    my = (np.asarray(y, np.float32)[:, None, None] + dy[None]).reshape(n * rays, -1)
+    vals = cv2.remap(chan, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(n, rays, -1)
+    level = (vals - model.ring) / (model.body - model.ring)
+    body = np.median(level[:, :, :2], axis=(1, 2))
+    half = 0.5 * (body + background)
+    below = level < half[:, None, None]
+    first = np.argmax(below, axis=2)
+    found = below.any(axis=2)
+    k = np.clip(first, 1, len(rad) - 1)
+    lv = np.take_along_axis(level, k[..., None], 2)[..., 0]
+    lp = np.take_along_axis(level, (k - 1)[..., None], 2)[..., 0]
+    h = half[:, None]
+    frac = np.clip((lp - h) / np.maximum(lp - lv, 1e-6), 0, 1)
+    rho = np.where(found, rad[k - 1] + frac * (rad[1] - rad[0]), np.inf)
+    # the particle's own radius (the median ray: a seed's box may misjudge the size by a third)
+    own = np.median(np.minimum(rho, rad[-1]), axis=1)
+    rho[rho > EDGE_REACH * own[:, None]] = np.inf
+    width = rho[:, :rays // 2] + rho[:, rays // 2:]  # (n, axes)
+    valid = np.isfinite(width)
+    long_w = np.where(valid, width, -np.inf)
+    major = np.argmax(long_w, axis=1)
+    a = long_w[np.arange(n), major] / 2
+    perp = (major + rays // 4) % (rays // 2)
+    bw = width[np.arange(n), perp]
+    bmin = np.where(valid, width, np.inf).min(axis=1)
+    b = np.where(np.isfinite(bw), bw, bmin) / 2
+    a = np.where(valid.any(axis=1), a, np.nan)
+    b = np.where(valid.any(axis=1), b, np.nan)
+    return a, b, ang[major]

@@ -4,7 +4,9 @@ global assignment per frame (`sandtrack track PROJECT --auto-seed --all`).
 The step, per camera and frame: detect (detect.py) -> predict (predict.py) -> assign (assign.py) ->
 the detector's sub-pixel centre is the point. A track that is not seen coasts on its prediction
 (`occluded`) for up to `memory` frames, then is `lost` and ends; a detection no track explains starts
-a new particle with a new id when asked (`new_particles`: beads entering the view). Each camera is
+a new particle with a new id when asked (`new_particles`: beads entering the view). A detection that
+is two merged particles (detect.py) is neither's centre: a track on it is reported `occluded` (flagged)
+and stays in doubt until a clear detection of its own; none starts a new particle. Each camera is
 tracked on its own; at the end of the run, pieces of one particle's track are joined across short gaps and
 the tracks of two calibrated cameras are paired across the views (particle_joins.py), in the same edit.
 
@@ -33,6 +35,9 @@ TRACKED, OCCLUDED, LOST, MANUAL = "tracked", "occluded", "lost", "manual"
 BOX_MARGIN_PX = 5.0  # marker_box: the marker and ~2.5 px of background each side
 NEW_CLEAR_DIAMETERS = 0.5  # a new particle starts no nearer than this to a track's prediction
 CONFIRM_FRAMES = 3  # a new particle's track is unsure (its velocity unknown) until seen this many frames
+# A track in doubt (last seen on two merged particles) takes a detection only this many diameters nearer
+# than any other: when the pair parts, the track on their common centre is as near to either.
+LEAD_DIAMETERS = 0.5
 
 
 @dataclass(frozen=True)
@@ -53,32 +58,38 @@ class ParticleTracker:
         self.ids = np.zeros(0, int)
         self.missed = np.zeros(0, int)
         self.seen_n = np.zeros(0, int)  # frames each track was seen since it started
-        self.counts = {"seeded": 0, TRACKED: 0, OCCLUDED: 0, LOST: 0, "new": 0, "ambiguous": 0}
+        self.doubt = np.zeros(0, bool)  # last seen on a merged detection
+        self.counts = {"seeded": 0, TRACKED: 0, OCCLUDED: 0, LOST: 0, "new": 0, "ambiguous": 0, "merged": 0}
         self.cpu_s = 0.0
         self.particle_frames = 0
 
     def detect(self, image) -> pd.DataFrame:
         return detect(image, self.model)
 
-    def start(self, frame: int, image, seeds_xy: np.ndarray | None = None, ids=None) -> list[tuple]:
-        """Seeds: the given positions, or every detection of this frame."""
+    def start(self, frame: int, image, seeds_xy: np.ndarray | None = None, ids=None, merged=None) -> list[tuple]:
+        """Seeds: the given positions (`merged`: those that are detections of merged particles), or
+        every detection of this frame."""
         c0 = time.process_time()
         if seeds_xy is None:
             det = self.detect(image)
             seeds_xy = det[["x_px", "y_px"]].to_numpy()
             conf = det.confidence.to_numpy()
+            merged = det.merged.to_numpy()
         else:
             conf = np.full(len(seeds_xy), np.nan)
+        if merged is None:
+            merged = np.zeros(len(seeds_xy), bool)
         if ids is None:
             ids = np.arange(self.next_id, self.next_id + len(seeds_xy))
         ids = np.asarray(ids, int)
         self.next_id = max(self.next_id, int(ids.max()) + 1 if len(ids) else self.next_id)
         self._add(np.asarray(seeds_xy, float), ids)
+        self.doubt[len(self.doubt) - len(ids):] = merged
         self.counts["seeded"] += len(ids)
         self.cpu_s += time.process_time() - c0
         self.particle_frames += len(ids)
-        return [(frame, int(m), float(x), float(y), MANUAL, float(c))
-                for m, (x, y), c in zip(ids, seeds_xy, conf, strict=True)]
+        return [(frame, int(m), float(x), float(y), OCCLUDED if g else MANUAL, float(c))
+                for m, (x, y), c, g in zip(ids, seeds_xy, conf, merged, strict=True)]
 
     def _add(self, xy: np.ndarray, ids: np.ndarray, seen_n: int = CONFIRM_FRAMES) -> None:
         X, P = kf.start(xy, self.params.motion)
@@ -87,25 +98,31 @@ class ParticleTracker:
         self.ids = np.concatenate([self.ids, ids])
         self.missed = np.concatenate([self.missed, np.zeros(len(ids), int)])
         self.seen_n = np.concatenate([self.seen_n, np.full(len(ids), seen_n)])
+        self.doubt = np.concatenate([self.doubt, np.zeros(len(ids), bool)])
 
     def step(self, frame: int, image) -> list[tuple]:
         c0 = time.process_time()
         det = self.detect(image)
         dxy = det[["x_px", "y_px"]].to_numpy()
         conf = det.confidence.to_numpy()
+        merged = det.merged.to_numpy()
         motion = self.params.motion
         X, P = kf.predict(self.X, self.P, motion)
         S, reach = kf.gate(P, motion)
-        unsure = (self.missed > 0) | (self.seen_n < CONFIRM_FRAMES)
-        taken, _cost, ambiguous = assign(S, X, reach, dxy, motion, unsure)
+        unsure = (self.missed > 0) | (self.seen_n < CONFIRM_FRAMES) | self.doubt
+        taken, _cost, ambiguous = assign(S, X, reach, dxy, motion, unsure, self.doubt,
+                                         LEAD_DIAMETERS * self.model.diameter_px)
         seen = np.flatnonzero(taken >= 0)
         X, P = kf.update(X, P, seen, dxy[taken[seen]], motion)
         rows = []
         for k in seen:
             j = taken[k]
-            rows.append((frame, int(self.ids[k]), float(dxy[j, 0]), float(dxy[j, 1]), TRACKED, float(conf[j])))
+            rows.append((frame, int(self.ids[k]), float(dxy[j, 0]), float(dxy[j, 1]),
+                         OCCLUDED if merged[j] else TRACKED, float(conf[j])))
         self.missed[seen] = 0
         self.seen_n[seen] += 1
+        self.doubt[seen] = merged[taken[seen]]
+        n_merged = int(merged[taken[seen]].sum())
         unseen = np.flatnonzero(taken < 0)
         self.missed[unseen] += 1
         self.counts["ambiguous"] += int(ambiguous.sum())
@@ -119,22 +136,24 @@ class ParticleTracker:
                          OCCLUDED, np.nan))
         for k in ends:
             rows.append((frame, int(self.ids[k]), np.nan, np.nan, LOST, np.nan))
-        self.counts[TRACKED] += len(seen)
-        self.counts[OCCLUDED] += len(coast)
+        self.counts[TRACKED] += len(seen) - n_merged
+        self.counts["merged"] += n_merged
+        self.counts[OCCLUDED] += len(coast) + n_merged
         self.counts[LOST] += len(ends)
         keep = np.ones(len(X), bool)
         keep[ends] = False
         self.X, self.P, self.ids = X[keep], P[keep], self.ids[keep]
-        self.missed, self.seen_n = self.missed[keep], self.seen_n[keep]
+        self.missed, self.seen_n, self.doubt = self.missed[keep], self.seen_n[keep], self.doubt[keep]
         if self.params.new_particles:
-            rows += self._new(frame, dxy, conf, taken)
+            free = ~merged
+            free[taken[taken >= 0]] = False
+            rows += self._new(frame, dxy, conf, free)
         self.cpu_s += time.process_time() - c0
         self.particle_frames += len(seen)
         return rows
 
-    def _new(self, frame: int, dxy: np.ndarray, conf: np.ndarray, taken: np.ndarray) -> list[tuple]:
-        free = np.ones(len(dxy), bool)
-        free[taken[taken >= 0]] = False
+    def _new(self, frame: int, dxy: np.ndarray, conf: np.ndarray, free: np.ndarray) -> list[tuple]:
+        """New tracks on the `free` detections (no track took them; not merged)."""
         if not free.any():
             return []
         cand = np.flatnonzero(free)
@@ -234,7 +253,7 @@ def track_every_particle(project, like: int | None = None, start: int | None = N
                     k = int(np.argmin(d))
                     if d[k] <= model.diameter_px / 2:
                         ids[k] = marker
-                rows = t.start(f0, img, xy, ids)
+                rows = t.start(f0, img, xy, ids, det.merged.to_numpy())
                 buf = [_point(c, r) for r in rows if not (r[1] == marker and r[0] == f_seed)]
                 for i in range(f0 + 1, last + 1):
                     if should_stop is not None and should_stop():
