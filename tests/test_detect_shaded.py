@@ -60,3 +60,21 @@ def test_thousands_of_candidates_in_one_frame():
     bg = local_background(project(img, model.weights), model, x, y)
     assert bg.shape == (n,) and np.isfinite(bg).all()
     assert np.array_equal(bg[:len(xy)], bg[len(xy):2 * len(xy)])
+
+
+def test_an_edge_between_sand_and_a_darker_wall_is_no_particle():
+    # The sand box's wall meets the sand along a straight edge: on one side of it the projection is lower
+    # all along, as round a marker; a particle stands out on most sides, the edge on one side only.
+    img, xy = _scene()
+    seed = xy[np.argmin(xy[:, 0] + np.abs(xy[:, 1] - H / 2))]
+    model = learn_particle(img, seed[0] + 1.0, seed[1] - 1.0, DIAM)
+    above = np.arange(H)[:, None, None] < 100 + 0.05 * np.arange(W)[None, :, None]  # a slightly tilted edge
+    on_sand = xy[:, 1] > 100 + 0.05 * xy[:, 0] + DIAM
+    off = 0
+    for shade in ([0.45, 0.38, 0.36], [1.0, 0.6, 0.5], [0.5, 0.5, 0.5]):  # walls of three colours
+        wall = np.where(above, np.clip(img * np.array(shade), 0, 255).astype(np.uint8), img)
+        det = detect(wall, model)[["x_px", "y_px"]].to_numpy()
+        d = np.hypot(*(det[None] - xy[:, None]).transpose(2, 0, 1))
+        assert (d[on_sand].min(axis=1) <= 1.5).mean() >= 0.95
+        off += int((d.min(axis=0) > 3.0).sum())
+    assert off <= 1

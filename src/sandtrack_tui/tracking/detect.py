@@ -35,8 +35,10 @@ BODY_RAYS, BODY_RING, BODY_MIN = 16, (0.45, 0.85), 0.9
 # against its OWN surroundings, as a marker in shade or on darker sand is darker all round: along all but
 # SOLID_RAYS_MISSED rays (a marker partly hidden by a grain or a neighbour) the body ring must stand out
 # of the local background (the darker quarter of the ring SOLID_BACKGROUND radii out) by SOLID_MIN of
-# the seed's own contrast. Shade, depth (size) and partial hiding lower the template match, so a solid
-# particle's match may be weaker; the body check keeps what is not a particle out.
+# the seed's own contrast, and along most rays (more than half) out of that same ray's ring: a particle
+# stands out on most sides, an edge between two levels on one side only. Shade, depth (size) and partial
+# hiding lower the template match, so a solid particle's match may be weaker; the body check keeps what is
+# not a particle out.
 SOLID_RAYS_MISSED, SOLID_BACKGROUND, SOLID_MIN = 4, (1.3, 1.8), 0.35
 SOLID_MIN_CONFIDENCE = 0.4
 EDGE_REACH = 1.8  # blob_axes: an edge farther than this many of the blob's radii is a touching neighbour's
@@ -251,6 +253,9 @@ def detect(frame: np.ndarray, model: ParticleModel, roi: tuple | None = None) ->
     else:
         background = local_background(chan, model, px, py)
         keep = np.sort(body - background[:, None], axis=1)[:, SOLID_RAYS_MISSED] >= SOLID_MIN
+        # (an edge between two levels of the projection, sand against a darker wall: half the rays at most)
+        own = body[keep] - _ray_levels(chan, model, px[keep], py[keep], SOLID_BACKGROUND, BODY_RAYS)
+        keep[keep] = (own >= SOLID_MIN).sum(axis=1) > BODY_RAYS // 2
         a, b, _ = blob_axes(chan, model, px[keep], py[keep], background[keep])
         with np.errstate(invalid="ignore"):
             merged[keep] = 1 - (b / a) ** 2 >= MERGED_ELONGATION
