@@ -407,3 +407,37 @@ async def test_drag_pans_a_zoomed_view_without_seeding(project):
         s = app.view("side").tf.s
         assert app.view("side").tf.x0 == pytest.approx(x0 + 8 * s)  # dragged left by 8 cells
         assert project.points().empty  # a drag is not a click: nothing was placed
+
+
+@aio
+async def test_an_edit_while_the_table_computes_is_shown(project, monkeypatch):
+    # The table's rows are computed in a worker from the points of the moment; a seed placed while one
+    # computation runs must be shown once it ends, not the rows from before it.
+    import threading
+
+    from sandtrack_tui.tracking.run import seed_marker
+
+    app = SandtrackApp(project)
+    release, started = threading.Event(), threading.Event()
+    original = SandtrackApp.table_rows
+
+    def slow_rows(self, *args, **kwargs):
+        rows = original(self, *args, **kwargs)
+        if not release.is_set():
+            started.set()
+            release.wait(5)
+        return rows
+
+    async with app.run_test(size=(120, 50)) as pilot:  # (a view that shows the table)
+        await settle(pilot, app)
+        monkeypatch.setattr(SandtrackApp, "table_rows", slow_rows)
+        seed_marker(app.project, 1, "side", app.frame, *true_xy(1, app.frame))
+        app.after_edit()
+        await settle(pilot, app, started.is_set)
+        seed_marker(app.project, 2, "side", app.frame, *true_xy(2, app.frame))
+        app.reload_points()
+        app.update_table()  # while the rows with marker 1 alone are on their way
+        release.set()
+        table = app._w["table"]
+        await settle(pilot, app, lambda: len(table.rows) == 2)
+        assert {str(k.value) for k in table.rows} == {"1", "2"}

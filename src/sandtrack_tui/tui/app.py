@@ -49,9 +49,9 @@ MEASURED = ("tracked", "manual", "imported")  # a point seen in the image (not i
 FRAME_CACHE_MB = 320  # decoded frames kept for stepping, shared by the cameras
 
 class TableReady(Message):
-    def __init__(self, frame: int, rows, error: str | None = None) -> None:
+    def __init__(self, frame: int, rows, error: str | None = None, request: int = 0) -> None:
         super().__init__()
-        self.frame, self.rows, self.error = frame, rows, error
+        self.frame, self.rows, self.error, self.request = frame, rows, error, request
 
 
 class FrameReady(Message):
@@ -122,7 +122,7 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, MarkersMixin, App):
         self._dense_note_shown = False  # the boost's notice of a dense scene, once a session
         self._xyz_project: Project | None = None
         self._table_busy = False
-        self._table_want = 0
+        self._table_asked = 0  # update_table calls so far: an edit during a computation asks for another
         self._table_after_frames = False
         self.feeder: FrameFeeder | None = None
         self._compute_frame_maps()
@@ -464,21 +464,22 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, MarkersMixin, App):
 
     def update_table(self) -> None:
         """Recompute the table for the current frame in a worker (XYZ may take tens of ms): at most
-        one computation runs; when it ends, the latest frame asked for is computed next."""
+        one computation runs; when it ends, the latest frame asked for is computed next (again after an
+        edit made while it ran: its rows read the points from before the edit)."""
         if self.layout_mode != 0:
             return
-        self._table_want = self.frame
+        self._table_asked += 1
         if self._table_busy:
             return
         self._table_busy = True
-        frame = self.frame
+        frame, request = self.frame, self._table_asked
 
         def job() -> None:
             try:
                 rows = self.table_rows(frame, self._table_project())
-                self.post_message(TableReady(frame, rows))
+                self.post_message(TableReady(frame, rows, request=request))
             except Exception as exc:  # noqa: BLE001 - shown, never fatal
-                self.post_message(TableReady(frame, None, f"{type(exc).__name__}: {exc}"))
+                self.post_message(TableReady(frame, None, f"{type(exc).__name__}: {exc}", request))
 
         self.run_worker(job, thread=True, group="table", exit_on_error=False)
 
@@ -496,7 +497,7 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, MarkersMixin, App):
             self.notify(f"table: {msg.error}", severity="warning")
         if msg.rows is not None and msg.frame == self.frame:
             self._w['table'].set_rows(msg.rows, self.selected)
-        if self._table_want != msg.frame:
+        if self._table_asked != msg.request:  # another frame or an edit since this one was asked for
             self.update_table()
 
     def table_rows(self, frame: int | None = None, project: Project | None = None) -> list[MarkerRow]:
