@@ -14,12 +14,14 @@ between poses, the calibration points' pixel noise as it entered the training po
 residual variant the calibration's own errors that the correction did not learn. With each pixel's sd
 (`predict_with_sd`'s `pixel_sd`), the pixel noise becomes the query's own: the calibration points' share
 is taken out of the spread and the query's added, both through the predictor's Jacobian. That share is
-their reprojection RMSE (`pixel_sd`) propagated, but never more than the spread itself: where the spread
-is smaller, the points reached the errors less noisy than the RMSE says (it also holds the calibration's
-misfit), and the rest of the spread is left whole. What it leaves out: anything the calibration points
-cannot show. A query outside the training volume gets no sd (NaN: the network extrapolates, and nothing
-measured its error there); near the volume's faces, inside the tolerance `outside_training` allows, the
-network's extrapolation error is not in it (the held-out poses lie between training poses, not beyond).
+their reprojection RMSE per image axis (`pixel_sd`: the 2-D RMSE over √2) propagated, but never more
+than the spread itself: where the spread is smaller, the points reached the errors less noisy than the
+RMSE says (it also holds the calibration's misfit), and the rest of the spread is left whole. A pixel as
+noisy as the calibration points (the default when no sd is known) gets the spread as measured on the
+held-out poses. What it leaves out: anything the calibration points cannot show. A query outside the
+training volume gets no sd (NaN: the network extrapolates, and nothing measured its error there); near
+the volume's faces, inside the tolerance `outside_training` allows, the network's extrapolation error is
+not in it (the held-out poses lie between training poses, not beyond).
 """
 
 from __future__ import annotations
@@ -118,9 +120,12 @@ def predict_with_sd(model: RegressionModel, pixels, method: str = "mlp",
     if pixel_sd is not None:
         own = pixel_variance(pixel_sd, len(x))[ok]
         own = np.where(np.isfinite(own), own, spread.pixel_sd ** 2)  # unknown: the calibration points' noise
-        jac2 = jacobian(model, x[ok], xyz[ok], method) ** 2
-        inside = np.minimum(var, np.einsum("nak,k->na", jac2, spread.pixel_sd ** 2))
-        var = var - inside + np.einsum("nak,nk->na", jac2, own)
+        # as noisy as the calibration points: the spread as measured on the held-out poses
+        rows = ~np.isclose(own, spread.pixel_sd ** 2, rtol=1e-3, atol=0).all(axis=1)
+        if rows.any():
+            jac2 = jacobian(model, x[ok][rows], xyz[ok][rows], method) ** 2
+            inside = np.minimum(var[rows], np.einsum("nak,k->na", jac2, spread.pixel_sd ** 2))
+            var[rows] += np.einsum("nak,nk->na", jac2, own[rows]) - inside
     sd[ok] = np.sqrt(var)
     sd[outside_training(model, x, xyz)] = np.nan
     return xyz, sd
