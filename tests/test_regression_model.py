@@ -251,9 +251,9 @@ def test_pixel_noise_above_the_calibration_points_is_propagated(trained, rig):
 
 def test_query_pixel_noise_replaces_the_calibration_points_share(trained, rig):
     """Off the training poses, pixels noisier (0.6 px) than the training corners (0.3 px), with a calibration
-    whose RMSE overstates the corners' noise (0.6 px, as a fit's misfit makes it): taking the whole RMSE
-    out of the spread before adding the query's noise left only the spread (residual: 64-68 %); the
-    corners' share is capped at the spread itself, and the interval holds."""
+    whose RMSE overstates the corners' noise (0.55 px per axis, as a fit's misfit makes it): taking the whole
+    RMSE out of the spread before adding the query's noise left it far too narrow for the residual variant
+    (77-79 %); the corners' share is capped at the spread itself, and the interval holds."""
     model, _ = trained
     fresh = calibration_points(rig, n_points=3000, seed=44, noise_px=0.0)
     px = fresh[["xs", "ys", "xf", "yf"]].to_numpy()
@@ -262,11 +262,11 @@ def test_query_pixel_noise_replaces_the_calibration_points_share(trained, rig):
     recorded = {m: sp.pixel_sd for m, sp in model.spreads.items()}
     try:
         for sp in model.spreads.values():
-            sp.pixel_sd = np.full(4, 0.6)
+            sp.pixel_sd = np.full(4, 0.55)
         for method in ("mlp", "residual"):
             pred, sd = predict_with_sd(model, px, method, pixel_sd=0.6)
             cov = coverage(pred - truth, sd)
-            assert ((cov > 0.93) & (cov < 0.975)).all(), (method, cov)  # measured: MLP 96.1-96.6, residual 94.6-94.9
+            assert ((cov > 0.93) & (cov < 0.975)).all(), (method, cov)  # measured: MLP 96.2-96.7, residual 94.6-94.9
         # the same pixels called as noisy as the corners: the spread as measured on held-out poses, unchanged
         for sp in model.spreads.values():
             sp.pixel_sd = np.zeros(4)
