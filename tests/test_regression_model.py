@@ -289,6 +289,10 @@ def test_no_confidence_outside_the_training_volume_and_old_files_load(trained, r
     again = load_model(tmp_path / "m.pt")
     assert np.allclose(predict_with_sd(again, px, "mlp")[1][3], predict_with_sd(model, px, "mlp")[1][3])
     doc = torch.load(tmp_path / "m.pt", weights_only=True)
+    doc["version"] = 2  # version 2 held the calibration points' 2-D RMSE: read per image axis
+    doc["spread"]["mlp"]["pixel_sd"] = torch.full((4,), 0.2, dtype=torch.float64)
+    torch.save(doc, tmp_path / "v2.pt")
+    assert np.allclose(load_model(tmp_path / "v2.pt").spreads["mlp"].pixel_sd, 0.2 / np.sqrt(2))
     doc["version"] = 1
     del doc["spread"]
     torch.save(doc, tmp_path / "v1.pt")
