@@ -249,6 +249,35 @@ def test_pixel_noise_above_the_calibration_points_is_propagated(trained, rig):
     assert np.allclose(same, pred)
 
 
+def test_query_pixel_noise_replaces_the_calibration_points_share(trained, rig):
+    """Off the training poses, pixels noisier (0.6 px) than the training corners (0.3 px), with a calibration
+    whose RMSE overstates the corners' noise (0.55 px per axis, as a fit's misfit makes it): taking the whole
+    RMSE out of the spread before adding the query's noise left it far too narrow for the residual variant
+    (77-79 %); the corners' share is capped at the spread itself, and the interval holds."""
+    model, _ = trained
+    fresh = calibration_points(rig, n_points=3000, seed=44, noise_px=0.0)
+    px = fresh[["xs", "ys", "xf", "yf"]].to_numpy()
+    px = px + np.random.default_rng(6).normal(0, 0.6, px.shape)
+    truth = fresh[["X_mm", "Y_mm", "Z_mm"]].to_numpy()
+    recorded = {m: sp.pixel_sd for m, sp in model.spreads.items()}
+    try:
+        for sp in model.spreads.values():
+            sp.pixel_sd = np.full(4, 0.55)
+        for method in ("mlp", "residual"):
+            pred, sd = predict_with_sd(model, px, method, pixel_sd=0.6)
+            cov = coverage(pred - truth, sd)
+            assert ((cov > 0.93) & (cov < 0.975)).all(), (method, cov)  # measured: MLP 96.2-96.7, residual 94.6-94.9
+        # the same pixels called as noisy as the corners: the spread as measured on held-out poses, unchanged
+        for sp in model.spreads.values():
+            sp.pixel_sd = np.zeros(4)
+        _, bare = predict_with_sd(model, px, "residual")
+        _, same = predict_with_sd(model, px, "residual", pixel_sd=0.0)
+        assert np.allclose(bare, same, equal_nan=True)
+    finally:
+        for m, sp in model.spreads.items():
+            sp.pixel_sd = recorded[m]
+
+
 def test_no_confidence_outside_the_training_volume_and_old_files_load(trained, rig, tmp_path):
     model, _ = trained
     far = np.array([[0.0, -250.0, 0.0], [380.0, 80.0, 0.0], [0.0, 80.0, -480.0], [0.0, 60.0, 0.0]])
@@ -260,6 +289,10 @@ def test_no_confidence_outside_the_training_volume_and_old_files_load(trained, r
     again = load_model(tmp_path / "m.pt")
     assert np.allclose(predict_with_sd(again, px, "mlp")[1][3], predict_with_sd(model, px, "mlp")[1][3])
     doc = torch.load(tmp_path / "m.pt", weights_only=True)
+    doc["version"] = 2  # version 2 held the calibration points' 2-D RMSE: read per image axis
+    doc["spread"]["mlp"]["pixel_sd"] = torch.full((4,), 0.2, dtype=torch.float64)
+    torch.save(doc, tmp_path / "v2.pt")
+    assert np.allclose(load_model(tmp_path / "v2.pt").spreads["mlp"].pixel_sd, 0.2 / np.sqrt(2))
     doc["version"] = 1
     del doc["spread"]
     torch.save(doc, tmp_path / "v1.pt")

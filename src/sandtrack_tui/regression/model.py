@@ -4,7 +4,8 @@ self-contained model file.
 Model file (`.pt`, written by `torch.save`, loadable with ``torch.load(weights_only=True)``): a dict
 of plain values and tensors only::
 
-    format: "sandtrack-regression", version: 2 (version 1 files load, without a spread)
+    format: "sandtrack-regression", version: 3 (version 1 files load without a spread; version 2 stored
+        the spread's pixel_sd as the 2-D RMSE, read per image axis)
     config: training settings (hidden sizes, dropout, epochs, batch size, seed, ...)
     state_dict: MLP weights (4 pixel inputs xs, ys, xf, yf -> 3 outputs X, Y, Z in mm; layers.N.weight/bias)
     normalisation: in_mean, in_std (px), out_mean, out_std (mm)
@@ -15,8 +16,8 @@ of plain values and tensors only::
         (config residual_hidden) that learns the correction (truth - triangulation, mm) on top of
         triangulation with that calibration
     spread: {"mlp": ..., "residual": ...} (version 2): per method a small net (standardised pixels -> log sd
-        per axis), err_scale (3, mm), scale (3, the validation split's factor), pixel_sd (4, px: the
-        calibration points' pixel noise inside the spread) and hidden; see `spread`
+        per axis), err_scale (3, mm), scale (3, the validation split's factor), pixel_sd (4, px per image
+        axis: the calibration points' pixel noise inside the spread) and hidden; see `spread`
 
 The MLP only interpolates: outside the volume the training board covered its errors grow fast
 (tens of mm), so `outside_training` flags such queries.
@@ -34,7 +35,7 @@ from torch import nn
 from ..errors import SandtrackError
 
 FORMAT = "sandtrack-regression"
-VERSION = 2
+VERSION = 3
 STUDY_HIDDEN = (512, 1024, 256)
 BOUNDS_MARGIN = 0.02  # fraction of the training range tolerated beyond it, per input
 HULL_TOLERANCE_MM = 5.0  # distance outside the training hull still counted as inside
@@ -188,6 +189,9 @@ def load_model(path: str | Path) -> RegressionModel:
             model.res_mean, model.res_std = res["res_mean"].numpy(), res["res_std"].numpy()
             model.calibration_toml = res["calibration_toml"]
         model.spreads = {str(m): Spread.from_doc(d) for m, d in (doc.get("spread") or {}).items()}
+        if int(doc.get("version", 0)) < 3:
+            for spread in model.spreads.values():
+                spread.pixel_sd = spread.pixel_sd / np.sqrt(2.0)
     except (KeyError, RuntimeError, TypeError, AttributeError) as exc:
         raise SandtrackError(f"{p}: damaged model file ({exc})") from None
     return model

@@ -10,12 +10,18 @@ never trained on): each axis is scaled so that ±1.96 sd holds 95 % of the valid
 split, untouched by both, measures the result (`coverage`, in `train`'s metrics).
 
 What it includes: the network's error on board poses it never saw: approximation and interpolation
-between poses, the calibration points' pixel noise as it entered the training points (`pixel_sd`), and
-for the residual variant the calibration's own errors that the correction did not learn. What it
-leaves out: anything the calibration points cannot show. A query outside the training volume gets no
-sd (NaN: the network extrapolates, and nothing measured its error there); pixel noise above the
-calibration points' own is added by `predict_with_sd` through the predictor's Jacobian, when the
-caller gives each pixel's sd.
+between poses, the calibration points' pixel noise as it entered the training points, and for the
+residual variant the calibration's own errors that the correction did not learn. With each pixel's sd
+(`predict_with_sd`'s `pixel_sd`), the pixel noise becomes the query's own: the calibration points' share
+is taken out of the spread and the query's added, both through the predictor's Jacobian. That share is
+their reprojection RMSE per image axis (`pixel_sd`: the 2-D RMSE over √2) propagated, but never more
+than the spread itself: where the spread is smaller, the points reached the errors less noisy than the
+RMSE says (it also holds the calibration's misfit), and the rest of the spread is left whole. A pixel as
+noisy as the calibration points (the default when no sd is known) gets the spread as measured on the
+held-out poses. What it leaves out: anything the calibration points cannot show. A query outside the
+training volume gets no sd (NaN: the network extrapolates, and nothing measured its error there); near
+the volume's faces, inside the tolerance `outside_training` allows, the network's extrapolation error is
+not in it (the held-out poses lie between training poses, not beyond).
 """
 
 from __future__ import annotations
@@ -99,8 +105,8 @@ def predict_with_sd(model: RegressionModel, pixels, method: str = "mlp",
                     pixel_sd=None) -> tuple[np.ndarray, np.ndarray]:
     """World XYZ (N, 3) mm and its sd per axis (N, 3) mm for pixels (N, 4: xs, ys, xf, yf), by the
     network ("mlp") or its residual variant. The sd is the method's spread (see module docstring);
-    with `pixel_sd` (px: a scalar, per input (4,), or per row (N, 4)) the pixel noise above the
-    calibration points' own is added through the predictor's Jacobian (forward differences of
+    with `pixel_sd` (px: a scalar, per input (4,), or per row (N, 4); NaN: the calibration points' own)
+    the pixel noise is the query's own, through the predictor's Jacobian (forward differences of
     JACOBIAN_STEP_PX). sd is NaN where the XYZ is, where the model has no spread for the method (a
     model file from before spreads), and outside the training volume (`outside_training`)."""
     x = _inputs(pixels)
@@ -112,12 +118,14 @@ def predict_with_sd(model: RegressionModel, pixels, method: str = "mlp",
         return xyz, sd
     var = spread.sd((x[ok] - model.in_mean) / model.in_std) ** 2
     if pixel_sd is not None:
-        extra = np.clip(pixel_variance(pixel_sd, len(x))[ok] - spread.pixel_sd ** 2, 0.0, None)
-        extra = np.where(np.isfinite(extra), extra, 0.0)
-        rows = extra.any(axis=1)
+        own = pixel_variance(pixel_sd, len(x))[ok]
+        own = np.where(np.isfinite(own), own, spread.pixel_sd ** 2)  # unknown: the calibration points' noise
+        # as noisy as the calibration points: the spread as measured on the held-out poses
+        rows = ~np.isclose(own, spread.pixel_sd ** 2, rtol=1e-3, atol=0).all(axis=1)
         if rows.any():
-            jac = jacobian(model, x[ok][rows], xyz[ok][rows], method)
-            var[rows] += np.einsum("nak,nk->na", jac ** 2, extra[rows])
+            jac2 = jacobian(model, x[ok][rows], xyz[ok][rows], method) ** 2
+            inside = np.minimum(var[rows], np.einsum("nak,k->na", jac2, spread.pixel_sd ** 2))
+            var[rows] += np.einsum("nak,nk->na", jac2, own[rows]) - inside
     sd[ok] = np.sqrt(var)
     sd[outside_training(model, x, xyz)] = np.nan
     return xyz, sd

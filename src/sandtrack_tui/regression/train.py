@@ -145,12 +145,13 @@ def _train_phases(cfg, calibration, device, x, y, xn, tr, va, in_mean, in_std, o
 
 def _fit_spreads(model: RegressionModel, cfg: TrainConfig, calibration, x, y, xn, tr, va) -> None:
     """Each method's spread (spread.py), from its errors on the training and validation rows; the
-    calibration's reprojection RMSE per camera is the pixel noise of the points, inside the spread."""
+    calibration's reprojection RMSE per camera, per image axis (a 2-D distance over √2, as `xyz` takes a
+    pixel's default sd), is the pixel noise of the points, inside the spread."""
     from .spread import fit_spread
 
     rmse = [getattr(calibration.cameras.get(c), "rmse_px", None) if calibration is not None else None
             for c in ("side", "front")]
-    pixel_sd = np.repeat([r if r is not None and np.isfinite(r) else 0.0 for r in rmse], 2)
+    pixel_sd = np.repeat([r / math.sqrt(2.0) if r is not None and np.isfinite(r) else 0.0 for r in rmse], 2)
     methods = ["mlp", "residual"] if model.has_residual else ["mlp"]
     for m in methods:
         spread = fit_spread(xn, predict(model, x, method=m) - y, tr, va, seed=cfg.seed, pixel_sd=pixel_sd,
