@@ -16,15 +16,15 @@ import numpy as np
 import pandas as pd
 from scipy.optimize import least_squares
 
-from ..camera import Calibration, Camera
+from ..camera import Calibration, Camera, CameraUncertainty
 from ..errors import SandtrackError
-from ..lens import Lens, get_lens, lens_of, padded, project
+from ..lens import LENSES, Lens, get_lens, lens_of, padded, project
 from ..xyz_pixels import camera_columns
 from .bundle import BundleState
 from .geometry import from_T, inv_T, radial_is_monotonic, to_T
 from .intrinsics import opencv_flags
 from .lens_select import report, select_lens
-from .point_uncertainty import into_rig, point_fit_uncertainty
+from .point_uncertainty import into_rig, jackknife_covariance, larger, point_fit_uncertainty
 
 MIN_POINTS = 12
 
@@ -168,6 +168,7 @@ def calibrate_from_points(df: pd.DataFrame, cams: dict[str, tuple[str, str]],
         uv = df[list(cams[name])].to_numpy(float)
         unc = point_fit_uncertainty(cam, X_all, uv)
         if unc is not None:
+            unc = _with_jackknife(unc, cam, X_all, uv, groups)
             uncertainty[name] = into_rig(unc, cam, world_from_rig)
         r, t = from_T(to_T(cam.rvec, cam.tvec) @ world_from_rig)
         cam.rvec, cam.tvec = r, t
@@ -183,6 +184,30 @@ def calibrate_from_points(df: pd.DataFrame, cams: dict[str, tuple[str, str]],
                   "points": int(len(df)), "xyz_rmse_mm": float(np.sqrt(np.mean(d ** 2))) if len(d) else None,
                   "xyz_mean_mm": float(np.mean(d)) if len(d) else None, "warnings": warnings}
     return cal
+
+
+def _with_jackknife(unc, cam: Camera, X: np.ndarray, uv: np.ndarray, groups: np.ndarray | None):
+    """`unc` raised, direction by direction, to the jackknife covariance over the units of points
+    (`point_uncertainty`): the groups of the lens choice (planes, frames), else 3 x 3 blocks of the image."""
+    ok = np.isfinite(X).all(axis=1) & np.isfinite(uv).all(axis=1)
+    X, uv = X[ok], uv[ok]
+    units = groups[ok] if groups is not None else image_blocks(uv)[0]
+    lens = get_lens(cam.lens) if cam.lens in LENSES else None
+    if lens is None:
+        return unc
+
+    def refit(keep):
+        if keep.sum() < MIN_POINTS:
+            raise SandtrackError("too few points")
+        return _projected(_fit(X[keep], uv[keep], lens, _initial_pose(cam.name, X[keep], uv[keep])), X)
+
+    jk = jackknife_covariance(cam, X, uv, units, refit)
+    if jk is None:
+        return unc
+    try:
+        return CameraUncertainty(unc.parameters, larger(unc.covariance, jk.covariance), unc.sigma_px)
+    except np.linalg.LinAlgError:
+        return unc
 
 
 def _initial_pose(name: str, X: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
