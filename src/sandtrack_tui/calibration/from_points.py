@@ -187,7 +187,9 @@ def calibrate_from_points(df: pd.DataFrame, cams: dict[str, tuple[str, str]],
     if in_3d and len(cv) >= 2:
         pixels = {n: df[list(cams[n])].to_numpy(float) for n in cams}
         for name, (chosen, judged) in judge_in_3d(cv, X_all, pixels, groups).items():
-            reports[name]["lens_selection"]["judged_in_3d"] = judged
+            sel = reports[name]["lens_selection"]
+            sel["judged_in_3d"] = judged
+            sel["why"] = f"{judged['why']} (judged in 3D; on pixels alone: {sel['why']})"
             if chosen != cameras[name].lens:
                 uv = pixels[name]
                 ok = np.isfinite(uv).all(1) & np.isfinite(X_all).all(1)
