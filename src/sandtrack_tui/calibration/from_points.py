@@ -189,7 +189,9 @@ def calibrate_from_points(df: pd.DataFrame, cams: dict[str, tuple[str, str]],
         for name, (chosen, judged) in judge_in_3d(cv, X_all, pixels, groups).items():
             sel = reports[name]["lens_selection"]
             sel["judged_in_3d"] = judged
-            sel["why"] = f"{judged['why']} (judged in 3D; on pixels alone: {sel['why']})"
+            sel["why"] = f"in 3D, {judged['why']} (on pixels alone, {sel['why']})"
+            for row in sel["candidates"]:
+                row["chosen"] = row["lens"] == chosen
             if chosen != cameras[name].lens:
                 uv = pixels[name]
                 ok = np.isfinite(uv).all(1) & np.isfinite(X_all).all(1)
@@ -412,20 +414,25 @@ def judge_in_3d(cv: dict, X: np.ndarray, pixels: dict[str, np.ndarray], groups: 
     ids = np.unique(groups)
     out = {}
     for name, (cands, _, _) in cv.items():
+        errors = {}
+        for cand in cands:
+            if cand.cv_rmse_px is not None:
+                e = _block_errors(cv, {name: cand.lens, **{n: v for n, v in current.items() if n != name}}, X,
+                                  pixels, groups, ids)
+                if e is not None:
+                    errors[cand.lens] = e
+        if len(errors) < 2:
+            continue
+        common = np.all([np.isfinite(e) for e in errors.values()], axis=0)  # every candidate on the same points
         judged = []
         for cand in cands:
-            if cand.cv_rmse_px is None:
-                continue
-            c3 = Candidate(lens=cand.lens, parameters=cand.parameters, train_rmse_px=cand.train_rmse_px)
-            errors = _block_errors(cv, {**current, name: cand.lens}, X, pixels, groups, ids)
-            if errors is None:
-                continue
-            c3.sse = np.array([np.nansum(errors[units == u]) for u in np.unique(units)])
-            c3.count = np.array([np.sum(np.isfinite(errors[units == u])) for u in np.unique(units)])
-            c3.cv_rmse_px = float(np.sqrt(np.sum(c3.sse) / max(np.sum(c3.count), 1)))  # here mm
-            judged.append(c3)
-        if len(judged) < 2:
-            continue
+            if cand.lens in errors:
+                c3 = Candidate(lens=cand.lens, parameters=cand.parameters, train_rmse_px=cand.train_rmse_px)
+                e = np.where(common, errors[cand.lens], 0.0)
+                c3.sse = np.array([np.sum(e[units == u]) for u in np.unique(units)])
+                c3.count = np.array([np.sum(common[units == u]) for u in np.unique(units)])
+                c3.cv_rmse_px = float(np.sqrt(np.sum(c3.sse) / max(np.sum(c3.count), 1)))  # here mm
+                judged.append(c3)
         chosen = choose(judged)
         current[name] = chosen.lens
         out[name] = (chosen.lens, {
@@ -437,23 +444,28 @@ def judge_in_3d(cv: dict, X: np.ndarray, pixels: dict[str, np.ndarray], groups: 
 
 def _block_errors(cv: dict, lenses: dict[str, str], X: np.ndarray, pixels: dict, groups: np.ndarray,
                   ids: np.ndarray) -> np.ndarray | None:
-    """Squared 3D error (mm²) of every point, triangulated by the cameras fitted without its block; None
-    when a fit is missing."""
+    """Squared 3D error (mm²) of every point, triangulated by the cameras fitted without its block (a
+    camera without such a fit, one that does not see the block, left out); None when the first camera of
+    `lenses`, the one judged, has no fit without a block it sees."""
     from ..triangulation import triangulate
 
     err = np.full(len(X), np.nan)
+    judged = next(iter(lenses))
     for g in ids:
         rows = groups == g
         cams = {}
         for n, lens in lenses.items():
             state = cv[n][1].get((lens, int(g)))
             if state is None:
-                return None
+                if n == judged and np.isfinite(pixels[n][rows]).all(axis=1).any():
+                    return None
+                continue
             cams[n] = Camera(name=n, width=4096, height=4096, matrix=state.K[0], distortion=state.dist[0],
                              rvec=state.frame_rvec[0], tvec=state.frame_tvec[0], model=state.models[0],
                              rmse_px=next(c.train_rmse_px for c in cv[n][0] if c.lens == lens))
-        xyz, _ = triangulate(Calibration(cameras=cams), {n: pixels[n][rows] for n in cams}, refine=True)
-        err[rows] = np.sum((xyz - X[rows]) ** 2, axis=1)
+        if len(cams) >= 2:
+            xyz, _ = triangulate(Calibration(cameras=cams), {n: pixels[n][rows] for n in cams}, refine=True)
+            err[rows] = np.sum((xyz - X[rows]) ** 2, axis=1)
     return err
 
 
