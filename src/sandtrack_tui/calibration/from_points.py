@@ -207,7 +207,7 @@ def calibrate_from_points(df: pd.DataFrame, cams: dict[str, tuple[str, str]],
         uv = df[list(cams[name])].to_numpy(float)
         unc = point_fit_uncertainty(cam, X_all, uv)
         if unc is not None:
-            unc = _with_jackknife(unc, cam, X_all, uv, groups)
+            unc = _with_jackknife(unc, cam, X_all, uv, groups, cv[name][1] if name in cv else {})
             uncertainty[name] = into_rig(unc, cam, world_from_rig)
         r, t = from_T(to_T(cam.rvec, cam.tvec) @ world_from_rig)
         cam.rvec, cam.tvec = r, t
@@ -225,9 +225,11 @@ def calibrate_from_points(df: pd.DataFrame, cams: dict[str, tuple[str, str]],
     return cal
 
 
-def _with_jackknife(unc, cam: Camera, X: np.ndarray, uv: np.ndarray, groups: np.ndarray | None):
+def _with_jackknife(unc, cam: Camera, X: np.ndarray, uv: np.ndarray, groups: np.ndarray | None, fits: dict):
     """`unc` raised, direction by direction, to the jackknife covariance over the units of points
-    (`point_uncertainty`): the groups of the lens choice (planes, frames), else 3 x 3 blocks of the image."""
+    (`point_uncertainty`): the groups of the lens choice (planes, frames, blocks of a two-plane target),
+    else 3 x 3 blocks of the image. fits: the lens choice's fits without one group, (lens, group) -> state,
+    reused."""
     ok = np.isfinite(X).all(axis=1) & np.isfinite(uv).all(axis=1)
     X, uv = X[ok], uv[ok]
     units = groups[ok] if groups is not None else image_blocks(uv)[0]
@@ -238,7 +240,11 @@ def _with_jackknife(unc, cam: Camera, X: np.ndarray, uv: np.ndarray, groups: np.
     def refit(keep):
         if keep.sum() < MIN_POINTS:
             raise SandtrackError("too few points")
-        return _projected(_fit(X[keep], uv[keep], lens, _initial_pose(cam.name, X[keep], uv[keep])), X)
+        left_out = np.unique(units[~keep])
+        state = fits.get((cam.lens, int(left_out[0]))) if groups is not None and len(left_out) == 1 else None
+        if state is None:
+            state = _fit(X[keep], uv[keep], lens, _initial_pose(cam.name, X[keep], uv[keep]))
+        return _projected(state, X)
 
     jk = jackknife_covariance(cam, X, uv, units, refit)
     if jk is None:

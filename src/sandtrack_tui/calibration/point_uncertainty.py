@@ -5,10 +5,11 @@ Two estimates, and in every direction of parameter space the larger of the two (
 - (GᵀG)⁻¹ σ² at the fit, G = d(pixel) / d(parameters) by central differences, σ² the residuals' sum of
   squares over the degrees of freedom. It holds when the pixel errors are independent from point to point
   and the lens model fits the whole image.
-- a jackknife over units of points (whole planes or frames when there are three or more, else a 3 x 3 grid
-  of blocks of the image): the camera refitted with each unit left out, each refit's change of the pixels
-  of all points mapped back to the parameters through G (linearised: a poorly fixed lens term that moves
-  no pixel moves no parameter), covariance (g - 1) / g Σ δθ δθᵀ. Errors shared by neighbouring points (a
+- a jackknife over units of points (the lens choice's groups: whole planes or frames when there are three
+  or more, blocks of a two-plane target, else a 3 x 3 grid of blocks of the image): the camera refitted
+  with each unit left out, each refit's change of the pixels of all points mapped back to the parameters
+  through G (linearised: a poorly fixed lens term that moves no pixel moves no parameter), covariance
+  (g - 1) / g Σ δθ δθᵀ. Errors shared by neighbouring points (a
   dot's detection bias over a region, a lens model that misfits part of the image) move the fit from
   unit to unit although (GᵀG)⁻¹ σ² cannot see them: on a real stepped target fitted on two of its planes
   the held-out plane's X, Y errors were 2x the sd without it."""
