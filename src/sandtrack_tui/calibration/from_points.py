@@ -151,12 +151,13 @@ def units_within(groups: np.ndarray, uv: np.ndarray, per_unit: int = 5) -> np.nd
 
 def calibrate_from_points(df: pd.DataFrame, cams: dict[str, tuple[str, str]],
                           sizes: dict[str, tuple[int, int]] | None = None,
-                          lens: str | dict[str, str] = "auto") -> Calibration:
+                          lens: str | dict[str, str] = "auto", jackknife: bool = True) -> Calibration:
     """Fit every camera; rig frame = first camera's; world frame = the points' frame.
 
     sizes: image size per camera where known (videos, --image-size); the others are unknown and never
     used in the fit (the file gets the smallest common video size holding the pixels, flagged in the
-    report). lens: one lens model name for every camera, or one per camera, or "auto"."""
+    report). lens: one lens model name for every camera, or one per camera, or "auto". jackknife: False keeps
+    (GᵀG)⁻¹ σ² alone as each camera's covariance (point_uncertainty; for repeated fits that use no sd)."""
     X_all = df[["X_mm", "Y_mm", "Z_mm"]].to_numpy(float)
     groups, kind = point_groups(df)
     in_3d = groups is None and len(cams) >= 2 and on_two_planes(X_all)
@@ -206,7 +207,7 @@ def calibrate_from_points(df: pd.DataFrame, cams: dict[str, tuple[str, str]],
     for name, cam in cameras.items():
         uv = df[list(cams[name])].to_numpy(float)
         unc = point_fit_uncertainty(cam, X_all, uv)
-        if unc is not None:
+        if unc is not None and jackknife:
             unc = _with_jackknife(unc, cam, X_all, uv, groups, cv[name][1] if name in cv else {})
             uncertainty[name] = into_rig(unc, cam, world_from_rig)
         r, t = from_T(to_T(cam.rvec, cam.tvec) @ world_from_rig)
