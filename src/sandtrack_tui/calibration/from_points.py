@@ -16,15 +16,15 @@ import numpy as np
 import pandas as pd
 from scipy.optimize import least_squares
 
-from ..camera import Calibration, Camera
+from ..camera import Calibration, Camera, CameraUncertainty
 from ..errors import SandtrackError
-from ..lens import Lens, get_lens, lens_of, padded, project
+from ..lens import LENSES, Lens, get_lens, lens_of, padded, project
 from ..xyz_pixels import camera_columns
 from .bundle import BundleState
 from .geometry import from_T, inv_T, radial_is_monotonic, to_T
 from .intrinsics import opencv_flags
-from .lens_select import report, select_lens
-from .point_uncertainty import into_rig, point_fit_uncertainty
+from .lens_select import Candidate, choose, report, select_lens, why
+from .point_uncertainty import into_rig, jackknife_covariance, larger, point_fit_uncertainty
 
 MIN_POINTS = 12
 
@@ -117,6 +117,26 @@ def image_blocks(uv: np.ndarray, k: int = 3) -> tuple[np.ndarray, str]:
     return cells[1] * k + cells[0], "image blocks"
 
 
+def on_two_planes(X: np.ndarray) -> bool:
+    """The points lie on exactly two planes of one world coordinate (a stepped target with too few planes
+    to leave one out), 4 points or more on each."""
+    X = np.round(X[np.isfinite(X).all(axis=1)], 3)
+    for k in range(3):
+        vals, counts = np.unique(X[:, k], return_counts=True)
+        if len(vals) == 2 and counts.min() >= 4:
+            return True
+    return False
+
+
+def world_blocks(X: np.ndarray, k: int = 3) -> tuple[np.ndarray, str]:
+    """A k x k grid over the points' two widest world axes, cut at their quantiles: the same blocks in every
+    camera."""
+    axes = np.argsort(np.nanstd(X, axis=0))[::-1][:2]
+    q = np.arange(1, k) / k
+    cells = [np.searchsorted(np.nanquantile(X[:, a], q), X[:, a], side="right") for a in axes]
+    return cells[1] * k + cells[0], "blocks of the target"
+
+
 def units_within(groups: np.ndarray, uv: np.ndarray, per_unit: int = 5) -> np.ndarray:
     """The units a lens choice compares models on (see lens_select): each group cut into blocks of
     neighbouring points, a grid over its pixels of up to 3 x 3 blocks of about `per_unit` points or
@@ -131,14 +151,18 @@ def units_within(groups: np.ndarray, uv: np.ndarray, per_unit: int = 5) -> np.nd
 
 def calibrate_from_points(df: pd.DataFrame, cams: dict[str, tuple[str, str]],
                           sizes: dict[str, tuple[int, int]] | None = None,
-                          lens: str | dict[str, str] = "auto") -> Calibration:
+                          lens: str | dict[str, str] = "auto", jackknife: bool = True) -> Calibration:
     """Fit every camera; rig frame = first camera's; world frame = the points' frame.
 
     sizes: image size per camera where known (videos, --image-size); the others are unknown and never
     used in the fit (the file gets the smallest common video size holding the pixels, flagged in the
-    report). lens: one lens model name for every camera, or one per camera, or "auto"."""
+    report). lens: one lens model name for every camera, or one per camera, or "auto". jackknife: False keeps
+    (GᵀG)⁻¹ σ² alone as each camera's covariance (point_uncertainty; for repeated fits that use no sd)."""
     X_all = df[["X_mm", "Y_mm", "Z_mm"]].to_numpy(float)
     groups, kind = point_groups(df)
+    in_3d = groups is None and len(cams) >= 2 and on_two_planes(X_all)
+    if in_3d:  # the same left-out blocks in every camera, so that the lens choice can be judged in 3D
+        groups, kind = world_blocks(X_all)
     cameras: dict[str, Camera] = {}
     reports = {}
     warnings = []
@@ -160,6 +184,22 @@ def calibrate_from_points(df: pd.DataFrame, cams: dict[str, tuple[str, str]],
         reports[name]["image_size"] = "given" if size is not None else "unknown (guessed for the file only)"
         if "warning" in reports[name]:
             warnings.append(reports[name]["warning"])
+    cv = {n: r.pop("_cv") for n, r in reports.items() if "_cv" in r}
+    if in_3d and len(cv) >= 2:
+        pixels = {n: df[list(cams[n])].to_numpy(float) for n in cams}
+        for name, (chosen, judged) in judge_in_3d(cv, X_all, pixels, groups).items():
+            sel = reports[name]["lens_selection"]
+            sel["judged_in_3d"] = judged
+            sel["why"] = f"in 3D, {judged['why']} (on pixels alone, {sel['why']})"
+            for row in sel["candidates"]:
+                row["chosen"] = row["lens"] == chosen
+            if chosen != cameras[name].lens:
+                uv = pixels[name]
+                ok = np.isfinite(uv).all(1) & np.isfinite(X_all).all(1)
+                cam, rep = fit_camera(name, X_all[ok], uv[ok], (sizes or {}).get(name), chosen)
+                cameras[name] = cam
+                reports[name].update({k: v for k, v in rep.items() if k != "lens_selection"})
+                reports[name]["lens_selection"]["chosen"] = chosen
     first = next(iter(cameras))
     T0w = to_T(cameras[first].rvec, cameras[first].tvec)
     world_from_rig = inv_T(T0w)
@@ -167,7 +207,8 @@ def calibrate_from_points(df: pd.DataFrame, cams: dict[str, tuple[str, str]],
     for name, cam in cameras.items():
         uv = df[list(cams[name])].to_numpy(float)
         unc = point_fit_uncertainty(cam, X_all, uv)
-        if unc is not None:
+        if unc is not None and jackknife:
+            unc = _with_jackknife(unc, cam, X_all, uv, groups, cv[name][1] if name in cv else {})
             uncertainty[name] = into_rig(unc, cam, world_from_rig)
         r, t = from_T(to_T(cam.rvec, cam.tvec) @ world_from_rig)
         cam.rvec, cam.tvec = r, t
@@ -183,6 +224,36 @@ def calibrate_from_points(df: pd.DataFrame, cams: dict[str, tuple[str, str]],
                   "points": int(len(df)), "xyz_rmse_mm": float(np.sqrt(np.mean(d ** 2))) if len(d) else None,
                   "xyz_mean_mm": float(np.mean(d)) if len(d) else None, "warnings": warnings}
     return cal
+
+
+def _with_jackknife(unc, cam: Camera, X: np.ndarray, uv: np.ndarray, groups: np.ndarray | None, fits: dict):
+    """`unc` raised, direction by direction, to the jackknife covariance over the units of points
+    (`point_uncertainty`): the groups of the lens choice (planes, frames, blocks of a two-plane target),
+    else 3 x 3 blocks of the image. fits: the lens choice's fits without one group, (lens, group) -> state,
+    reused."""
+    ok = np.isfinite(X).all(axis=1) & np.isfinite(uv).all(axis=1)
+    X, uv = X[ok], uv[ok]
+    units = groups[ok] if groups is not None else image_blocks(uv)[0]
+    lens = get_lens(cam.lens) if cam.lens in LENSES else None
+    if lens is None:
+        return unc
+
+    def refit(keep):
+        if keep.sum() < MIN_POINTS:
+            raise SandtrackError("too few points")
+        left_out = np.unique(units[~keep])
+        state = fits.get((cam.lens, int(left_out[0]))) if groups is not None and len(left_out) == 1 else None
+        if state is None:
+            state = _fit(X[keep], uv[keep], lens, _initial_pose(cam.name, X[keep], uv[keep]))
+        return _projected(state, X)
+
+    jk = jackknife_covariance(cam, X, uv, units, refit)
+    if jk is None:
+        return unc
+    try:
+        return CameraUncertainty(unc.parameters, larger(unc.covariance, jk.covariance), unc.sigma_px)
+    except np.linalg.LinAlgError:
+        return unc
 
 
 def _initial_pose(name: str, X: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -274,7 +345,7 @@ def fit_camera(name: str, X: np.ndarray, uv: np.ndarray, size: tuple[int, int] |
     start = _initial_pose(name, X, uv)
     info: dict = {}
     if lens == "auto":
-        chosen, info["lens_selection"] = _select(name, X, uv, size, start, groups, groups_kind)
+        chosen, info["lens_selection"], info["_cv"] = _select(name, X, uv, size, start, groups, groups_kind)
         state = chosen
     else:
         model = get_lens(lens)
@@ -308,11 +379,17 @@ def _select(name, X, uv, size, start, groups, groups_kind) -> tuple[BundleState,
         groups, groups_kind = image_blocks(uv)
     ids = np.unique(groups)
 
+    folds = {}  # (lens, the one group left out) -> the fit without it, for judging the choice in 3D
+
     def fit(lens_name, train):
         m = np.isin(groups, train)
         if len(train) < 2 or m.sum() < MIN_POINTS:
             raise SandtrackError("too few points left to fit")
-        return _fit(X[m], uv[m], get_lens(lens_name), start if m.all() else _initial_pose(name, X[m], uv[m]))
+        state = _fit(X[m], uv[m], get_lens(lens_name), start if m.all() else _initial_pose(name, X[m], uv[m]))
+        left_out = np.setdiff1d(ids, train)
+        if len(left_out) == 1:
+            folds[(lens_name, int(left_out[0]))] = state
+        return state
 
     units = units_within(groups, uv)
 
@@ -326,7 +403,77 @@ def _select(name, X, uv, size, start, groups, groups_kind) -> tuple[BundleState,
 
     n_folds = len(ids) if len(ids) <= 10 else 5
     cands, chosen = select_lens(ids, fit, score, n_folds=n_folds, check=check)
-    return chosen.fitted, report(cands, groups_kind, len(ids), n_folds, "blocks of neighbouring points")
+    return (chosen.fitted, report(cands, groups_kind, len(ids), n_folds, "blocks of neighbouring points"),
+            (cands, folds, chosen.lens))
+
+
+def judge_in_3d(cv: dict, X: np.ndarray, pixels: dict[str, np.ndarray], groups: np.ndarray) -> dict:
+    """The lens choice judged where it matters, on the left-out points' 3D error: camera by camera, each of
+    its candidates (fitted without a block of the target) with the other cameras' current choices (fitted
+    without the same block), the block's points triangulated; the simplest candidate not significantly
+    worse than the best (`lens_select.choose`, units: blocks of neighbouring points within the left-out
+    blocks). Pixels alone favoured terms that fit the image inside the fitted planes but not the space
+    between or beyond them. cv: per camera (its candidates, their fits per left-out group, its choice).
+    Returns per camera (the lens chosen, its report)."""
+    axes = np.argsort(np.nanstd(X, axis=0))[::-1][:2]
+    units = units_within(groups, X[:, axes])
+    current = {n: c[2] for n, c in cv.items()}
+    ids = np.unique(groups)
+    out = {}
+    for name, (cands, _, _) in cv.items():
+        errors = {}
+        for cand in cands:
+            if cand.cv_rmse_px is not None:
+                e = _block_errors(cv, {name: cand.lens, **{n: v for n, v in current.items() if n != name}}, X,
+                                  pixels, groups, ids)
+                if e is not None:
+                    errors[cand.lens] = e
+        if len(errors) < 2:
+            continue
+        common = np.all([np.isfinite(e) for e in errors.values()], axis=0)  # every candidate on the same points
+        judged = []
+        for cand in cands:
+            if cand.lens in errors:
+                c3 = Candidate(lens=cand.lens, parameters=cand.parameters, train_rmse_px=cand.train_rmse_px)
+                e = np.where(common, errors[cand.lens], 0.0)
+                c3.sse = np.array([np.sum(e[units == u]) for u in np.unique(units)])
+                c3.count = np.array([np.sum(common[units == u]) for u in np.unique(units)])
+                c3.cv_rmse_px = float(np.sqrt(np.sum(c3.sse) / max(np.sum(c3.count), 1)))  # here mm
+                judged.append(c3)
+        chosen = choose(judged)
+        current[name] = chosen.lens
+        out[name] = (chosen.lens, {
+            "chosen": chosen.lens, "compared": "3D error (mm) of the left-out blocks' points, triangulated with "
+            "the other cameras' choices", "why": why(chosen, judged),
+            "candidates": [{**c.row(), "cv_rmse_mm": c.cv_rmse_px} for c in judged]})
+    return out
+
+
+def _block_errors(cv: dict, lenses: dict[str, str], X: np.ndarray, pixels: dict, groups: np.ndarray,
+                  ids: np.ndarray) -> np.ndarray | None:
+    """Squared 3D error (mm²) of every point, triangulated by the cameras fitted without its block (a
+    camera without such a fit, one that does not see the block, left out); None when the first camera of
+    `lenses`, the one judged, has no fit without a block it sees."""
+    from ..triangulation import triangulate
+
+    err = np.full(len(X), np.nan)
+    judged = next(iter(lenses))
+    for g in ids:
+        rows = groups == g
+        cams = {}
+        for n, lens in lenses.items():
+            state = cv[n][1].get((lens, int(g)))
+            if state is None:
+                if n == judged and np.isfinite(pixels[n][rows]).all(axis=1).any():
+                    return None
+                continue
+            cams[n] = Camera(name=n, width=4096, height=4096, matrix=state.K[0], distortion=state.dist[0],
+                             rvec=state.frame_rvec[0], tvec=state.frame_tvec[0], model=state.models[0],
+                             rmse_px=next(c.train_rmse_px for c in cv[n][0] if c.lens == lens))
+        if len(cams) >= 2:
+            xyz, _ = triangulate(Calibration(cameras=cams), {n: pixels[n][rows] for n in cams}, refine=True)
+            err[rows] = np.sum((xyz - X[rows]) ** 2, axis=1)
+    return err
 
 
 def _standard_size(size: tuple[int, int]) -> tuple[int, int]:
