@@ -38,6 +38,11 @@ CONFIRM_FRAMES = 3  # a new particle's track is unsure (its velocity unknown) un
 # A track in doubt (last seen on two merged particles) takes a detection only this many diameters nearer
 # than any other: when the pair parts, the track on their common centre is as near to either.
 LEAD_DIAMETERS = 0.5
+# A track whose detection lies within REST_DIAMETERS of its prediction, every other detection and every
+# other track's prediction three times that farther (assign.REST_CLEAR), keeps it whatever its gate: a
+# marker at rest in a crowd whose track is new or back from a miss has a wide gate, and the margin rule
+# finds rivals in it for nearly every such track; a neighbour a diameter away is none.
+REST_DIAMETERS = 0.25
 
 
 @dataclass(frozen=True)
@@ -111,7 +116,8 @@ class ParticleTracker:
         S, reach = kf.gate(P, motion)
         unsure = (self.missed > 0) | (self.seen_n < CONFIRM_FRAMES) | self.doubt
         taken, _cost, ambiguous = assign(S, X, reach, dxy, motion, unsure, self.doubt,
-                                         LEAD_DIAMETERS * self.model.diameter_px)
+                                         LEAD_DIAMETERS * self.model.diameter_px,
+                                         REST_DIAMETERS * self.model.diameter_px)
         seen = np.flatnonzero(taken >= 0)
         X, P = kf.update(X, P, seen, dxy[taken[seen]], motion)
         rows = []
