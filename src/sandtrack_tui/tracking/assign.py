@@ -12,7 +12,9 @@ lies nearer the detection in pixels (whatever that track's gate: a bead that sto
 track's gate is still that track's bead, not the unsure one's); otherwise it stays unseen (flagged),
 never guessed. A track in doubt (its last detection was two merged particles, so it may sit on either)
 takes a detection only when that one is clearly the nearest to its prediction: every other detection
-lies at least `lead_px` farther.
+lies at least `lead_px` farther. Before all that, a track whose detection lies within `rest_px` of its
+prediction, clear of every other detection and track, takes it whatever its gate (`_at_rest`; only
+the tracks `still`).
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from scipy.spatial import cKDTree
 from .predict import Motion, mahalanobis
 
 MARGIN_D2 = 4.0  # a coasting track's detection must be this much cheaper than any other explanation
+REST_CLEAR = 3.0  # _at_rest: every other detection and track this many `rest_px` farther
 
 
 def gated_pairs(S, X, reach, det_xy, motion: Motion) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -43,13 +46,28 @@ def gated_pairs(S, X, reach, det_xy, motion: Motion) -> tuple[np.ndarray, np.nda
 
 
 def assign(S, X, reach, det_xy, motion: Motion, unsure: np.ndarray, doubt: np.ndarray | None = None,
-           lead_px: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+           lead_px: float = 0.0, rest_px: float = 0.0,
+           still: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per track: the detection index it takes (-1: not seen) and that pair's cost; per track also
     True where the margin rule withheld a detection (ambiguous)."""
     n_t, n_d = len(X), len(det_xy)
     taken = np.full(n_t, -1)
     cost = np.full(n_t, np.nan)
     ambiguous = np.zeros(n_t, bool)
+    fixed = _at_rest(X, det_xy, rest_px, np.ones(n_t, bool) if still is None else still,
+                     np.zeros(n_t, bool) if doubt is None else doubt)
+    if len(fixed[0]):
+        t_s, d_s = fixed
+        taken[t_s] = d_s
+        cost[t_s] = mahalanobis(S, X, t_s, det_xy[d_s])
+        rest_t = np.setdiff1d(np.arange(n_t), t_s)
+        rest_d = np.setdiff1d(np.arange(n_d), d_s)
+        sub = assign(S[rest_t], X[rest_t], reach[rest_t], det_xy[rest_d], motion, unsure[rest_t],
+                     None if doubt is None else doubt[rest_t], lead_px)
+        got = sub[0] >= 0
+        taken[rest_t[got]] = rest_d[sub[0][got]]
+        cost[rest_t], ambiguous[rest_t] = sub[1], sub[2]
+        return taken, cost, ambiguous
     ti, dj, d2 = gated_pairs(S, X, reach, det_xy, motion)
     if len(ti) == 0:
         return taken, cost, ambiguous
@@ -72,6 +90,22 @@ def assign(S, X, reach, det_xy, motion: Motion, unsure: np.ndarray, doubt: np.nd
     if doubt is not None:
         _clear_lead(X, det_xy, taken, cost, doubt, ambiguous, lead_px)
     return taken, cost, ambiguous
+
+
+def _at_rest(X, det_xy, rest_px: float, still, doubt) -> tuple[np.ndarray, np.ndarray]:
+    """(tracks, detections) paired at once, before the gates: the detection within `rest_px` of the track's
+    prediction with every other detection and every other track's prediction REST_CLEAR * `rest_px`
+    farther; tracks `still` and not in doubt only."""
+    e = np.zeros(0, int)
+    if rest_px <= 0 or len(X) < 2 or len(det_xy) < 2:
+        return e, e
+    dd, dk = cKDTree(det_xy).query(X[:, :2], k=2)
+    td, tk = cKDTree(X[:, :2]).query(det_xy[dk[:, 0]], k=2)
+    clear = REST_CLEAR * rest_px
+    ok = ((dd[:, 0] <= rest_px) & (dd[:, 1] - dd[:, 0] >= clear) & (tk[:, 0] == np.arange(len(X)))
+          & (td[:, 1] - td[:, 0] >= clear) & still & ~doubt)
+    t = np.flatnonzero(ok)
+    return t, dk[t, 0]
 
 
 def _solve_group(gt, gd, gc, miss_cost: float, taken, cost) -> None:

@@ -38,6 +38,17 @@ CONFIRM_FRAMES = 3  # a new particle's track is unsure (its velocity unknown) un
 # A track in doubt (last seen on two merged particles) takes a detection only this many diameters nearer
 # than any other: when the pair parts, the track on their common centre is as near to either.
 LEAD_DIAMETERS = 0.5
+# A track at rest (seeded or seen twice, slower than REST_DIAMETERS per frame) whose detection lies within
+# REST_DIAMETERS of its prediction, every other detection and every other track's prediction three times
+# that farther (assign.REST_CLEAR), keeps it whatever its gate: a marker at rest in a crowd whose track
+# is back from a miss has a wide gate, and the margin rule finds rivals in it for nearly every such
+# track; a neighbour most of a diameter away is none. (A track seen once has no measured velocity: a
+# bead in flight seen once may have left its spot to the next one of a stream.)
+REST_DIAMETERS = 0.25
+# A track back from a miss or in doubt takes a detection no farther from its prediction than its own
+# speed carried it over the frames since it was seen, or COAST_REACH diameters: its Kalman gate grows
+# with every frame missed, and in a crowd a neighbour's detection then lies inside it.
+COAST_REACH = 0.75
 
 
 @dataclass(frozen=True)
@@ -109,9 +120,14 @@ class ParticleTracker:
         motion = self.params.motion
         X, P = kf.predict(self.X, self.P, motion)
         S, reach = kf.gate(P, motion)
+        d = self.model.diameter_px
+        speed = np.hypot(X[:, 2], X[:, 3])
+        lapsed = ((self.missed > 0) | self.doubt) & (self.seen_n >= CONFIRM_FRAMES)
+        reach = np.where(lapsed, np.minimum(reach, np.maximum(speed * (self.missed + 1), COAST_REACH * d)), reach)
         unsure = (self.missed > 0) | (self.seen_n < CONFIRM_FRAMES) | self.doubt
-        taken, _cost, ambiguous = assign(S, X, reach, dxy, motion, unsure, self.doubt,
-                                         LEAD_DIAMETERS * self.model.diameter_px)
+        still = (self.seen_n >= 2) & (speed <= REST_DIAMETERS * d)
+        taken, _cost, ambiguous = assign(S, X, reach, dxy, motion, unsure, self.doubt, LEAD_DIAMETERS * d,
+                                         REST_DIAMETERS * d, still)
         seen = np.flatnonzero(taken >= 0)
         X, P = kf.update(X, P, seen, dxy[taken[seen]], motion)
         rows = []
