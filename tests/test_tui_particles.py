@@ -14,6 +14,14 @@ from test_tracking_particles import _seeded_project, bed  # noqa: F401 - bed is 
 from test_tui_app import aio, settle
 
 
+async def _every_particle(pilot, app) -> None:
+    """A, then e: every particle like the seeded one."""
+    await settle(pilot, app)
+    await pilot.press("A")
+    await settle(pilot, app, lambda: isinstance(app.screen, AutoSeedChoice))
+    await pilot.press("e")
+
+
 def test_every_particle_from_the_a_key(tmp_path, bed):  # noqa: F811
     _folder, truth, _fly = bed
     proj = _seeded_project(tmp_path, bed)
@@ -23,10 +31,7 @@ def test_every_particle_from_the_a_key(tmp_path, bed):  # noqa: F811
     async def run():
         app = SandtrackApp(proj)
         async with app.run_test(size=(100, 30)) as pilot:
-            await settle(pilot, app)
-            await pilot.press("A")
-            await settle(pilot, app, lambda: isinstance(app.screen, AutoSeedChoice))
-            await pilot.press("e")
+            await _every_particle(pilot, app)
             await settle(pilot, app, lambda: app.bg_task is None and len(proj.points()) > 1, timeout=30)
             pts = proj.points(camera="side")
             tracked = pts[pts.status.isin(["tracked", "manual"]) & pts.x_px.notna()]
@@ -83,10 +88,7 @@ def test_escape_stops_the_every_particle_run_keeping_one_edit(tmp_path, bed, mon
     async def run():
         app = SandtrackApp(proj)
         async with app.run_test(size=(100, 30)) as pilot:
-            await settle(pilot, app)
-            await pilot.press("A")
-            await settle(pilot, app, lambda: isinstance(app.screen, AutoSeedChoice))
-            await pilot.press("e")
+            await _every_particle(pilot, app)
             await settle(pilot, app, lambda: len(steps) >= 2, timeout=30)
             await pilot.press("escape")
             await settle(pilot, app, lambda: app.bg_task is None, timeout=30)
