@@ -39,7 +39,7 @@ RESULTS = HERE / "results.json"
 FRESH = HERE / "out" / "results.json"
 README = ROOT / "README.md"
 HEADER = "| what | figure | peer on the same data | target | bench |\n| --- | --- | --- | --- | --- |"
-MAX_ROW = 200  # characters per table row
+MAX_ROW = 200  # bytes (UTF-8) per table row: "±", "–" and "≤" count two or three
 PLACES = ("key", "quoted", "source")
 
 
@@ -141,8 +141,9 @@ def problems(doc: dict) -> list[str]:
                 out.append(f"{rid}: figure {name}: no benchmarks/bench_{bench}.py")
         if "link" not in row and not (HERE / f"bench_{row.get('bench')}.py").is_file():
             out.append(f"{rid}: no benchmarks/bench_{row.get('bench')}.py to link")
-        if not missing and len(render_row(row)) > MAX_ROW:
-            out.append(f"{rid}: row of {len(render_row(row))} characters (at most {MAX_ROW})")
+        size = len(render_row(row).encode()) if not missing else 0
+        if size > MAX_ROW:
+            out.append(f"{rid}: row of {size} bytes (at most {MAX_ROW})")
     return out
 
 
