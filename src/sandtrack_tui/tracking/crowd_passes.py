@@ -20,7 +20,7 @@ from .detection import detect_like
 from .events import AmbiguityLog
 from .matcher import Proposal
 from .tracker import SHORT_MISS
-from .trackset import TrackSet, explained_points
+from .trackset import OnTracks, TrackSet, explained_points
 
 FLOW_AGREE_PX = 1.5  # a crowd marker's match this far from where the image motion took it is not its own
 CROWD_MEMORY = 100  # frames of measured positions kept per crowd track (a hidden patch is registered from them)
@@ -29,11 +29,11 @@ REGROUP_EVERY = 3  # frames between registrations of one patch
 ANCHOR_REACH = 4.0  # radii: the beads around a lost one whose moves carry it (as crowd.carried's reach)
 
 
-class CrowdPasses:
+class CrowdPasses(OnTracks):
     """The engine's passes for touching lookalikes, and what they remember between steps."""
 
     def __init__(self, trackset: TrackSet, log: AmbiguityLog):
-        self.trackset = trackset
+        super().__init__(trackset)
         self.log = log
         self._crowd_at: dict = {}  # crowd track key -> (x, y) measured at the last step
         self._crowd_carried: dict = {}  # missed crowd track key -> (x, y) carried by the layer
@@ -42,22 +42,6 @@ class CrowdPasses:
         # (camera, patch's markers, its frame) -> (step last tried, unexplained beads then)
         self._regroup_tried: dict = {}
         self.flow_refused: set = set()  # crowd track keys whose match the flow check refused this step
-
-    @property
-    def stereo(self):
-        return self.trackset.stereo
-
-    @property
-    def tracks(self) -> dict:
-        return self.trackset.tracks
-
-    @property
-    def partners(self) -> dict:
-        return self.trackset.partners
-
-    @property
-    def direction(self) -> int:
-        return self.trackset.direction
 
     def passes(self, cam, img, j: int, tracks, props, forced, frames) -> int:
         """The passes that give missed crowd markers back (carried and assigned, measured on the other view's

@@ -18,7 +18,7 @@ from .appearance import BRIGHT, DARK
 from .matcher import Match, Proposal
 from .reacquire import find_blobs, search_windows
 from .tracker import LOST, MERGED_COVERAGE, MarkerTrack
-from .trackset import TrackSet, explained_points
+from .trackset import OnTracks, TrackSet, explained_points
 
 
 def _on_explained(m: Match, model, explained: list) -> bool:
@@ -32,18 +32,14 @@ def measurable_on_line(model) -> bool:
     return model.kind in (DARK, BRIGHT) and not model.crowd
 
 
-class LineSearch:
+class LineSearch(OnTracks):
     """The engine's searches on the other view's line and by a marker's look, over its tracks."""
 
     def __init__(self, trackset: TrackSet):
-        self.trackset = trackset
+        super().__init__(trackset)
         # camera -> (windows re-acquisition searched this step: track key -> (x, y, hx, hy), keys it measured on
         # the other view's line)
         self.searched: dict = {}
-
-    @property
-    def stereo(self):
-        return self.trackset.stereo
 
     def late_lines(self, cam, img, tracks, props, forced, frames) -> int:
         """Reacquisition.run's measurement on the other view's line (on_line, on_band) for the coasting tracks of

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from .tracker import TRACKED
-from .trackset import TrackSet
+from .trackset import OnTracks, TrackSet
 
 # Two crowd tracks, one per view, are one bead when the other view's line through one never missed the
 # other over PAIR_MIN_FRAMES frames measured together, while every other track of that view left it at
@@ -16,28 +16,16 @@ PAIR_MIN_FRAMES = 10
 PAIR_BREAKS = 3
 
 
-class CrowdPairing:
+class CrowdPairing(OnTracks):
     """Pairs crowd tracks of the two views (pair) into TrackSet.partners; each pair as made in `pairings`."""
 
     def __init__(self, trackset: TrackSet):
-        self.trackset = trackset
+        super().__init__(trackset)
         # each pair as it was made: (key in the stereo pair's first camera, key in the second, frames measured on
         # each other's lines then, frame of the first camera at which it was made)
         self.pairings: list = []
         # key in one camera -> {key in the other: [frames both measured, frames off each other's lines]} (both ways)
         self._lines: dict = {}
-
-    @property
-    def stereo(self):
-        return self.trackset.stereo
-
-    @property
-    def tracks(self) -> dict:
-        return self.trackset.tracks
-
-    @property
-    def partners(self) -> dict:
-        return self.trackset.partners
 
     def pair(self, frames, obs) -> None:
         """Crowd beads seeded in one view each (touching lookalikes are not paired at the seed: an

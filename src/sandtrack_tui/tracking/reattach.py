@@ -14,23 +14,19 @@ from .matcher import Proposal
 from .matching import BlobAssigner, blob_id
 from .reacquire import find_blobs, unexplained
 from .tracker import LOST, SHORT_MISS
-from .trackset import TrackSet, explained_points
+from .trackset import OnTracks, TrackSet, explained_points
 
 JUMP_FRAMES = 2  # frames after a miss during which a track is searched a largest move per frame unseen
 
 
-class Reacquisition:
+class Reacquisition(OnTracks):
     """The re-acquisition of one camera's coasting tracks (run), with the searches it holds."""
 
     def __init__(self, trackset: TrackSet, lines: LineSearch, crowd: CrowdPasses, assigner: BlobAssigner):
-        self.trackset = trackset
+        super().__init__(trackset)
         self.lines = lines
         self.crowd = crowd
         self.assigner = assigner
-
-    @property
-    def stereo(self):
-        return self.trackset.stereo
 
     def run(self, cam, img, tracks, props, forced, frames) -> int:
         """Re-attach coasting tracks of `cam` to unexplained blobs; returns how many were."""

@@ -84,3 +84,27 @@ def explained_points(cam, props, forced) -> list:
     """[(x, y)] of this step's proposals and operator's points in camera `cam`."""
     return [(p.match.x, p.match.y) for k, p in props.items() if k[1] == cam] + \
         [xy for k, xy in forced.items() if k[1] == cam]
+
+
+class OnTracks:
+    """What a stage of the engine's step reads of its TrackSet by name: the tracks, their pairs across the
+    views, the stereo check and the direction (the stage holds the TrackSet, never a copy)."""
+
+    def __init__(self, trackset: TrackSet):
+        self.trackset = trackset
+
+    @property
+    def stereo(self):
+        return self.trackset.stereo
+
+    @property
+    def tracks(self) -> dict:
+        return self.trackset.tracks
+
+    @property
+    def partners(self) -> dict:
+        return self.trackset.partners
+
+    @property
+    def direction(self) -> int:
+        return self.trackset.direction
