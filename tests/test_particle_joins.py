@@ -68,6 +68,31 @@ def test_without_the_sync_offset_no_wrong_pair(sample_views):
     assert all(g["front"] == [m + FRONT for m in g["side"]] for g in res.groups)
 
 
+def test_a_ghost_pair_of_two_particles_on_one_epipolar_plane_is_left_unpaired(sample_views):
+    """Two particles on one epipolar plane (P: marker 3; Q: P moved 25 mm along the baseline), each seen
+    measured in one view only: side's track of Q and front's of P lie on each other's lines, a ghost. P's
+    side track is there, but flagged (its detections merged with a neighbour's): a rival all the same."""
+    side, front, cal = sample_views
+    rng = np.random.default_rng(5)
+    shift = 0.05 * (cal.cameras["front"].center_mm - cal.cameras["side"].center_mm)
+    t = _truth("side")
+    t = t[(t.marker == 3) & t.visible.astype(bool)]
+    q = cal.cameras["side"].project(cal.to_rig(t[["X_mm", "Y_mm", "Z_mm"]].to_numpy()) + shift)
+    ghost = pd.DataFrame({"frame": t.frame.to_numpy(), "camera": "side", "marker": 997,
+                          "x_px": q[:, 0] + rng.normal(0, 0.2, len(t)), "y_px": q[:, 1] + rng.normal(0, 0.2, len(t)),
+                          "status": "tracked"})
+    merged = side.marker == 3
+    flagged = side.assign(status=np.where(merged, "occluded", side.status), score=np.where(merged, 0.6, 0.9))
+    res = pair_tracks(pd.concat([flagged, ghost, front]), cal, ("side", "front"), _timeline(OFFSET_S))
+    assert all(g["front"] == [m + FRONT for m in g["side"]] for g in res.groups)  # no ghost pair
+    assert {m for g in res.groups for m in g["side"]} == {1, 2, 4, 5, 6, 7, 8}
+    assert 997 in res.ambiguous["side"] and FRONT + 3 in res.ambiguous["front"]
+    # a coasting prediction (no detection, no score) is no evidence of the particle
+    coasting = flagged.assign(score=np.where(merged, np.nan, 0.9))
+    res = pair_tracks(pd.concat([coasting, ghost, front]), cal, ("side", "front"), _timeline(OFFSET_S))
+    assert {"side": [997], "front": [FRONT + 3]} in res.groups
+
+
 def _pieces(tracks: dict[int, np.ndarray], cuts: dict[int, list[tuple[int, int]]], first_id: int = 1):
     """Points of true tracks (id -> (frames, 3): frame, x, y) cut into pieces (id -> [(first, last frame)]),
     each piece a new id ending in 3 coasting frames and a `lost` one, as the tracker writes it. Returns the

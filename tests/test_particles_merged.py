@@ -55,3 +55,29 @@ def test_crossing_pair_never_switches_silently():
     assert wrong == 0
     assert flagged >= 4  # the merged frames are flagged, not guessed
     assert min(right.values()) >= 0.6 * FRAMES  # and the rest is tracked
+
+
+def test_a_round_blob_wider_than_the_frames_particles_is_merged(monkeypatch):
+    """Two overlapping markers both partly covered leave a round blob wider than one marker: its shape
+    does not tell, its width against the frame's other blobs does; no single marker is flagged."""
+    import sandtrack_tui.tracking.detect as detect_module
+
+    rng = np.random.default_rng(7)
+    img = np.empty((H, W, 3), np.float32)
+    img[:] = (110, 160, 190)
+    yy, xx = np.mgrid[0:H, 0:W]
+    singles = [(25.0 + 30 * i + rng.uniform(-2, 2), 25.0 + 35 * j + rng.uniform(-2, 2))
+               for i in range(8) for j in range(3)]
+    wide = (130.0, 150.0)
+    for (x, y), d in [*((c, DIAM) for c in singles), (wide, 1.45 * DIAM)]:
+        cover = np.clip(d / 2 + 0.5 - np.hypot(xx - x, yy - y), 0, 1)[..., None]
+        img = img * (1 - cover) + np.array([170, 60, 30], np.float32) * cover
+    img = cv2.GaussianBlur(img, (0, 0), 1.0)
+    frame = np.clip(img + rng.normal(0, 3, img.shape), 0, 255).astype(np.uint8)
+    model = learn_particle(frame, *singles[0], DIAM)
+    det = detect(frame, model)
+    at_wide = np.hypot(det.x_px - wide[0], det.y_px - wide[1]) <= 3
+    assert at_wide.sum() == 1 and det.merged[at_wide].all()
+    assert len(det) == len(singles) + 1 and det.merged.sum() == 1  # every single marker found, none flagged
+    monkeypatch.setattr(detect_module, "MERGED_WIDTH", np.inf)
+    assert not detect(frame, model).merged.any()  # round: its elongation alone does not tell

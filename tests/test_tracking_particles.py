@@ -134,7 +134,28 @@ def test_unsure_track_leaves_a_stopped_bead_to_its_own_track():
     z = np.array([[95.0, 100.0]])  # the bead of track 0 landed 10 px short of its prediction
     d2 = kf.mahalanobis(S, X, np.array([0, 1]), np.repeat(z, 2, axis=0))
     assert d2[0] > motion.gate_d2 >= d2[1]  # only the coasting track's gate reaches it
-    taken, _c, _a = assign(S, X, reach, z, motion, np.array([False, False]))
-    assert taken[1] == 0  # without the rule: the switch
+    for unsure in ([False, True], [False, False]):  # the rule holds for a sure track too
+        taken, _c, ambiguous = assign(S, X, reach, z, motion, np.array(unsure))
+        assert taken.tolist() == [-1, -1] and ambiguous[1]
+
+
+def test_sure_track_leaves_a_neighbours_bead_to_the_neighbours_new_track():
+    """A track at rest for 30 frames whose own bead is not detected (hidden behind another) must not take
+    the neighbouring bead's detection 7 px (half a diameter) away, inside its gate, because the solver
+    found the neighbour's new track (velocity unknown, seen once) another detection: it stays unseen."""
+    from sandtrack_tui.tracking import predict as kf
+    from sandtrack_tui.tracking.assign import assign
+
+    motion = kf.Motion()
+    X, P = kf.start(np.array([[391.0, 112.0]]), motion)
+    for _ in range(30):
+        X, P = kf.predict(X, P, motion)
+        X, P = kf.update(X, P, np.array([0]), np.array([[391.0, 112.0]]), motion)
+    Xn, Pn = kf.start(np.array([[384.0, 114.5]]), motion)  # the neighbour, found in the last frame
+    X, P = kf.predict(np.vstack([X, Xn]), np.concatenate([P, Pn]), motion)
+    S, reach = kf.gate(P, motion)
+    z = np.array([[384.4, 114.4], [384.1, 121.5]])  # the neighbour's bead, and another 7 px below it
+    d2 = kf.mahalanobis(S, X, np.array([0]), z[:1])
+    assert d2[0] < motion.gate_d2  # inside the resting track's gate
     taken, _c, ambiguous = assign(S, X, reach, z, motion, np.array([False, True]))
-    assert taken.tolist() == [-1, -1] and ambiguous[1]
+    assert taken[0] == -1 and ambiguous[0]

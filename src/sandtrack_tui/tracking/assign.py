@@ -7,10 +7,10 @@ group on its own (a group of one track and one detection needs no solver): the c
 squared Mahalanobis distance, of leaving a track unseen `gate_d2`, of leaving a detection to a new
 particle 0. Then the margin rule for an unsure track (one that missed frames, or a new one not yet
 confirmed: its gate is wide): it keeps its detection only when no other track reaches it almost as
-cheaply, no unclaimed detection lies almost as near its prediction, and no other track's prediction
-lies nearer the detection in pixels (whatever that track's gate: a bead that stopped short of its
-track's gate is still that track's bead, not the unsure one's); otherwise it stays unseen (flagged),
-never guessed. A track in doubt (its last detection was two merged particles, so it may sit on either)
+cheaply and no unclaimed detection lies almost as near its prediction; and for every track: no other
+track's prediction lies nearer the detection in pixels (whatever that track's gate: a bead that stopped
+short of its track's gate is still that track's bead); otherwise it stays unseen (flagged), never
+guessed. A track in doubt (its last detection was two merged particles, so it may sit on either)
 takes a detection only when that one is clearly the nearest to its prediction: every other detection
 lies at least `lead_px` farther. Before all that, a track whose detection lies within `rest_px` of its
 prediction, clear of every other detection and track, takes it whatever its gate (`_at_rest`; only
@@ -86,7 +86,7 @@ def assign(S, X, reach, det_xy, motion: Motion, unsure: np.ndarray, doubt: np.nd
         for gt, gd, gc in zip(np.split(rt, bounds), np.split(rd, bounds), np.split(rc, bounds), strict=True):
             _solve_group(gt, gd, gc, motion.gate_d2, taken, cost)
     _margin(ti, dj, d2, taken, cost, unsure, ambiguous)
-    _nearer_owner(X, det_xy, taken, cost, unsure, ambiguous)
+    _nearer_owner(X, det_xy, taken, cost, ambiguous)
     if doubt is not None:
         _clear_lead(X, det_xy, taken, cost, doubt, ambiguous, lead_px)
     return taken, cost, ambiguous
@@ -141,9 +141,11 @@ def _margin(ti, dj, d2, taken, cost, unsure, ambiguous) -> None:
             ambiguous[t] = True
 
 
-def _nearer_owner(X, det_xy, taken, cost, unsure, ambiguous) -> None:
-    """An unsure track gives up a detection that lies nearer another track's prediction than its own."""
-    mine = np.flatnonzero((taken >= 0) & unsure)
+def _nearer_owner(X, det_xy, taken, cost, ambiguous) -> None:
+    """A track gives up a detection that lies nearer another track's prediction than its own: a sure track
+    too, whose gate (3 px per frame of acceleration) reaches a neighbour's detection when its own particle
+    is not detected, while the solver left that neighbour's new track (velocity unknown) another choice."""
+    mine = np.flatnonzero(taken >= 0)
     if len(mine) == 0 or len(X) < 2:
         return
     z = det_xy[taken[mine]]

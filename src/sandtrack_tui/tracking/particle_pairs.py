@@ -1,7 +1,11 @@
 """Every-particle tracks of two calibrated cameras paired across the views: a track of the first camera and
 one of the second are one particle when their points lie on each other's epipolar lines over enough frames
 measured together (the second camera's points taken at the first's frame times: sync offset respected),
-and no other track of either view lies on them as well.
+and no other track of either view lies on them as well. A pair is made from measured points only; a track
+that might be the particle (a rival) is found from its detections, flagged ones too: a marker whose
+detections were merged with a neighbour's is still there, and two particles at rest on one epipolar
+line (one track in each view, each view's track of the other particle flagged) would otherwise pair as a
+ghost.
 
 The idea of the seeded crowd pairing (pairing.py), on whole tracks at once: per frame, every tracked point of
 one view against every one of the other; a pair of tracks counts the frames both were measured and the frames
@@ -19,6 +23,7 @@ import numpy as np
 import pandas as pd
 
 MEASURED = ("tracked", "manual")
+DETECTED = "detected"  # measured points and the detections the tracker flagged (merged: a score, no coasting)
 PAIR_MIN_FRAMES = 10  # frames measured together before two tracks may be called one particle
 OFF_LINE_SHARE = 0.05  # an on-line pair may leave the line at this share of its frames (a merged detection)
 # Another track is told apart when it left the line at PAIR_BREAKS frames or more, and at this share of
@@ -38,8 +43,15 @@ class Pairing:
     lonely: dict = field(default_factory=dict)
 
 
-def measured(points: pd.DataFrame, camera: str) -> pd.DataFrame:
-    p = points[(points.camera == camera) & points.status.isin(MEASURED)]
+def measured(points: pd.DataFrame, camera: str, statuses: tuple | str = MEASURED) -> pd.DataFrame:
+    """A camera's points with a position, of `statuses` (DETECTED: measured, or flagged with a detector's
+    score: a detection of merged particles, not a coasting prediction)."""
+    p = points[points.camera == camera]
+    if statuses == DETECTED:
+        scored = p.score.notna() if "score" in p else np.zeros(len(p), bool)
+        p = p[p.status.isin(MEASURED) | scored]
+    else:
+        p = p[p.status.isin(statuses)]
     return p[np.isfinite(p.x_px.to_numpy(float)) & np.isfinite(p.y_px.to_numpy(float))]
 
 
@@ -73,25 +85,32 @@ def at_reference_times(points_b: pd.DataFrame, frames_b_at: np.ndarray, ref_fram
     return out
 
 
-def line_counts(points: pd.DataFrame, calibration, cams: tuple[str, str], timeline, threshold_px: float = 2.0):
+def line_counts(points: pd.DataFrame, calibration, cams: tuple[str, str], timeline, threshold_px: float = 2.0,
+                statuses: tuple | str = MEASURED, ids: tuple | None = None, ref_frames: np.ndarray | None = None):
     """(ids_a, ids_b, on, seen_a, seen_b): `on` (sparse, rows: camera a's ids, columns: b's) counts the frames
     a pair of tracks' points lay within threshold_px of each other's epipolar lines (in either view,
     undistorted pixels; b taken at a's frame times); seen_a, seen_b (sparse, a's frames x ids) the frames each
     track was measured at, so that `together(seen_a, seen_b, i, j)` counts a pair's frames measured together.
-    Sparse: a long recording's thousands of tracks meet few lines."""
+    Points of `statuses` (see `measured`); `ids` ((a's, b's), sorted: a superset of the
+    points' ids) and `ref_frames` (a's frames, the rows of seen_*) give the same rows and columns as another
+    call. Sparse: a long recording's thousands of tracks meet few lines."""
     from scipy.sparse import coo_matrix
 
     from ..triangulation import fundamental_matrix
 
     a, b = cams
-    pa, pb = measured(points, a), measured(points, b)
-    ids_a, ids_b = np.unique(pa.marker.to_numpy(np.int64)), np.unique(pb.marker.to_numpy(np.int64))
-    ref_frames = np.unique(pa.frame.to_numpy(np.int64))
+    pa, pb = measured(points, a, statuses), measured(points, b, statuses)
+    if ids is None:
+        ids = np.unique(pa.marker.to_numpy(np.int64)), np.unique(pb.marker.to_numpy(np.int64))
+    ids_a, ids_b = ids
+    if ref_frames is None:
+        ref_frames = np.unique(pa.frame.to_numpy(np.int64))
     b_at = at_reference_times(pb, timeline.position(b, ref_frames), ref_frames) if len(ids_b) else {}
     F = fundamental_matrix(calibration, a, b)  # x_b^T F x_a = 0
     cam_a, cam_b = calibration.cameras[a], calibration.cameras[b]
     on_r, on_c, sa_r, sa_c, sb_r, sb_c = [], [], [], [], [], []
-    for row, (f, g) in enumerate(pa.groupby("frame")):
+    for f, g in pa.groupby("frame"):
+        row = int(np.searchsorted(ref_frames, f))
         ia = np.searchsorted(ids_a, g.marker.to_numpy(np.int64))
         sa_r.append(np.full(len(ia), row))
         sa_c.append(ia)
@@ -133,20 +152,24 @@ def pair_tracks(points: pd.DataFrame, calibration, cams: tuple[str, str], timeli
                 min_frames: int = PAIR_MIN_FRAMES) -> Pairing:
     """Groups of tracks (both views) that are one particle each; see the module docstring."""
     a, b = cams
-    ids_a, ids_b, on, seen_a, seen_b = line_counts(points, calibration, cams, timeline, threshold_px)
+    ids_a, ids_b, on_any, seen_a_any, seen_b_any = line_counts(points, calibration, cams, timeline, threshold_px,
+                                                               DETECTED)
     result = Pairing()
     if not len(ids_a) or not len(ids_b):
         return result
-    met = on.tocoo()
-    i, j, n_on = met.row, met.col, met.data.astype(np.int64)
-    on_line, rival, _apart = _verdicts(together(seen_a, seen_b, i, j), n_on, min_frames)
+    ref_frames = np.unique(measured(points, a, DETECTED).frame.to_numpy(np.int64))
+    _, _, on, seen_a, seen_b = line_counts(points, calibration, cams, timeline, threshold_px, MEASURED,
+                                           (ids_a, ids_b), ref_frames)
+    evidence = (on, seen_a, seen_b), (on_any, seen_a_any, seen_b_any)
+    met = (on + on_any).tocoo()
+    i, j = met.row, met.col
+    on_line, rival, _apart = _verdicts(evidence, i, j, min_frames)
     linked = on_line | rival
     spans = {a: _spans(measured(points, a), ids_a), b: _spans(measured(points, b), ids_b)}
     for comp_a, comp_b in _components(i[linked], j[linked], len(ids_a), len(ids_b)):
         # every pair of the group, also those that never met a line (measured together, apart: not one particle)
         ca, cb = np.repeat(comp_a, len(comp_b)), np.tile(comp_b, len(comp_a))
-        n_on = np.asarray(on[comp_a][:, comp_b].todense()).ravel()
-        sub_on, sub_rival, sub_apart = _verdicts(together(seen_a, seen_b, ca, cb), n_on, min_frames)
+        sub_on, sub_rival, sub_apart = _verdicts(evidence, ca, cb, min_frames)
         fine = not sub_rival.any() and not sub_apart.any() and sub_on.any() \
             and _disjoint(spans[a][comp_a]) and _disjoint(spans[b][comp_b])
         if fine:
@@ -161,12 +184,20 @@ def pair_tracks(points: pd.DataFrame, calibration, cams: tuple[str, str], timeli
     return result
 
 
-def _verdicts(together: np.ndarray, n_on: np.ndarray, min_frames: int):
-    """(on the line, rival, apart) of pairs measured `together` frames, `n_on` of them on each other's lines."""
-    off = together - n_on
-    on_line = (together >= min_frames) & (off <= OFF_LINE_SHARE * together)
-    apart = (off >= PAIR_BREAKS) & (off >= APART_SHARE * together)
-    rival = (together >= RIVAL_MIN_FRAMES) & ~on_line & ~apart
+def _verdicts(evidence, i: np.ndarray, j: np.ndarray, min_frames: int):
+    """(on the line, rival, apart) of the pairs (a's track i[k], b's track j[k]). evidence: (on, seen_a,
+    seen_b) of the measured points, then of the detected ones. On the line: measured together at least
+    `min_frames`, off the line at no more than OFF_LINE_SHARE of them. Apart: off the line often, measured
+    (or detected, when not on the line measured). Rival: neither, detected together at least RIVAL_MIN_FRAMES."""
+    (on, sa, sb), (on_any, sa_any, sb_any) = evidence
+    n_on = np.asarray(on[i, j]).ravel().astype(np.int64) if len(i) else np.zeros(0, np.int64)
+    n_on_any = np.asarray(on_any[i, j]).ravel().astype(np.int64) if len(i) else np.zeros(0, np.int64)
+    tog, tog_any = together(sa, sb, i, j), together(sa_any, sb_any, i, j)
+    off, off_any = tog - n_on, tog_any - n_on_any
+    on_line = (tog >= min_frames) & (off <= OFF_LINE_SHARE * tog)
+    apart = ((off >= PAIR_BREAKS) & (off >= APART_SHARE * tog)) \
+        | ((off_any >= PAIR_BREAKS) & (off_any >= APART_SHARE * tog_any) & ~on_line)
+    rival = (tog_any >= RIVAL_MIN_FRAMES) & ~on_line & ~apart
     return on_line, rival, apart
 
 
@@ -177,7 +208,7 @@ def _homogeneous(xy: np.ndarray) -> np.ndarray:
 def _spans(p: pd.DataFrame, ids: np.ndarray) -> np.ndarray:
     """(first frame, last frame, points) of each id's measured points, rows in the order of ids."""
     g = p.groupby("marker").frame.agg(["min", "max", "size"]).reindex(ids)
-    return g.to_numpy(np.int64)
+    return g.fillna({"min": -1, "max": -1, "size": 0}).to_numpy(np.int64)
 
 
 def _disjoint(spans: np.ndarray) -> bool:
