@@ -8,10 +8,13 @@ honest), for triangulation and the network.
       match score), on the frames both cameras tracked; the network is the sample's own model.pt.
 2. The real stepped target (../shared/data/myptv_target, three cameras, surveyed dots): each camera fitted
    to two depth planes (`calibrate --from-points`, lens auto), the third plane triangulated, cameras 1+2
-   and 1+2+3 (no network: three planes cannot train one). `floor_*`: the same coverage by cameras fitted
-   on all three planes (the held-out dots then in the fit): what the dots' own errors common to the
-   cameras (a dot off its surveyed place, a detection bias every camera shares) leave, which no
-   calibration uncertainty can hold, since it is not an error of the cameras.
+   and 1+2+3 (no network: three planes cannot train one). The pixel sd is each camera's own noise per
+   image axis from the fit (`noise_px`). Two scores: `*_pct` (raw) the share of (XYZ - survey) within
+   ±1.96 sd; `*_en_pct` the same against ±1.96 sqrt(sd² + σ_point²), σ_point the dots' own error per axis
+   as the calibration on the two fitted planes estimated it (`known_points_sd_mm`, never from the
+   held-out plane): the surveyed place is a reference with its own error, compared as a metrologist's
+   Eₙ. `floor_*`: the same coverage by cameras fitted on all three planes (the held-out dots then in the
+   fit).
 3. `sandtrack xyz PIXELS.csv` on 1 M rows with that calibration (its covariance kept, so every row gets
    its sd): wall time of the whole command, best of `repeats`.
 
@@ -109,39 +112,53 @@ def tracked_markers(calibration, work: Path) -> dict:
 
 
 def myptv() -> dict:
-    from bench_lens import DATA, table
+    import bench_lens
     from sandtrack_tui.calibration.from_points import calibrate_from_points
-    from sandtrack_tui.regression.spread import coverage
-    from sandtrack_tui.xyz import axis_sd, triangulate_with_sd
 
-    if not DATA.is_dir():
-        return {"skipped": f"{DATA} absent"}
-    df = table()
-    out, every = {}, []
+    if not bench_lens.DATA.is_dir():
+        return {"skipped": f"{bench_lens.DATA} absent"}
+    df = bench_lens.table()
+    out, every, every_en = {}, [], []
     for cams in (("cam1", "cam2"), ("cam1", "cam2", "cam3")):
         for plane in PLANES:
             fit, test = df[df.Z_mm != plane], df[df.Z_mm == plane]
             cal = calibrate_from_points(fit, {n: (f"x_{n}", f"y_{n}") for n in cams}, lens="auto")
-            pix = {n: test[[f"x_{n}", f"y_{n}"]].to_numpy(float) for n in cams}
-            sd = {n: np.full(len(test), axis_sd(cal.cameras[n])) for n in cams}
-            xyz, _, s = triangulate_with_sd(cal, pix, sd, refine=True)
-            c = _pct(coverage(xyz - test[["X_mm", "Y_mm", "Z_mm"]].to_numpy(float), s))
-            out[f"Z{plane:g}_held_out_{'+'.join(n[-1] for n in cams)}_pct"] = c
-            every += c
+            key = f"Z{plane:g}_held_out_{'+'.join(n[-1] for n in cams)}"
+            raw, en = _scored(cal, test, cams, out, key)
+            every += raw
+            every_en += en
     out["range_pct"] = [min(every), max(every)]
-    floor = []
+    out["range_en_pct"] = [min(every_en), max(every_en)]
+    floor, floor_en = [], []
     for cams in (("cam1", "cam2"), ("cam1", "cam2", "cam3")):
         cal = calibrate_from_points(df, {n: (f"x_{n}", f"y_{n}") for n in cams}, lens="auto")
+        out[f"sigma_point_mm_{'+'.join(n[-1] for n in cams)}"] = [round(v, 4) for v in
+                                                                  cal.report["known_points_sd_mm"]]
         for plane in PLANES:
-            test = df[df.Z_mm == plane]
-            pix = {n: test[[f"x_{n}", f"y_{n}"]].to_numpy(float) for n in cams}
-            sd = {n: np.full(len(test), axis_sd(cal.cameras[n])) for n in cams}
-            xyz, _, s = triangulate_with_sd(cal, pix, sd, refine=True)
-            c = _pct(coverage(xyz - test[["X_mm", "Y_mm", "Z_mm"]].to_numpy(float), s))
-            out[f"floor_Z{plane:g}_{'+'.join(n[-1] for n in cams)}_pct"] = c
-            floor += c
+            raw, en = _scored(cal, df[df.Z_mm == plane], cams, out, f"floor_Z{plane:g}_{'+'.join(n[-1] for n in cams)}")
+            floor += raw
+            floor_en += en
     out["floor_range_pct"] = [min(floor), max(floor)]
+    out["floor_range_en_pct"] = [min(floor_en), max(floor_en)]
     return out
+
+
+def _scored(cal, test, cams, out: dict, key: str) -> tuple[list[float], list[float]]:
+    """Coverage of the test dots (raw and Eₙ, module docstring) into out[key + "_pct" / "_en_pct"], the
+    median sd and the rms error per axis beside them."""
+    from sandtrack_tui.regression.spread import coverage
+    from sandtrack_tui.triangulation_sd import camera_noise_px
+    from sandtrack_tui.xyz import triangulate_with_sd
+
+    pix = {n: test[[f"x_{n}", f"y_{n}"]].to_numpy(float) for n in cams}
+    sd = {n: np.broadcast_to(camera_noise_px(cal, n), (len(test), 2)) for n in cams}
+    xyz, _, s = triangulate_with_sd(cal, pix, sd, refine=True)
+    err = xyz - test[["X_mm", "Y_mm", "Z_mm"]].to_numpy(float)
+    point = np.asarray(cal.report.get("known_points_sd_mm", [0.0] * 3), float)
+    out[f"{key}_pct"], out[f"{key}_en_pct"] = _pct(coverage(err, s)), _pct(coverage(err, np.hypot(s, point)))
+    out[f"{key}_median_sd_mm"] = [round(float(v), 4) for v in np.nanmedian(s, axis=0)]
+    out[f"{key}_rms_error_mm"] = [round(float(v), 4) for v in np.sqrt(np.nanmean(err ** 2, axis=0))]
+    return out[f"{key}_pct"], out[f"{key}_en_pct"]
 
 
 def xyz_cli(calibration, repeats: int = 2) -> dict:

@@ -166,9 +166,14 @@ class CameraUncertainty:
     parameters: list[str]
     covariance: np.ndarray  # (P, P) in the parameters' units (rad, mm, px, 1)
     sigma_px: float | None = None  # the fit's residual sd
+    # the camera's own pixel noise per image axis (x, y), apart from the known points' shared error
+    # (calibration.known_point_errors); None where not separated
+    noise_px: list[float] | None = None
 
     def __post_init__(self) -> None:
         self.parameters = [str(p) for p in self.parameters]
+        if self.noise_px is not None:
+            self.noise_px = [float(v) for v in np.asarray(self.noise_px, float).reshape(2)]
         self.covariance = np.asarray(self.covariance, dtype=np.float64).reshape(len(self.parameters),
                                                                                len(self.parameters))
 
@@ -176,17 +181,21 @@ class CameraUncertainty:
         d = {"parameters": list(self.parameters), "covariance": self.covariance.tolist()}
         if self.sigma_px is not None:
             d["sigma_px"] = float(self.sigma_px)
+        if self.noise_px is not None:
+            d["noise_px"] = list(self.noise_px)
         return d
 
     @classmethod
     def from_dict(cls, name: str, d: dict) -> CameraUncertainty:
         try:
             unc = cls(list(d["parameters"]), np.array(d["covariance"], dtype=float),
-                      None if d.get("sigma_px") is None else float(d["sigma_px"]))
+                      None if d.get("sigma_px") is None else float(d["sigma_px"]), d.get("noise_px"))
         except (KeyError, TypeError, ValueError) as exc:
             raise SandtrackError(f"uncertainty of camera {name}: malformed entry ({exc})") from None
         if not np.isfinite(unc.covariance).all():
             raise SandtrackError(f"uncertainty of camera {name}: a covariance value is not a finite number")
+        if unc.noise_px is not None and not (np.isfinite(unc.noise_px).all() and min(unc.noise_px) >= 0):
+            raise SandtrackError(f"uncertainty of camera {name}: noise_px must be two finite numbers ≥ 0")
         return unc
 
 

@@ -7,14 +7,19 @@ weighted least-squares fit with weights ω = 1 / RMSE² per camera, so a pixel e
 δX = H⁻¹ Σ ω Jᵀ δp with H = Σ ω JᵀJ, and the point's covariance is the sandwich
 H⁻¹ (Σ ω² Jᵀ Σp J) H⁻¹, where Σp is each camera's pixel covariance at that point:
 
-- the pixel's own noise, sd² · I (the tracker's estimate, a pixel table's column, else the camera's RMSE);
+- the pixel's own noise, diag(sd_x², sd_y²) (the tracker's estimate or a pixel table's column, the same
+  along x and y; else the camera's own pixel noise per image axis from its calibration (`noise_px`, a
+  calibration from known points: the residuals less the points' error that every camera shares), else its
+  RMSE per axis);
 - the calibration's: G Σθ Gᵀ, with Σθ the covariance of the camera's parameters from its bundle
   adjustment (`CameraUncertainty`, kept in calibration.toml) and G = d(pixel) / d(parameters) at the point
   (analytic for the translation and the camera matrix, finite differences for the rotation and the lens).
 
 Left out: correlations between the cameras' calibration errors (each camera's block is used alone), the
-uncertainty of the rig-to-world transform and of the board's own dimensions, and anything the calibration
-residuals cannot show (a lens model that does not fit the whole image, a rig that moved after calibrating).
+uncertainty of the rig-to-world transform and of the board's own dimensions or the known points' survey
+(a calibration from known points reports the points' own error, `known_points_sd_mm`, for comparing a
+triangulated point with such a reference), and anything the calibration residuals cannot show (a lens
+model that does not fit the whole image, a rig that moved after calibrating).
 """
 
 from __future__ import annotations
@@ -34,8 +39,9 @@ _LENS_STEP = 1e-7
 def triangulation_sd(calibration: Calibration, pixels: dict[str, np.ndarray], points_rig: np.ndarray,
                      pixel_sd: dict[str, np.ndarray] | None = None, with_calibration: bool = True) -> np.ndarray:
     """(N, 3) sd per world axis (mm) of points (rig frame) triangulated from `pixels` ((N, 2) per camera,
-    NaN where unseen). pixel_sd: per camera, a scalar or (N,) px (default: the camera's RMSE, else 1 px).
-    NaN where fewer than two cameras saw the point or a needed sd is unknown."""
+    NaN where unseen). pixel_sd: per camera, a scalar, (N,) or (N, 2) px (per image axis; default: the
+    camera's `camera_noise_px`, else 1 px). NaN where fewer than two cameras saw the point or a needed sd
+    is unknown."""
     H, M, count = _accumulated(calibration, pixels, points_rig, pixel_sd, with_calibration)
     return _world_sd(H, M, count, calibration.world_from_rig[:3, :3].copy())
 
@@ -60,6 +66,24 @@ def world_sd(calibration: Calibration, cov_rig: np.ndarray) -> np.ndarray:
     return np.sqrt(np.clip(var, 0.0, None))
 
 
+def camera_noise_px(calibration: Calibration, name: str) -> np.ndarray:
+    """(2,) a camera's pixel noise per image axis (px): its own noise from the calibration (`noise_px`),
+    else its RMSE (a 2-D distance) over √2 on both axes; NaN when neither is known."""
+    unc = calibration.uncertainty.get(name)
+    if unc is not None and unc.noise_px is not None:
+        return np.asarray(unc.noise_px, float)
+    r = calibration.cameras[name].rmse_px
+    return np.full(2, float(r) / np.sqrt(2.0) if r is not None and np.isfinite(r) else np.nan)
+
+
+def pixel_sd_axes(sd: np.ndarray, extra: np.ndarray, calibration: Calibration, name: str) -> np.ndarray:
+    """(N, 2) each pixel's sd per image axis (px): its own (`sd`, NaN: unknown) on both axes, else the
+    camera's (`camera_noise_px`), combined with `extra` (px; NaN: unknown, inf: no sd)."""
+    sd = np.asarray(sd, float).reshape(-1, 1)
+    base = np.where(np.isnan(sd), camera_noise_px(calibration, name)[None, :], sd)
+    return np.hypot(base, np.asarray(extra, float).reshape(-1, 1))
+
+
 def _camera_sigma(cam: Camera) -> float:
     """The camera's noise level as the refinement weighs it (its RMSE, else 1 px)."""
     r = cam.rmse_px
@@ -82,7 +106,11 @@ def _accumulated(calibration, pixels, points_rig, pixel_sd, with_calibration):
             continue
         sigma = _camera_sigma(cam)
         given = None if pixel_sd is None else pixel_sd.get(name)
-        sd = np.ascontiguousarray(np.broadcast_to(np.asarray(sigma if given is None else given, float), (n,)))
+        if given is None:
+            own = camera_noise_px(calibration, name)
+            sd = _per_axis(np.where(np.isnan(own), 1.0, own)[None, :], n)
+        else:
+            sd = _per_axis(given, n)
         unc = calibration.uncertainty.get(name) if with_calibration else None
         idx = np.nonzero(seen)[0]
         parts = _camera_parts(cam, X[idx], unc)
@@ -130,6 +158,14 @@ def _camera_parts(cam: Camera, X: np.ndarray, unc) -> tuple:
     return (a, b, z, Jd, xd, yd, K2, R, kinds, np.ascontiguousarray(cov), drot, dlens)
 
 
+def _per_axis(sd, n: int) -> np.ndarray:
+    """(n, 2) from a scalar, (n,) (the same on both axes), (1, 2) or (n, 2) sd."""
+    a = np.asarray(sd, float)
+    if a.ndim == 1:
+        a = a[:, None]
+    return np.ascontiguousarray(np.broadcast_to(a, (n, 2)))
+
+
 _KINDS = {"rx": 0, "ry": 1, "rz": 2, "tx": 3, "ty": 4, "tz": 5, "fx": 6, "fy": 7, "cx": 8, "cy": 9}
 
 
@@ -143,7 +179,6 @@ def _accumulate(H, M, count, idx, sd, w, a, b, z, Jd, xd, yd, K2, R, kinds, cov,
     S = np.empty((2, 2))
     for q in range(len(idx)):
         i = idx[q]
-        s = sd[i]
         iz = 1.0 / z[q]
         a00 = K2[0, 0] * Jd[q, 0] + K2[0, 1] * Jd[q, 2]
         a01 = K2[0, 0] * Jd[q, 1] + K2[0, 1] * Jd[q, 3]
@@ -155,7 +190,7 @@ def _accumulate(H, M, count, idx, sd, w, a, b, z, Jd, xd, yd, K2, R, kinds, cov,
         for r in range(2):
             for c in range(3):
                 J[r, c] = P[r, 0] * R[0, c] + P[r, 1] * R[1, c] + P[r, 2] * R[2, c]
-        S[0, 0], S[0, 1], S[1, 0], S[1, 1] = s * s, 0.0, 0.0, s * s
+        S[0, 0], S[0, 1], S[1, 0], S[1, 1] = sd[i, 0] * sd[i, 0], 0.0, 0.0, sd[i, 1] * sd[i, 1]
         if n_par:
             lens = 0
             for p in range(n_par):

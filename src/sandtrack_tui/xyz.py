@@ -406,6 +406,8 @@ def _interpolated(points: pd.DataFrame, marker: np.ndarray, u: np.ndarray) -> di
 # -- XYZ --------------------------------------------------------------------------------------------
 def _solve(obs: dict, cameras: list[str], methods: list[str], model, calibration, outside: str,
            refine: bool) -> pd.DataFrame:
+    from .triangulation_sd import pixel_sd_axes
+
     n = len(obs["frame"])
     pix = obs["pixels"]
     tri_cams = [c for c in cameras if calibration is not None and c in calibration.cameras]
@@ -420,8 +422,8 @@ def _solve(obs: dict, cameras: list[str], methods: list[str], model, calibration
         if m == "triangulation":
             if ok.any():
                 used = {c: pix[c][ok] for c in tri_cams}
-                xyz[ok], res[ok], sd[ok] = triangulate_with_sd(calibration, used, {c: psd[c][ok] for c in tri_cams},
-                                                               refine)
+                tsd = {c: pixel_sd_axes(obs["sd"][c][ok], obs["extra"][c][ok], calibration, c) for c in tri_cams}
+                xyz[ok], res[ok], sd[ok] = triangulate_with_sd(calibration, used, tsd, refine)
         elif n:
             network_rows(m, model, calibration, np.hstack([pix[c] for c in NETWORK_CAMERAS]), outside, xyz, res,
                          label, sd, np.repeat(np.stack([psd[c] for c in NETWORK_CAMERAS], axis=1), 2, axis=1))

@@ -77,6 +77,7 @@ def xyz_from_pixels(df: pd.DataFrame, cams: dict[str, tuple[str, str]], calibrat
                     method: str = "both", outside: str = "flag", refine: bool = True) -> tuple[pd.DataFrame, list[str]]:
     """The table with XYZ by each method, and notes for the user (renamed columns)."""
     check_choices(method, outside)
+    from .triangulation_sd import pixel_sd_axes
     from .xyz import triangulate_with_sd
 
     if calibration is not None and "triangulation" in wanted_methods(method):
@@ -102,7 +103,8 @@ def xyz_from_pixels(df: pd.DataFrame, cams: dict[str, tuple[str, str]], calibrat
         if m == "triangulation":
             used = {c: p for c, p in pix.items() if c in calibration.cameras}
             if n:
-                xyz, res, sd = triangulate_with_sd(calibration, used, {c: psd[c] for c in used}, refine)
+                tsd = {c: pixel_sd_axes(given_sd(df, c), np.zeros(n), calibration, c) for c in used}
+                xyz, res, sd = triangulate_with_sd(calibration, used, tsd, refine)
         else:
             network_rows(m, model, calibration, np.hstack([pix[c] for c in NETWORK_CAMERAS]), outside, xyz, res,
                          label, sd, np.repeat(np.stack([psd[c] for c in NETWORK_CAMERAS], axis=1), 2, axis=1))

@@ -23,8 +23,9 @@ from ..xyz_pixels import camera_columns
 from .bundle import BundleState
 from .geometry import from_T, inv_T, radial_is_monotonic, to_T
 from .intrinsics import opencv_flags
+from .known_point_errors import known_point_errors
 from .lens_select import Candidate, choose, report, select_lens, why
-from .point_uncertainty import into_rig, jackknife_covariance, larger, point_fit_uncertainty
+from .point_uncertainty import into_rig, jackknife_covariance, larger, parameter_names, point_fit_uncertainty
 
 MIN_POINTS = 12
 
@@ -157,7 +158,7 @@ def calibrate_from_points(df: pd.DataFrame, cams: dict[str, tuple[str, str]],
     sizes: image size per camera where known (videos, --image-size); the others are unknown and never
     used in the fit (the file gets the smallest common video size holding the pixels, flagged in the
     report). lens: one lens model name for every camera, or one per camera, or "auto". jackknife: False keeps
-    (GᵀG)⁻¹ σ² alone as each camera's covariance (point_uncertainty; for repeated fits that use no sd)."""
+    no parameter covariance (for repeated fits that use no sd)."""
     X_all = df[["X_mm", "Y_mm", "Z_mm"]].to_numpy(float)
     groups, kind = point_groups(df)
     in_3d = groups is None and len(cams) >= 2 and on_two_planes(X_all)
@@ -203,13 +204,17 @@ def calibrate_from_points(df: pd.DataFrame, cams: dict[str, tuple[str, str]],
     first = next(iter(cameras))
     T0w = to_T(cameras[first].rvec, cameras[first].tvec)
     world_from_rig = inv_T(T0w)
+    pixels = {n: df[list(c)].to_numpy(float) for n, c in cams.items()}
+    shared = known_point_errors(cameras, X_all, pixels, {n: len(parameter_names(c)) for n, c in cameras.items()})
     uncertainty = {}
     for name, cam in cameras.items():
-        uv = df[list(cams[name])].to_numpy(float)
-        unc = point_fit_uncertainty(cam, X_all, uv)
+        uv = pixels[name]
+        unc = point_fit_uncertainty(cam, X_all, uv, None if shared is None else shared["noise_px"][name])
         if unc is not None and jackknife:
             unc = _with_jackknife(unc, cam, X_all, uv, groups, cv[name][1] if name in cv else {})
             uncertainty[name] = into_rig(unc, cam, world_from_rig)
+        if shared is not None:
+            reports[name]["noise_px"] = shared["noise_px"][name]
         r, t = from_T(to_T(cam.rvec, cam.tvec) @ world_from_rig)
         cam.rvec, cam.tvec = r, t
     rmse = float(np.sqrt(np.mean([r["rmse_px"] ** 2 for r in reports.values()])))
@@ -217,12 +222,15 @@ def calibrate_from_points(df: pd.DataFrame, cams: dict[str, tuple[str, str]],
     # how well the fitted cameras give the known points back (triangulated from their own pixels)
     from ..triangulation import triangulate
 
-    xyz, _ = triangulate(cal, {n: df[list(c)].to_numpy(float) for n, c in cams.items()}, refine=True)
+    xyz, _ = triangulate(cal, pixels, refine=True)
     d = np.linalg.norm(xyz - X_all, axis=1)
     d = d[np.isfinite(d)]
     cal.report = {"method": "from known points", "reprojection_rmse_px": rmse, "per_camera": reports,
                   "points": int(len(df)), "xyz_rmse_mm": float(np.sqrt(np.mean(d ** 2))) if len(d) else None,
                   "xyz_mean_mm": float(np.mean(d)) if len(d) else None, "warnings": warnings}
+    if shared is not None:
+        cal.report["known_points_sd_mm"] = shared["sd_mm"]
+        cal.report["known_points_in_two_cameras"] = shared["points"]
     return cal
 
 
@@ -251,7 +259,7 @@ def _with_jackknife(unc, cam: Camera, X: np.ndarray, uv: np.ndarray, groups: np.
     if jk is None:
         return unc
     try:
-        return CameraUncertainty(unc.parameters, larger(unc.covariance, jk.covariance), unc.sigma_px)
+        return CameraUncertainty(unc.parameters, larger(unc.covariance, jk.covariance), unc.sigma_px, unc.noise_px)
     except np.linalg.LinAlgError:
         return unc
 

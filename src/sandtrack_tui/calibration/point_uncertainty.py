@@ -2,9 +2,11 @@
 frame (the first camera's) through the fixed world -> rig transform.
 
 Two estimates, and in every direction of parameter space the larger of the two (`larger`):
-- (GᵀG)⁻¹ σ² at the fit, G = d(pixel) / d(parameters) by central differences, σ² the residuals' sum of
-  squares over the degrees of freedom. It holds when the pixel errors are independent from point to point
-  and the lens model fits the whole image.
+- (GᵀG)⁻¹ Gᵀ Σ G (GᵀG)⁻¹ at the fit, G = d(pixel) / d(parameters) by central differences, Σ the camera's
+  own pixel noise per image axis (`known_point_errors`: the residuals less the known points' error that
+  every camera shares, which moves the cameras together rather than one against the other), else σ² I
+  with σ² the residuals' sum of squares over the degrees of freedom. It holds when the pixel errors are
+  independent from point to point and the lens model fits the whole image.
 - a jackknife over units of points (the lens choice's groups: whole planes or frames when there are three
   or more, blocks of a two-plane target, else a 3 x 3 grid of blocks of the image): the camera refitted
   with each unit left out, each refit's change of the pixels of all points mapped back to the parameters
@@ -34,9 +36,11 @@ def parameter_names(cam: Camera) -> list[str]:
             *(f"d{k}" for k in free if k < len(cam.distortion))]
 
 
-def point_fit_uncertainty(cam: Camera, X: np.ndarray, uv: np.ndarray) -> CameraUncertainty | None:
+def point_fit_uncertainty(cam: Camera, X: np.ndarray, uv: np.ndarray,
+                          noise_px: list[float] | None = None) -> CameraUncertainty | None:
     """Covariance of `cam`'s parameters (pose world -> camera) fitted to world points X and pixels uv; None
-    when the points cannot fix them (fewer residuals than parameters, a singular G)."""
+    when the points cannot fix them (fewer residuals than parameters, a singular G). noise_px: the camera's
+    own pixel noise per image axis (x, y) where known, kept in the result."""
     names = parameter_names(cam)
     ok = np.isfinite(X).all(axis=1) & np.isfinite(uv).all(axis=1)
     X, uv = X[ok], uv[ok]
@@ -47,10 +51,16 @@ def point_fit_uncertainty(cam: Camera, X: np.ndarray, uv: np.ndarray) -> CameraU
     G = _jacobian(cam, names, X)
     sigma2 = float(np.sum(r ** 2)) / dof
     try:
-        cov = np.linalg.inv(G.T @ G) * sigma2
+        Gi = np.linalg.inv(G.T @ G)
     except np.linalg.LinAlgError:
         return None
-    return CameraUncertainty(names, cov, float(np.sqrt(sigma2))) if np.isfinite(cov).all() else None
+    if noise_px is None:
+        cov = Gi * sigma2
+    else:
+        s2 = np.tile(np.asarray(noise_px, float) ** 2, len(X))
+        cov = Gi @ (G.T * s2) @ G @ Gi
+    return (CameraUncertainty(names, cov, float(np.sqrt(sigma2)), noise_px) if np.isfinite(cov).all()
+            else None)
 
 
 def jackknife_covariance(cam: Camera, X: np.ndarray, uv: np.ndarray, units: np.ndarray,
@@ -102,7 +112,7 @@ def into_rig(unc: CameraUncertainty, cam_world: Camera, world_from_rig: np.ndarr
         e = np.zeros(6)
         e[k] = h
         A[:6, k] = (rig_pose(v0 + e) - rig_pose(v0 - e)) / (2 * h)
-    return CameraUncertainty(unc.parameters, A @ unc.covariance @ A.T, unc.sigma_px)
+    return CameraUncertainty(unc.parameters, A @ unc.covariance @ A.T, unc.sigma_px, unc.noise_px)
 
 
 def _jacobian(cam: Camera, names: list[str], X: np.ndarray) -> np.ndarray:

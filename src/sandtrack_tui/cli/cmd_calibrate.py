@@ -122,7 +122,8 @@ def _summary(report: dict) -> dict:
     keys = ["reprojection_rmse_px", "board_rmse_mm", "xyz_rmse_mm", "xyz_mean_mm", "per_camera", "views_used",
             "points", "seconds",
             "seconds_detect", "seconds_calibrate", "frames_detected", "corners_detected", "world", "warnings",
-            "sync", "output", "points_csv", "caliscope_export", "project", "method", "source"]
+            "sync", "output", "points_csv", "caliscope_export", "project", "method", "source",
+            "known_points_sd_mm", "known_points_in_two_cameras"]
     out = {k: report[k] for k in keys if k in report}
     out.setdefault("points", 0)
     out.setdefault("board_rmse_mm", None)  # only a board calibration measures the board
@@ -141,7 +142,14 @@ def _text(r: dict) -> str:
         lens = f", lens {c['lens']}" if c.get("lens") else ""
         lines.append(f"  {n}: fx {fx:.1f} px, RMSE {rm:.3f} px{lens}" if fx is not None and rm is not None
                      else f"  {n}")
+        if c.get("noise_px"):
+            lines.append("    own pixel noise (the known points' error taken out) x {:.3f}, y {:.3f} px"
+                         .format(*c["noise_px"]))
         lines += _selection_lines(c.get("lens_selection"))
+    if r.get("known_points_sd_mm"):
+        lines.append("known points' own error (sd per axis, X / Y / Z): {:.4f} / {:.4f} / {:.4f} mm, from {} "
+                     "points seen by two cameras or more".format(*r["known_points_sd_mm"],
+                                                                 r.get("known_points_in_two_cameras")))
     if "views_used" in r:
         lines.append(f"views used {r['views_used']}, points {r.get('points', 0)}, {r.get('seconds', 0):.1f} s")
     for w in r.get("warnings", []) or []:
