@@ -1,30 +1,32 @@
 """The network checked against triangulation: where a calibration gives an independent XYZ of the same
-point, a network whose error the spread cannot see (a point beyond the board's poses, where every
-calibration point is silent) shows up as a disagreement between the two.
+point, a network error its spread cannot see (a point beyond the board's poses, where no calibration
+point shows it) appears as a disagreement between the two.
 
-The test (`check_network`): d = XYZ_network - XYZ_triangulation, χ² = Σ d_i² / var(d_i) over the three
-axes, compared with the 99 % quantile of χ² with 3 degrees of freedom (`CHI2_3_99`). Both estimates
-read the same pixels, so the pixels' noise is common to them and cancels in d: var(d) per axis is the
-network's sd² plus the triangulation's sd², less twice the triangulation's pixel part (its sd from the
-pixels alone, the calibration's covariance left out; for an efficient estimator its covariance with any
-other unbiased one is its own variance). What stays is the network's own error (its spread without the
-pixel noise) and the calibration's. Points that pass (`OK`) keep the network's sd; points that fail
-(`INCONSISTENT`) get, per axis, sd² = max(sd², d² + sd_triangulation²): the network's error is the
-disagreement plus the triangulation's error, whose second moment that is. Where either sd is unknown
-there is no test (`UNCHECKED`, the sd as it was).
+The test (`check_network`): d = XYZ_network - XYZ_triangulation, each axis's |d_i| / sd(d_i) against
+`Z_CHECK`, the level at which a consistent point fails on any of its three axes with probability 1 %
+(Šidák: 1 - 0.99^(1/3) per axis, two-sided; it holds whatever the correlation between the axes, which
+neither sd states; a χ² over the axes with only their variances does not). Both estimates read the same
+pixels, so the pixels' noise is common to them and cancels in d: var(d_i) is the network's sd² plus the
+triangulation's sd², less twice the triangulation's pixel part (its sd from the pixels alone, without
+the calibration's covariance; an efficient estimator's covariance with any other unbiased one is its
+own variance). What stays is the network's own error (its spread without the pixel noise) and the
+calibration's. A point that passes (`OK`) keeps the network's sd; one that fails (`INCONSISTENT`) gets,
+per axis, sd² = max(sd², d² + sd_triangulation²): its error is the disagreement plus the triangulation's
+error, and that is its second moment. Where either sd is unknown there is no test (`UNCHECKED`, the sd as
+it was).
 
-What it includes: any network error larger than the two estimates' stated uncertainties allow, wherever
-the triangulation holds. What it leaves out: a network error below the test's power (about 3.4 combined
-sd in the worst axis: a bias that small still passes, and stays outside the network's sd), and errors the
-two share (a calibration error the network learned from the same board). The residual variant is not
-checked: it is the triangulation plus a learned correction, not an independent estimate.
+What it includes: a network error larger than the two estimates' stated uncertainties allow, wherever
+the triangulation holds. What it leaves out: a network error within about 2.9 sd(d) on every axis (it
+passes, and stays outside the network's sd when the spread understates it), and errors the two share
+(a calibration error the network learned from the same board). The residual variant is not checked: it
+is the triangulation plus a learned correction, not an independent estimate.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-CHI2_3_99 = 11.344866730144373  # 99 % quantile of χ² with 3 degrees of freedom
+Z_CHECK = 2.934161015263939  # normal quantile 1 - (1 - 0.99^(1/3)) / 2: 1 % false alarms over three axes
 OK, INCONSISTENT, UNCHECKED = "ok", "inconsistent", "unchecked"
 
 
@@ -44,7 +46,7 @@ def check_network(xyz: np.ndarray, sd: np.ndarray, xyz_tri: np.ndarray, sd_tri: 
     common = np.minimum(sd_pix[ok] ** 2, np.minimum(sd[ok], sd_tri[ok]) ** 2)
     var_d = sd[ok] ** 2 + sd_tri[ok] ** 2 - 2 * common
     var_d = np.maximum(var_d, 1e-12)
-    bad = np.sum(d ** 2 / var_d, axis=1) > CHI2_3_99
+    bad = (d ** 2 > Z_CHECK ** 2 * var_d).any(axis=1)
     widened = np.sqrt(np.maximum(sd[ok] ** 2, d ** 2 + sd_tri[ok] ** 2))
     rows = np.flatnonzero(ok)
     out[rows[bad]] = widened[bad]
