@@ -319,9 +319,9 @@ def test_the_network_checked_against_triangulation_covers_an_error_its_spread_mi
     off = copy.copy(trained[0])
     off.out_mean = off.out_mean + np.array([0.0, 6.0, 0.0])
     for model, offset in ((trained[0], False), (off, True)):
-        bare, _ = xyz_from_pixels(pixels, cols, None, model, method="mlp")
-        checked, _ = xyz_from_pixels(pixels, cols, rig, model, method="mlp")
-        assert set(bare["network_check"]) == {"unchecked"}  # no calibration: the spread alone
+        bare, note = xyz_from_pixels(pixels, cols, None, model, method="mlp")
+        checked, none = xyz_from_pixels(pixels, cols, rig, model, method="mlp")
+        assert set(bare["network_check"]) == {"unchecked"} and "spread alone" in note[0] and not none
         e = checked[["X_mm", "Y_mm", "Z_mm"]].to_numpy() - truth
         sd0, sd1 = (t[["sd_X_mm", "sd_Y_mm", "sd_Z_mm"]].to_numpy() for t in (bare, checked))
         before, after = coverage(e, sd0), coverage(e, sd1)

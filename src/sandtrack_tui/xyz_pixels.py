@@ -97,6 +97,9 @@ def xyz_from_pixels(df: pd.DataFrame, cams: dict[str, tuple[str, str]], calibrat
     psd = {c: pixel_sd(given_sd(df, c), np.zeros(n), calibration, c) for c in cams}
     blocks, tri = [], None
     tri_cams = [c for c in pix if calibration is not None and c in calibration.cameras]
+    if "mlp" in methods and len(tri_cams) < 2:
+        notes.append("the MLP's sd is its spread alone: no triangulation to check it against "
+                     "(--calibration with two of the table's cameras)")
     for m in methods:
         xyz, res, sd = np.full((n, 3), np.nan), np.full(n, np.nan), np.full((n, 3), np.nan)
         label = np.full(n, m, dtype=object)
