@@ -6,6 +6,8 @@ honest), for triangulation and the network.
    a. its calibration points (every board corner both cameras saw) through `xyz PIXELS.csv`'s path, and
    b. its tracked markers: auto-seed, track both ways, `compute_xyz` (each tracked point's sd from its
       match score), on the frames both cameras tracked; the network is the sample's own model.pt.
+   `mlp_inconsistent_pct`: the share of the MLP's checked rows whose check against the triangulation
+   failed (`regression.check`; their sd widened to cover the disagreement).
 2. The real stepped target (../shared/data/myptv_target, three cameras, surveyed dots): each camera fitted
    to two depth planes (`calibrate --from-points`, lens auto), the third plane triangulated, cameras 1+2
    and 1+2+3 (no network: three planes cannot train one). The pixel sd is each camera's own noise per
@@ -69,6 +71,8 @@ def calibration_points(res, model) -> dict:
         table, _ = xyz_from_pixels(pixels, camera_columns(pixels.columns), res.calibration, model, method=method)
         err = table[["X_mm", "Y_mm", "Z_mm"]].to_numpy(float) - truth
         out[f"{method}_pct"] = _pct(coverage(err, table[["sd_X_mm", "sd_Y_mm", "sd_Z_mm"]].to_numpy(float)))
+        if method == "mlp":
+            out["mlp_inconsistent_pct"] = round(100 * float((table["network_check"] == "inconsistent").mean()), 1)
     return out
 
 
@@ -108,6 +112,10 @@ def tracked_markers(calibration, work: Path) -> dict:
         out[f"{method}_pct"] = _pct(coverage(err, sd))
         out[f"{method}_rows_with_sd"] = int(np.isfinite(sd).all(axis=1).sum())
         out[f"{method}_median_sd_mm"] = [round(float(v), 3) for v in np.nanmedian(sd, axis=0)]
+        if method == "mlp":
+            checked = rows["network_check"].isin(("ok", "inconsistent"))
+            out["mlp_inconsistent_pct"] = round(100 * float((rows["network_check"] == "inconsistent").sum()
+                                                            / max(int(checked.sum()), 1)), 1)
     return out
 
 

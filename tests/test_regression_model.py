@@ -299,3 +299,40 @@ def test_no_confidence_outside_the_training_volume_and_old_files_load(trained, r
     old = load_model(tmp_path / "v1.pt")
     xyz, sd = predict_with_sd(old, px, "mlp")
     assert np.isfinite(xyz).all() and np.isnan(sd).all()
+
+
+
+def test_the_network_checked_against_triangulation_covers_an_error_its_spread_misses(trained, rig):
+    """A network off by 6 mm in Y (about 5 of its sd: as the sample's network errs below the board's lowest
+    poses, where no calibration point shows it) disagrees with the triangulation of the same pixels; the
+    check flags it and the widened sd holds its errors. Without the offset the check leaves the sd alone
+    for all but about 1 % of the points (its level) and the coverage stays near 95 %."""
+    import copy
+
+    from sandtrack_tui.xyz_pixels import camera_columns, xyz_from_pixels
+
+    truth = calibration_points(rig, n_points=3000, seed=45, noise_px=0.0)[["X_mm", "Y_mm", "Z_mm"]].to_numpy()
+    px = np.hstack([rig.project_world("side", truth), rig.project_world("front", truth)])
+    px = px + np.random.default_rng(8).normal(0, 0.3, px.shape)
+    pixels = pd.DataFrame(px, columns=["xs", "ys", "xf", "yf"]).assign(sd_px=0.3)
+    cols = camera_columns(pixels.columns)
+    off = copy.copy(trained[0])
+    off.out_mean = off.out_mean + np.array([0.0, 6.0, 0.0])
+    for model, offset in ((trained[0], False), (off, True)):
+        bare, note = xyz_from_pixels(pixels, cols, None, model, method="mlp")
+        checked, none = xyz_from_pixels(pixels, cols, rig, model, method="mlp")
+        assert set(bare["network_check"]) == {"unchecked"} and "spread alone" in note[0] and not none
+        e = checked[["X_mm", "Y_mm", "Z_mm"]].to_numpy() - truth
+        sd0, sd1 = (t[["sd_X_mm", "sd_Y_mm", "sd_Z_mm"]].to_numpy() for t in (bare, checked))
+        before, after = coverage(e, sd0), coverage(e, sd1)
+        flagged = (checked["network_check"] == "inconsistent").mean()
+        if offset:
+            assert before[1] < 0.1 and flagged > 0.8, (before, flagged)  # measured 0.036, 0.88
+            # Y near 95 % (the points left unflagged are those whose own sd was large); X, Z were covered
+            assert 0.93 < after[1] < 0.97 and (after > before - 1e-9).all(), after  # measured 0.998 / 0.947 / 0.996
+            # wide enough, not wider: the sd in Y is about the disagreement, the error itself
+            assert np.nanmedian(sd1[:, 1]) < 1.2 * np.sqrt(np.nanmean(e[:, 1] ** 2))  # measured 6.02 / 6.02
+        else:
+            assert flagged < 0.03, flagged  # measured 0.018
+            assert ((after > 0.93) & (after < 0.98)).all(), after  # measured 0.968 / 0.973 / 0.967
+            assert (np.abs(after - before) < 0.015).all(), (before, after)

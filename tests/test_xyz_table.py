@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import json
 
 import numpy as np
@@ -14,7 +15,7 @@ from sandtrack_tui.errors import SandtrackError
 from sandtrack_tui.regression import TrainConfig, train
 from sandtrack_tui.regression.synthetic import calibration_points, study_rig
 from sandtrack_tui.store import Project
-from sandtrack_tui.xyz import XYZ_COLUMNS, compute_xyz, xyz_at_frame
+from sandtrack_tui.xyz import XYZ_COLUMNS, compute_xyz, project_calibration, xyz_at_frame
 
 FPS = 50.0
 N_FRAMES = 40
@@ -119,6 +120,21 @@ def test_mlp_rows_beside_triangulation_and_outside_flag(project, model_file):
     assert inside["residual_px"].notna().all()
     nan_policy = compute_xyz(project, method="mlp", outside="nan")
     assert set(nan_policy["method"]) == {"mlp"} and nan_policy.loc[nan_policy["marker"] == 4, "X_mm"].isna().all()
+    # the rig states no pixel noise and the points no sd: the triangulation has no sd, the MLP's is unchecked
+    assert set(inside["network_check"]) == {"unchecked"} and set(both["network_check"]) == {"unchecked", ""}
+    # with one, every MLP row with an sd is checked against the triangulation, the same whether the
+    # triangulation rows are asked for or not
+    cal = copy.deepcopy(project_calibration(project))
+    for cam in cal.cameras.values():
+        cam.rmse_px = 0.3
+    both = compute_xyz(project, method="both", calibration=cal)
+    mlp = both[both["method"] == "mlp"]
+    with_sd = mlp["sd_X_mm"].notna()
+    assert set(mlp.loc[with_sd, "network_check"]) == {"ok", "inconsistent"}  # measured 2.5 % inconsistent
+    assert set(mlp.loc[mlp["X_mm"].isna(), "network_check"]) == {""}
+    assert set(both.loc[both["method"] == "triangulation", "network_check"]) == {""}
+    alone = compute_xyz(project, method="mlp", calibration=cal)
+    pd.testing.assert_frame_equal(alone[alone["method"] == "mlp"].reset_index(drop=True), mlp.reset_index(drop=True))
 
 
 def test_single_frame_matches_the_full_table(project, model_file):

@@ -4,9 +4,10 @@ Export
     The tidy table has one row per frame of the first camera (the reference: side in a side/front
     project), marker and method: ``frame, time_s, marker``, ``status_<camera>`` for each camera,
     each camera's pixels (``xs, ys`` side, ``xf, yf`` front, ``x_<camera>, y_<camera>`` any other),
-    ``X_mm, Y_mm, Z_mm``, their 1-sigma ``sd_X_mm, sd_Y_mm, sd_Z_mm``, ``method, residual_px`` and
+    ``X_mm, Y_mm, Z_mm``, their 1-sigma ``sd_X_mm, sd_Y_mm, sd_Z_mm``, ``method, residual_px``,
     ``xyz_source`` ("interpolated", or "nearest_frame" where a camera had only one of the two frames
-    around the reference time) (see `xyz.py`: the other cameras' tracks are
+    around the reference time) and ``network_check`` (the MLP rows' check against triangulation: "ok",
+    "inconsistent", "unchecked") (see `xyz.py`: the other cameras' tracks are
     interpolated to the reference frame's time through the sync offset; pixels in the OpenCV
     convention, origin at the top-left pixel's centre, y down).
 
@@ -90,6 +91,8 @@ def check_tidy(df: pd.DataFrame) -> pd.DataFrame:
         df = df.assign(**{c: np.nan for c in absent_sd})
     if "xyz_source" not in df.columns:  # a table from before nearest-frame rows: all interpolated
         df = df.assign(xyz_source="interpolated")
+    if "network_check" not in df.columns:  # a table from before the network's check
+        df = df.assign(network_check="")
     missing = [c for c in columns if c not in df.columns] if cameras else ["status_<camera>"]
     if missing:
         raise SandtrackError(f"trajectory table lacks columns: {', '.join(missing)}")

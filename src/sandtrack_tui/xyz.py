@@ -30,12 +30,17 @@ side/front project), marker and method, with the columns `xyz_columns(cameras)`:
   and the calibration's parameter covariance, propagated to first order (`triangulation_sd`). For "mlp"
   and "residual" rows the network's spread (`regression.spread`: its error on calibration points it never
   saw, plus the pixels' noise above theirs); NaN outside the training volume and for a model file without
-  a spread. NaN where a pixel's sd is not known.
+  a spread. NaN where a pixel's sd is not known. With a calibration, an "mlp" row's sd is also checked
+  against the triangulation of the same pixels and widened where the two disagree (`network_check`).
 - ``xyz_source``: "interpolated" (every camera's pixels at the reference time: its own frame or the two
   around it), or "nearest_frame": a camera had a point in only one of the two frames around (a seed
   frame, a track's first or last frame; never next to a "lost" one), so its pixels are that frame's and
   their sd grows by the marker's motion over the time between (its speed from that frame and the next one
   beyond; NaN when the track has no such frame yet).
+- ``network_check``: for "mlp" rows, "ok" (the network agrees with the triangulation within their
+  uncertainties), "inconsistent" (it does not, at the 99 % level; its sd then covers the disagreement:
+  `regression.check`) or "unchecked" (no triangulation or no sd: the spread alone); empty for the
+  other methods.
 - ``residual_px``: RMS reprojection error of the XYZ through the calibration (px); a large value
   means the views do not agree (a bad track or a poor model). NaN without a calibration.
 
@@ -81,7 +86,7 @@ def xyz_columns(cameras) -> list[str]:
     """Columns of the XYZ table of a project with these cameras (the first is the reference)."""
     return ["frame", "time_s", "marker", *(f"status_{c}" for c in cameras),
             *(col for c in cameras for col in pixel_columns(c)), "X_mm", "Y_mm", "Z_mm", *SD_COLUMNS, "method",
-            "residual_px", "xyz_source"]
+            "residual_px", "xyz_source", "network_check"]
 
 
 XYZ_COLUMNS = xyz_columns(NETWORK_CAMERAS)
@@ -225,7 +230,8 @@ def compute_pixels(project, frames=None, times: dict | None = None) -> pd.DataFr
     obs = _observations(project, timeline, frames)
     n = len(obs["frame"])
     return _table(obs, timeline.cameras, [(np.full((n, 3), np.nan), np.full(n, np.nan),
-                                           np.full(n, "pixels", dtype=object), np.full((n, 3), np.nan))])
+                                           np.full(n, "pixels", dtype=object), np.full((n, 3), np.nan),
+                                           np.full(n, "", dtype=object))])
 
 
 def xyz_at_frame(project, frame: int, method: str = "both", **kw) -> pd.DataFrame:
@@ -414,22 +420,27 @@ def _solve(obs: dict, cameras: list[str], methods: list[str], model, calibration
     seen = np.sum([np.isfinite(pix[c]).all(axis=1) for c in tri_cams], axis=0) if tri_cams else np.zeros(n)
     ok = seen >= 2
     psd = {c: pixel_sd(obs["sd"][c], obs["extra"][c], calibration, c) for c in cameras}
-    blocks = []
+    tsd = {c: pixel_sd_axes(obs["sd"][c], obs["extra"][c], calibration, c) for c in tri_cams}
+    blocks, tri = [], None
     for m in methods:
         xyz, sd = np.full((n, 3), np.nan), np.full((n, 3), np.nan)
         res = np.full(n, np.nan)
         label = np.full(n, m, dtype=object)
+        check = np.full(n, "", dtype=object)
         if m == "triangulation":
             if ok.any():
                 used = {c: pix[c][ok] for c in tri_cams}
-                tsd = {c: pixel_sd_axes(obs["sd"][c][ok], obs["extra"][c][ok], calibration, c) for c in tri_cams}
-                xyz[ok], res[ok], sd[ok] = triangulate_with_sd(calibration, used, tsd, refine)
+                xyz[ok], res[ok], sd[ok] = triangulate_with_sd(calibration, used, {c: tsd[c][ok] for c in tri_cams},
+                                                               refine)
+            tri = (xyz, sd)
         elif n:
             network_rows(m, model, calibration, np.hstack([pix[c] for c in NETWORK_CAMERAS]), outside, xyz, res,
                          label, sd, np.repeat(np.stack([psd[c] for c in NETWORK_CAMERAS], axis=1), 2, axis=1))
             unknown = ~np.isfinite(np.stack([obs["extra"][c] for c in NETWORK_CAMERAS], axis=1)).all(axis=1)
             sd[unknown] = np.nan  # a nearest frame whose motion is not known
-        blocks.append((xyz, res, label, sd))
+            if m == "mlp":
+                check = check_network_rows(calibration, {c: pix[c] for c in tri_cams}, tsd, refine, xyz, sd, tri)
+        blocks.append((xyz, res, label, sd, check))
     return _table(obs, cameras, blocks)
 
 
@@ -440,6 +451,33 @@ def pixel_sd(sd: np.ndarray, extra: np.ndarray, calibration, camera: str) -> np.
     cam = calibration.cameras.get(camera) if calibration is not None else None
     base = np.where(np.isnan(sd), axis_sd(cam), sd)
     return np.hypot(base, extra)
+
+
+def check_network_rows(calibration, pixels: dict, pixel_sd: dict, refine: bool, xyz: np.ndarray, sd: np.ndarray,
+                       done: tuple | None = None) -> np.ndarray:
+    """The MLP's rows checked against triangulation (`regression.check`): their sd (N, 3) widened in place
+    where the two disagree, and the verdict per row ("ok", "inconsistent"; "unchecked" for an XYZ without
+    a check: no triangulation or no sd; "" without an XYZ). `pixels`, `pixel_sd`: the calibrated cameras'
+    (N, 2) px and sd ((N,) or (N, 2) per image axis); `done`: the triangulation's XYZ and sd of these rows
+    when already computed."""
+    from .regression.check import UNCHECKED, check_network
+    from .triangulation_sd import triangulation_sd
+
+    verdict = np.full(len(xyz), "", dtype=object)
+    verdict[np.isfinite(xyz).all(axis=1)] = UNCHECKED
+    seen = np.sum([np.isfinite(p).all(axis=1) for p in pixels.values()], axis=0) if pixels else 0
+    rows = np.isfinite(sd).all(axis=1) & (seen >= 2)
+    if not rows.any():
+        return verdict
+    used = {c: p[rows] for c, p in pixels.items()}
+    used_sd = {c: v[rows] for c, v in pixel_sd.items()}
+    if done is None:
+        tri, _, tri_sd = triangulate_with_sd(calibration, used, used_sd, refine)
+    else:
+        tri, tri_sd = done[0][rows], done[1][rows]
+    tri_sd_pixels = triangulation_sd(calibration, used, calibration.to_rig(tri), used_sd, with_calibration=False)
+    sd[rows], verdict[rows] = check_network(xyz[rows], sd[rows], tri, tri_sd, tri_sd_pixels)
+    return verdict
 
 
 def triangulate_with_sd(calibration, pixels: dict, sd: dict, refine: bool):
@@ -465,7 +503,7 @@ def _solve_scaled(project, obs: dict, camera: str, calibration) -> pd.DataFrame:
     xyz = np.full((n, 3), np.nan)
     xyz[:, :2] = to_mm(obs["pixels"][camera], found[0], cam)
     return _table(obs, [camera], [(xyz, np.full(n, np.nan), np.full(n, "scale", dtype=object),
-                                   np.full((n, 3), np.nan))])
+                                   np.full((n, 3), np.nan), np.full(n, "", dtype=object))])
 
 
 def _table(obs: dict, cameras: list[str], blocks: list) -> pd.DataFrame:
@@ -473,7 +511,7 @@ def _table(obs: dict, cameras: list[str], blocks: list) -> pd.DataFrame:
     n = len(obs["frame"])
     columns = xyz_columns(cameras)
     cols: dict[str, list] = {c: [] for c in columns}
-    for xyz, res, label, sd in blocks:
+    for xyz, res, label, sd, check in blocks:
         for c in ("frame", "time_s", "marker"):
             cols[c].append(obs[c])
         for c in cameras:
@@ -489,13 +527,14 @@ def _table(obs: dict, cameras: list[str], blocks: list) -> pd.DataFrame:
         cols["residual_px"].append(res)
         cols["xyz_source"].append(np.where(obs.get("nearest", np.zeros(n, bool)), XYZ_SOURCES[1],
                                            XYZ_SOURCES[0]).astype(object))
+        cols["network_check"].append(check)
     table = pd.DataFrame({c: np.concatenate(v) if v else np.zeros(0) for c, v in cols.items()})
     order = np.lexsort((np.repeat(np.arange(len(blocks)), n), table["marker"].to_numpy(),
                         table["frame"].to_numpy()))
     table = table.iloc[order].reset_index(drop=True)
     table["frame"] = table["frame"].astype(np.int64)
     table["marker"] = table["marker"].astype(np.int64)
-    for c in [*(f"status_{c}" for c in cameras), "method", "xyz_source"]:
+    for c in [*(f"status_{c}" for c in cameras), "method", "xyz_source", "network_check"]:
         table[c] = table[c].astype(object)
     return table
 

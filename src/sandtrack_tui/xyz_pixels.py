@@ -3,8 +3,8 @@
 A pixels table has one row per point and the pixels of each camera in two columns: ``xs, ys``
 (side) and ``xf, yf`` (front), or ``x_NAME, y_NAME`` for a camera NAME of the calibration, any number
 of cameras, NaN (an empty field) where a camera did not see the point. Every other column is passed
-through. The result adds ``X_mm, Y_mm, Z_mm, sd_X_mm, sd_Y_mm, sd_Z_mm, method, residual_px`` (see `xyz.py`
-for their meaning);
+through. The result adds ``X_mm, Y_mm, Z_mm, sd_X_mm, sd_Y_mm, sd_Z_mm, method, residual_px,
+network_check`` (see `xyz.py` for their meaning);
 with several methods each input row appears once per method, in input order. Triangulation uses every
 camera that saw a point (two or more); the network and its residual variant read the side and front
 pixels, as they were trained.
@@ -32,7 +32,7 @@ from .xyz import (
     wanted_methods,
 )
 
-RESULT_COLUMNS = ["X_mm", "Y_mm", "Z_mm", *SD_COLUMNS, "method", "residual_px"]
+RESULT_COLUMNS = ["X_mm", "Y_mm", "Z_mm", *SD_COLUMNS, "method", "residual_px", "network_check"]
 COMMAND_LINE_NEEDS = {
     "calibration": "triangulation needs --calibration CAL.toml",
     "model": "the {method} method needs --model MODEL.pt (sandtrack train)",
@@ -78,7 +78,7 @@ def xyz_from_pixels(df: pd.DataFrame, cams: dict[str, tuple[str, str]], calibrat
     """The table with XYZ by each method, and notes for the user (renamed columns)."""
     check_choices(method, outside)
     from .triangulation_sd import pixel_sd_axes
-    from .xyz import triangulate_with_sd
+    from .xyz import check_network_rows, triangulate_with_sd
 
     if calibration is not None and "triangulation" in wanted_methods(method):
         unknown = [c for c in cams if c not in calibration.cameras]
@@ -96,24 +96,33 @@ def xyz_from_pixels(df: pd.DataFrame, cams: dict[str, tuple[str, str]], calibrat
     pix = {n: df[list(xy)].to_numpy(float) for n, xy in cams.items()}
     n = len(df)
     psd = {c: pixel_sd(given_sd(df, c), np.zeros(n), calibration, c) for c in cams}
-    blocks = []
+    blocks, tri = [], None
+    tri_cams = [c for c in pix if calibration is not None and c in calibration.cameras]
+    tsd = {c: pixel_sd_axes(given_sd(df, c), np.zeros(n), calibration, c) for c in tri_cams}
+    if "mlp" in methods and len(tri_cams) < 2:
+        notes.append("the MLP's sd is its spread alone: no triangulation to check it against "
+                     "(--calibration with two of the table's cameras)")
     for m in methods:
         xyz, res, sd = np.full((n, 3), np.nan), np.full(n, np.nan), np.full((n, 3), np.nan)
         label = np.full(n, m, dtype=object)
+        check = np.full(n, "", dtype=object)
         if m == "triangulation":
-            used = {c: p for c, p in pix.items() if c in calibration.cameras}
+            used = {c: pix[c] for c in tri_cams}
             if n:
-                tsd = {c: pixel_sd_axes(given_sd(df, c), np.zeros(n), calibration, c) for c in used}
-                xyz, res, sd = triangulate_with_sd(calibration, used, tsd, refine)
+                xyz, res, sd = triangulate_with_sd(calibration, used, {c: tsd[c] for c in used}, refine)
+            tri = (xyz, sd)
         else:
             network_rows(m, model, calibration, np.hstack([pix[c] for c in NETWORK_CAMERAS]), outside, xyz, res,
                          label, sd, np.repeat(np.stack([psd[c] for c in NETWORK_CAMERAS], axis=1), 2, axis=1))
+            if m == "mlp":
+                check = check_network_rows(calibration, {c: pix[c] for c in tri_cams}, tsd, refine, xyz, sd, tri)
         out = base.copy()
         out["X_mm"], out["Y_mm"], out["Z_mm"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
         for k, c in enumerate(SD_COLUMNS):
             out[c] = sd[:, k]
         out["method"] = label
         out["residual_px"] = res
+        out["network_check"] = check
         blocks.append(out)
     if len(blocks) == 1:
         return blocks[0].reset_index(drop=True), notes

@@ -21,7 +21,8 @@ noisy as the calibration points (the default when no sd is known) gets the sprea
 held-out poses. What it leaves out: anything the calibration points cannot show. A query outside the
 training volume gets no sd (NaN: the network extrapolates, and nothing measured its error there); near
 the volume's faces, inside the tolerance `outside_training` allows, the network's extrapolation error is
-not in it (the held-out poses lie between training poses, not beyond).
+not in it (the held-out poses lie between training poses, not beyond). Where a calibration gives a
+triangulation of the same pixels, `check` tests the MLP against it and widens the sd where they disagree.
 """
 
 from __future__ import annotations
