@@ -14,6 +14,7 @@ from sandtrack_tui.cli.cmd_tui import sample_project
 from sandtrack_tui.store import Project
 from sandtrack_tui.tracking.run import seed_marker
 from sandtrack_tui.tui.app import SandtrackApp
+from sandtrack_tui.xyz import xyz_at_frame
 from test_tui_app import aio, settle
 
 pytestmark = pytest.mark.skipif(not (SAMPLE_DATA / "model.pt").is_file(),
@@ -56,3 +57,8 @@ async def test_sample_project_shows_both_xyz_columns_on_first_run(tmp_path):
         true = xyz[(xyz.frame == first) & (xyz.marker == marker)][["X_mm", "Y_mm", "Z_mm"]].to_numpy()[0]
         assert np.linalg.norm(np.array(row.xyz_tri) - true) < 0.045  # measured 0.030 mm
         assert np.linalg.norm(np.array(row.xyz_net) - true) < 1.2  # the sample's network: measured 0.80 mm
+        # the network's check against triangulation as the core gives it, "!" on the cell when inconsistent
+        net = xyz_at_frame(app.project, first)
+        net = net[(net.marker == marker) & (net.method == "mlp")]
+        assert row.net_check == net.network_check.iloc[0] and row.net_check in ("ok", "inconsistent")
+        assert str(table.get_row(str(marker))[6]).endswith("!") == (row.net_check == "inconsistent")

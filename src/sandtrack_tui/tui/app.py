@@ -544,6 +544,7 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, MarkersMixin, App):
                 r.residual_px = rec.residual_px
             else:
                 r.xyz_net, r.sd_net = val, sd
+                r.net_check = str(getattr(rec, "network_check", "") or "")
 
     def _scale(self, project: Project | None = None):
         """(mm per px, source) of a one-camera project, or None."""

@@ -2,7 +2,9 @@
 triangulation and by the network (a side and a front camera), XYZ by triangulation (other rigs
 of two or more cameras), or x, y in mm through the scale (one camera). An XYZ cell ends with
 "± sd": the largest of its three 1-sigma sd (mm; "±?" where not known), and "~" when a camera's
-pixels came from its nearest frame instead of the two around (a seed frame)."""
+pixels came from its nearest frame instead of the two around (a seed frame). A network XYZ that
+disagrees with the triangulation beyond both their sd (`network_check` "inconsistent"; its sd is
+widened to the disagreement) ends with "!"."""
 
 from __future__ import annotations
 
@@ -29,6 +31,7 @@ class MarkerRow:
     xyz_net: tuple[float, float, float] | None = None
     sd_tri: tuple[float, float, float] | None = None
     sd_net: tuple[float, float, float] | None = None
+    net_check: str = ""  # the network's XYZ against triangulation: "ok", "inconsistent", "unchecked"
     nearest_frame: bool = False
     residual_px: float | None = None
     xy_mm: tuple[float, float] | None = None  # one camera: image position in mm
@@ -93,7 +96,9 @@ def format_row(row: MarkerRow, cameras: list[str]) -> list:
     cells.append(format_xyz(row.xyz_tri, row.sd_tri, row.nearest_frame))
     if cameras == ["side", "front"]:
         diff = row.difference_mm
-        cells += [format_xyz(row.xyz_net, row.sd_net, row.nearest_frame), f"{diff:.1f}" if diff is not None else "—"]
+        net = format_xyz(row.xyz_net, row.sd_net, row.nearest_frame)
+        net = Text(net + "!", style="yellow") if row.net_check == "inconsistent" and net != "—" else net
+        cells += [net, f"{diff:.1f}" if diff is not None else "—"]
     cells.append(Text(f"{row.residual_px:.2f}", style="red" if row.residual_px > 2.0 else "")
                  if _finite(row.residual_px) else "—")
     return cells
