@@ -64,7 +64,7 @@ MERGED_WIDTH_MIN_BLOBS = 20
 # (rms at most SPLIT_RATIO of one disc's, and under SPLIT_RMS radii: three particles or a hidden part fit
 # neither), each disc is seen along SPLIT_MIN_RAYS rays at least and the centres lie SPLIT_SEPARATION
 # radii apart at least (nearer, the two are one blob for any fit); otherwise it stays `merged`.
-SPLIT_RATIO, SPLIT_RMS, SPLIT_MIN_RAYS, SPLIT_SEPARATION = 0.3, 0.12, 6, (0.5, 3.2)
+SPLIT_RATIO, SPLIT_RMS, SPLIT_MIN_RAYS, SPLIT_SEPARATION = 0.5, 0.12, 6, (0.8, 3.2)
 SPLIT_SAME = 0.5  # radii: a half this near another detection is the same particle
 
 
@@ -365,8 +365,24 @@ def two_disc_fit(chan: np.ndarray, model: ParticleModel, x: np.ndarray, y: np.nd
     sse = sum(np.nan_to_num(f[2]) ** 2 * n[:, d] for d, f in enumerate(fits))
     rms2 = np.sqrt(sse / np.maximum(n.sum(axis=1), 1))
     ax, ay, aw = np.hstack(ex), np.hstack(ey), np.hstack(w)
-    rms1 = _fit_discs(ax, ay, aw, c[:, :, 0].mean(axis=1), c[:, :, 1].mean(axis=1), r)[2]
+    rms1 = np.fmin(_fit_discs(ax, ay, aw, c[:, :, 0].mean(axis=1), c[:, :, 1].mean(axis=1), r)[2],
+                   _circle_rms(ax, ay, aw))
     return c, rms1, rms2, n
+
+
+def _circle_rms(ex: np.ndarray, ey: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Per row: the rms distance of the edge points (ex, ey) where w to the circle of any radius fitted
+    to them (algebraic fit): one particle nearer the camera than the rest is a larger disc, not two."""
+    wf = w.astype(float)
+    A = np.stack([ex, ey, np.ones_like(ex)], axis=2) * wf[..., None]
+    z = -(ex ** 2 + ey ** 2) * wf
+    ata = np.einsum("kni,knj->kij", A, A) + 1e-9 * np.eye(3)
+    sol = np.linalg.solve(ata, np.einsum("kni,kn->ki", A, z)[..., None])[..., 0]
+    cx, cy = -sol[:, 0] / 2, -sol[:, 1] / 2
+    R = np.sqrt(np.maximum(cx ** 2 + cy ** 2 - sol[:, 2], 0))
+    d = np.hypot(ex - cx[:, None], ey - cy[:, None]) - R[:, None]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.sqrt(((d * wf) ** 2).sum(axis=1) / wf.sum(axis=1))
 
 
 def _fit_discs(ex: np.ndarray, ey: np.ndarray, w: np.ndarray, cx: np.ndarray, cy: np.ndarray, r: float,
