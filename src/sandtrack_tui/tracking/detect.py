@@ -19,7 +19,7 @@ import pandas as pd
 
 from ..errors import SandtrackError
 
-DETECTION_COLUMNS = ["x_px", "y_px", "size_px", "contrast", "confidence", "merged"]
+DETECTION_COLUMNS = ["x_px", "y_px", "size_px", "contrast", "confidence", "merged", "split"]
 NMS_DIAMETERS = 0.7  # two peaks closer than this many diameters are one particle
 MIN_CONFIDENCE = 0.7  # normalised cross-correlation with the learnt template
 REMAP_ROWS = 30000
@@ -281,12 +281,13 @@ def detect(frame: np.ndarray, model: ParticleModel, roi: tuple | None = None) ->
         edge_r = float(np.median(own[single])) if single.sum() >= MERGED_WIDTH_MIN_BLOBS else model.diameter_px / 2
         out = pd.DataFrame({"x_px": px[keep], "y_px": py[keep], "size_px": model.diameter_px,
                             "contrast": body[keep].mean(axis=1), "confidence": score[keep].astype(float),
-                            "merged": merged[keep]})
+                            "merged": merged[keep], "split": False})
         pairs = split_merged(chan, model, px[keep], py[keep], merged[keep], a, axis, background[keep], edge_r)
         return _with_pairs(out, pairs, chan, model, res, x0, y0, edge_r)
     return pd.DataFrame({"x_px": px[keep], "y_px": py[keep], "size_px": np.full(int(keep.sum()), model.diameter_px),
                          "contrast": body[keep].mean(axis=1) if len(px) else np.zeros(0),
-                         "confidence": score[keep].astype(float), "merged": merged[keep]})
+                         "confidence": score[keep].astype(float), "merged": merged[keep],
+                         "split": np.zeros(int(keep.sum()), bool)})
 
 
 def _with_pairs(det: pd.DataFrame, pairs: tuple, chan: np.ndarray, model: ParticleModel, res: np.ndarray,
@@ -316,7 +317,7 @@ def _with_pairs(det: pd.DataFrame, pairs: tuple, chan: np.ndarray, model: Partic
     j = np.clip(np.round(xy[:, 1] - y0).astype(int), 0, H - 1)
     found = pd.DataFrame({"x_px": xy[:, 0], "y_px": xy[:, 1], "size_px": model.diameter_px,
                           "contrast": body_levels(chan, model, xy[:, 0], xy[:, 1]).mean(axis=1),
-                          "confidence": res[j, i].astype(float), "merged": False})
+                          "confidence": res[j, i].astype(float), "merged": False, "split": True})
     return pd.concat([det.drop(det.index[idx[clear]]), found], ignore_index=True)
 
 
@@ -330,7 +331,8 @@ def split_merged(chan: np.ndarray, model: ParticleModel, x: np.ndarray, y: np.nd
         return idx, np.zeros((0, 2, 2))
     c, rms1, rms2, n = two_disc_fit(chan, model, x[idx], y[idx], a[idx], axis[idx], background[idx], r)
     s = np.hypot(c[:, 0, 0] - c[:, 1, 0], c[:, 0, 1] - c[:, 1, 1])
-    ok = ((rms2 <= SPLIT_RATIO * rms1) & (rms2 <= SPLIT_RMS * r) & (n.min(axis=1) >= SPLIT_MIN_RAYS)
+    pooled = np.sqrt((np.nan_to_num(rms2) ** 2 * n).sum(axis=1) / np.maximum(n.sum(axis=1), 1))
+    ok = ((pooled <= SPLIT_RATIO * rms1) & (np.fmax(*rms2.T) <= SPLIT_RMS * r) & (n.min(axis=1) >= SPLIT_MIN_RAYS)
           & (s >= SPLIT_SEPARATION[0] * r) & (s <= SPLIT_SEPARATION[1] * r))
     return idx[ok], c[ok]
 
@@ -340,8 +342,8 @@ def two_disc_fit(chan: np.ndarray, model: ParticleModel, x: np.ndarray, y: np.nd
     """Two discs of radius r for each blob: centres first at (x, y) +- (a - r) along the axis, then each
     fitted to the blob's edge along the rays from its own centre that point away from the other's (the
     outer half of its rim), `rounds` times. Returns the centres (k, 2, 2), the rms distance of all those
-    edge points to one disc of radius r fitted to them, the same to the two discs (each its own half),
-    and each disc's count of edge points (k, 2)."""
+    edge points to one disc of radius r fitted to them, the same to each disc of its own half (k, 2) and
+    each disc's count of edge points (k, 2)."""
     rays = 2 * BODY_RAYS
     ang = np.linspace(0, 2 * np.pi, rays, endpoint=False)
     off = np.maximum(a - r, 0.25 * r)
@@ -362,8 +364,7 @@ def two_disc_fit(chan: np.ndarray, model: ParticleModel, x: np.ndarray, y: np.nd
         fits = [_fit_discs(ex[d], ey[d], w[d], c[:, d, 0].copy(), c[:, d, 1].copy(), r) for d in range(2)]
         c = np.stack([np.stack([f[0], f[1]], 1) for f in fits], 1)
     n = np.stack([w[0].sum(axis=1), w[1].sum(axis=1)], 1)
-    sse = sum(np.nan_to_num(f[2]) ** 2 * n[:, d] for d, f in enumerate(fits))
-    rms2 = np.sqrt(sse / np.maximum(n.sum(axis=1), 1))
+    rms2 = np.stack([fits[0][2], fits[1][2]], 1)
     ax, ay, aw = np.hstack(ex), np.hstack(ey), np.hstack(w)
     rms1 = np.fmin(_fit_discs(ax, ay, aw, c[:, :, 0].mean(axis=1), c[:, :, 1].mean(axis=1), r)[2],
                    _circle_rms(ax, ay, aw))
