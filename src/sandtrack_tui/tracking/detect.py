@@ -5,7 +5,9 @@ direction that separates it from what surrounds it (grey frames: darker or brigh
 profile along that direction, as a rotationally symmetric template. `detect(frame, model, roi)` is a
 matched filter (normalised cross-correlation with that template) over the frame, non-maximum
 suppression at `NMS_DIAMETERS` of a diameter (touching beads of a packed bed each give one peak) and
-a sub-pixel centre from a parabola through the peak. Returns a DataFrame with DETECTION_COLUMNS.
+a sub-pixel centre from a parabola through the peak. A solid particle's blob that is two overlapping
+particles is resolved into both (split_merged) or, when that is not clear, marked `merged`. Returns a
+DataFrame with DETECTION_COLUMNS.
 Frames may be grey or colour (BGR), of any integer or float type.
 """
 
@@ -57,13 +59,16 @@ MERGED_ELONGATION = 0.4
 # needs MERGED_WIDTH_MIN_BLOBS blobs in the frame (a window round a few tracks is too few).
 MERGED_WIDTH = 1.3
 MERGED_WIDTH_MIN_BLOBS = 20
-# A merged blob resolved into its two particles: two discs of the particles' edge radius (the median of
+# A merged blob resolved into its two particles: two discs of the particles' edge radius r (the median of
 # the frame's single blobs, MERGED_WIDTH_MIN_BLOBS of them at least, else the model's radius), their
-# centres first at the blob's centre +- (a - r) along its long axis, then each fitted to the edge points
-# on its side of the pair. Split when the two discs explain the edge points clearly better than one disc
-# (rms at most SPLIT_RATIO of one disc's, and under SPLIT_RMS radii: three particles or a hidden part fit
-# neither), each disc is seen along SPLIT_MIN_RAYS rays at least and the centres lie SPLIT_SEPARATION
-# radii apart at least (nearer, the two are one blob for any fit); otherwise it stays `merged`.
+# centres first at the blob's centre +- (a - r) along its long axis, then each fitted to the edge along
+# the rays from its own centre that point away from the other (the outer half of its rim). Split when the
+# two discs explain those edge points clearly better than one disc of r or of any radius (a particle nearer
+# the camera is a larger disc, not two): rms at most SPLIT_RATIO of one disc's, and each disc's under
+# SPLIT_RMS radii (three particles fit neither half), each seen along SPLIT_MIN_RAYS rays at least, the
+# centres SPLIT_SEPARATION radii apart (nearer, the one behind is mostly hidden: one blob for any fit;
+# dense300, both views, frames 0, 30, 60, 90, 101, 118: 190 of 517 merged blobs split, 189 with both
+# halves within 3 px of two markers, 188 within 2 px). Otherwise it stays `merged`.
 SPLIT_RATIO, SPLIT_RMS, SPLIT_MIN_RAYS, SPLIT_SEPARATION = 0.5, 0.12, 6, (0.8, 3.2)
 SPLIT_SAME = 0.5  # radii: a half this near another detection is the same particle
 

@@ -6,7 +6,9 @@ the detector's sub-pixel centre is the point. A track that is not seen coasts on
 (`occluded`) for up to `memory` frames, then is `lost` and ends; a detection no track explains starts
 a new particle with a new id when asked (`new_particles`: beads entering the view). A detection that
 is two merged particles (detect.py) is neither's centre: a track on it is reported `occluded` (flagged)
-and stays in doubt until a clear detection of its own; none starts a new particle. Each camera is
+and stays in doubt until a clear detection of its own; none starts a new particle. A merged blob the
+detector resolved into its two particles gives two ordinary detections (`split`): seeds and tracks take
+them, a new particle does not start on one (its identity is the fit's, not yet the motion's). Each camera is
 tracked on its own; at the end of the run, pieces of one particle's track are joined across short gaps and
 the tracks of two calibrated cameras are paired across the views (particle_joins.py), in the same edit.
 
