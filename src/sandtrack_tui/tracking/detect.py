@@ -356,9 +356,10 @@ def two_disc_fit(chan: np.ndarray, model: ParticleModel, x: np.ndarray, y: np.nd
     c = np.stack([np.stack([x + off * ux, y + off * uy], 1), np.stack([x - off * ux, y - off * uy], 1)], 1)
     for _ in range(rounds):
         ex, ey, w = [], [], []
+        both = blob_edges(chan, model, c[:, :, 0].T.ravel(), c[:, :, 1].T.ravel(), np.tile(background, 2))[3]
         for d in range(2):
             cx, cy = c[:, d, 0], c[:, d, 1]
-            rho = blob_edges(chan, model, cx, cy, background)[3]
+            rho = both[d * len(x):(d + 1) * len(x)]
             out_x, out_y = cx - c[:, 1 - d, 0], cy - c[:, 1 - d, 1]
             outward = np.cos(ang)[None] * out_x[:, None] + np.sin(ang)[None] * out_y[:, None] > 0
             wd = np.isfinite(rho) & outward
