@@ -134,7 +134,8 @@ def _margin(ti, dj, d2, taken, cost, unsure, ambiguous) -> None:
     for t in coasting:
         j, c = taken[t], cost[t]
         rival_track = (dj == j) & (ti != t) & (d2 < c + MARGIN_D2)
-        rival_det = (ti == t) & (dj != j) & ~claimed[dj] & (d2 < c + MARGIN_D2)
+        # a detection nearer its prediction that another track took: the one it took is its second choice
+        rival_det = (ti == t) & (dj != j) & (~claimed[dj] | (d2 < c)) & (d2 < c + MARGIN_D2)
         if rival_track.any() or rival_det.any():
             taken[t] = -1
             cost[t] = np.nan

@@ -6,7 +6,9 @@ the detector's sub-pixel centre is the point. A track that is not seen coasts on
 (`occluded`) for up to `memory` frames, then is `lost` and ends; a detection no track explains starts
 a new particle with a new id when asked (`new_particles`: beads entering the view). A detection that
 is two merged particles (detect.py) is neither's centre: a track on it is reported `occluded` (flagged)
-and stays in doubt until a clear detection of its own; none starts a new particle. Each camera is
+and stays in doubt until a clear detection of its own; none starts a new particle. A merged blob the
+detector resolved into its two particles gives two ordinary detections (`split`): seeds and tracks take
+them, a new particle does not start on one (its identity is the fit's, not yet the motion's). Each camera is
 tracked on its own; at the end of the run, pieces of one particle's track are joined across short gaps and
 the tracks of two calibrated cameras are paired across the views (particle_joins.py), in the same edit.
 
@@ -49,6 +51,10 @@ REST_DIAMETERS = 0.25
 # speed carried it over the frames since it was seen, or COAST_REACH diameters: its Kalman gate grows
 # with every frame missed, and in a crowd a neighbour's detection then lies inside it.
 COAST_REACH = 0.75
+# A track at rest (its velocity measured: a seed's is not) takes no detection farther from its prediction
+# than its speed and STILL_REACH diameters: after a miss its gate stays wide for some frames, and an
+# overlapping neighbour's detection (0.5-0.75 diameter away) lies in it.
+STILL_REACH = 0.4
 
 
 @dataclass(frozen=True)
@@ -69,6 +75,7 @@ class ParticleTracker:
         self.ids = np.zeros(0, int)
         self.missed = np.zeros(0, int)
         self.seen_n = np.zeros(0, int)  # frames each track was seen since it started
+        self.measured = np.zeros(0, bool)  # seen again since it started: its velocity is measured
         self.doubt = np.zeros(0, bool)  # last seen on a merged detection
         self.counts = {"seeded": 0, TRACKED: 0, OCCLUDED: 0, LOST: 0, "new": 0, "ambiguous": 0, "merged": 0}
         self.cpu_s = 0.0
@@ -109,6 +116,7 @@ class ParticleTracker:
         self.ids = np.concatenate([self.ids, ids])
         self.missed = np.concatenate([self.missed, np.zeros(len(ids), int)])
         self.seen_n = np.concatenate([self.seen_n, np.full(len(ids), seen_n)])
+        self.measured = np.concatenate([self.measured, np.zeros(len(ids), bool)])
         self.doubt = np.concatenate([self.doubt, np.zeros(len(ids), bool)])
 
     def step(self, frame: int, image) -> list[tuple]:
@@ -126,6 +134,7 @@ class ParticleTracker:
         reach = np.where(lapsed, np.minimum(reach, np.maximum(speed * (self.missed + 1), COAST_REACH * d)), reach)
         unsure = (self.missed > 0) | (self.seen_n < CONFIRM_FRAMES) | self.doubt
         still = (self.seen_n >= 2) & (speed <= REST_DIAMETERS * d)
+        reach = np.where(still & self.measured, np.minimum(reach, speed + STILL_REACH * d), reach)
         taken, _cost, ambiguous = assign(S, X, reach, dxy, motion, unsure, self.doubt, LEAD_DIAMETERS * d,
                                          REST_DIAMETERS * d, still)
         seen = np.flatnonzero(taken >= 0)
@@ -137,6 +146,7 @@ class ParticleTracker:
                          OCCLUDED if merged[j] else TRACKED, float(conf[j])))
         self.missed[seen] = 0
         self.seen_n[seen] += 1
+        self.measured[seen] = True
         self.doubt[seen] = merged[taken[seen]]
         n_merged = int(merged[taken[seen]].sum())
         unseen = np.flatnonzero(taken < 0)
@@ -160,8 +170,9 @@ class ParticleTracker:
         keep[ends] = False
         self.X, self.P, self.ids = X[keep], P[keep], self.ids[keep]
         self.missed, self.seen_n, self.doubt = self.missed[keep], self.seen_n[keep], self.doubt[keep]
+        self.measured = self.measured[keep]
         if self.params.new_particles:
-            free = ~merged
+            free = ~merged & ~det.split.to_numpy(bool)
             free[taken[taken >= 0]] = False
             rows += self._new(frame, dxy, conf, free)
         self.cpu_s += time.process_time() - c0
