@@ -56,6 +56,13 @@ class Camera:
         return cv2.Rodrigues(self.rvec)[0]
 
     @property
+    def rmse_axis_px(self) -> float:
+        """The pixel noise per image axis (px) the calibration's RMSE (a 2-D distance) implies: RMSE / √2;
+        NaN when not known."""
+        r = self.rmse_px
+        return float(r) / float(np.sqrt(2.0)) if r is not None and np.isfinite(r) else float("nan")
+
+    @property
     def center_mm(self) -> np.ndarray:
         """Camera centre in the rig frame (mm)."""
         return -self.R.T @ self.tvec

@@ -72,8 +72,7 @@ def camera_noise_px(calibration: Calibration, name: str) -> np.ndarray:
     unc = calibration.uncertainty.get(name)
     if unc is not None and unc.noise_px is not None:
         return np.asarray(unc.noise_px, float)
-    r = calibration.cameras[name].rmse_px
-    return np.full(2, float(r) / np.sqrt(2.0) if r is not None and np.isfinite(r) else np.nan)
+    return np.full(2, calibration.cameras[name].rmse_axis_px)
 
 
 def pixel_sd_axes(sd: np.ndarray, extra: np.ndarray, calibration: Calibration, name: str) -> np.ndarray:

@@ -581,5 +581,4 @@ def _camera_pixel_sd(calibration) -> np.ndarray | None:
 def axis_sd(camera) -> float:
     """A camera's pixel noise per image axis (px): its calibration RMSE, a 2-D distance, over √2; NaN
     when not known."""
-    rmse = getattr(camera, "rmse_px", None)
-    return float(rmse) / math.sqrt(2.0) if rmse is not None and np.isfinite(rmse) else math.nan
+    return camera.rmse_axis_px if camera is not None else math.nan

@@ -186,8 +186,8 @@ def calibrate_from_points(df: pd.DataFrame, cams: dict[str, tuple[str, str]],
         if "warning" in reports[name]:
             warnings.append(reports[name]["warning"])
     cv = {n: r.pop("_cv") for n, r in reports.items() if "_cv" in r}
+    pixels = {n: df[list(c)].to_numpy(float) for n, c in cams.items()}
     if in_3d and len(cv) >= 2:
-        pixels = {n: df[list(cams[n])].to_numpy(float) for n in cams}
         for name, (chosen, judged) in judge_in_3d(cv, X_all, pixels, groups).items():
             sel = reports[name]["lens_selection"]
             sel["judged_in_3d"] = judged
@@ -204,7 +204,6 @@ def calibrate_from_points(df: pd.DataFrame, cams: dict[str, tuple[str, str]],
     first = next(iter(cameras))
     T0w = to_T(cameras[first].rvec, cameras[first].tvec)
     world_from_rig = inv_T(T0w)
-    pixels = {n: df[list(c)].to_numpy(float) for n, c in cams.items()}
     shared = known_point_errors(cameras, X_all, pixels, {n: len(parameter_names(c)) for n, c in cameras.items()})
     uncertainty = {}
     for name, cam in cameras.items():

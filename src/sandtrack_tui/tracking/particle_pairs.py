@@ -22,7 +22,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-MEASURED = ("tracked", "manual")
+from .gaps import MEASURED
+
 DETECTED = "detected"  # measured points and the detections the tracker flagged (merged: a score, no coasting)
 PAIR_MIN_FRAMES = 10  # frames measured together before two tracks may be called one particle
 OFF_LINE_SHARE = 0.05  # an on-line pair may leave the line at this share of its frames (a merged detection)
