@@ -30,17 +30,18 @@ side/front project), marker and method, with the columns `xyz_columns(cameras)`:
   and the calibration's parameter covariance, propagated to first order (`triangulation_sd`). For "mlp"
   and "residual" rows the network's spread (`regression.spread`: its error on calibration points it never
   saw, plus the pixels' noise above theirs); NaN outside the training volume and for a model file without
-  a spread. NaN where a pixel's sd is not known. With a calibration, an "mlp" row's sd is also checked
-  against the triangulation of the same pixels and widened where the two disagree (`network_check`).
+  a spread. NaN where a pixel's sd is not known. With a calibration, an "mlp" row's sd is what its spread
+  and the triangulation of the same pixels say together about its error (`regression.check`; outside the
+  training volume the triangulation alone).
 - ``xyz_source``: "interpolated" (every camera's pixels at the reference time: its own frame or the two
   around it), or "nearest_frame": a camera had a point in only one of the two frames around (a seed
   frame, a track's first or last frame; never next to a "lost" one), so its pixels are that frame's and
   their sd grows by the marker's motion over the time between (its speed from that frame and the next one
   beyond; NaN when the track has no such frame yet).
 - ``network_check``: for "mlp" rows, "ok" (the network agrees with the triangulation within their
-  uncertainties), "inconsistent" (it does not, at the 99 % level; its sd then covers the disagreement:
-  `regression.check`) or "unchecked" (no triangulation or no sd: the spread alone); empty for the
-  other methods.
+  uncertainties), "inconsistent" (it does not, at the 99 % level; its sd then comes from the disagreement:
+  `regression.check`) or "unchecked" (no triangulation: the spread alone; or no spread: the
+  disagreement alone); empty for the other methods.
 - ``residual_px``: RMS reprojection error of the XYZ through the calibration (px); a large value
   means the views do not agree (a bad track or a poor model). NaN without a calibration.
 
@@ -455,18 +456,18 @@ def pixel_sd(sd: np.ndarray, extra: np.ndarray, calibration, camera: str) -> np.
 
 def check_network_rows(calibration, pixels: dict, pixel_sd: dict, refine: bool, xyz: np.ndarray, sd: np.ndarray,
                        done: tuple | None = None) -> np.ndarray:
-    """The MLP's rows checked against triangulation (`regression.check`): their sd (N, 3) widened in place
-    where the two disagree, and the verdict per row ("ok", "inconsistent"; "unchecked" for an XYZ without
-    a check: no triangulation or no sd; "" without an XYZ). `pixels`, `pixel_sd`: the calibrated cameras'
-    (N, 2) px and sd ((N,) or (N, 2) per image axis); `done`: the triangulation's XYZ and sd of these rows
-    when already computed."""
+    """The MLP's rows checked against triangulation (`regression.check`): their sd (N, 3) set in place
+    from the spread and the disagreement, and the verdict per row ("ok", "inconsistent"; "unchecked" for an
+    XYZ without a check: no triangulation, or no spread, whose sd then comes from the disagreement alone;
+    "" without an XYZ). `pixels`, `pixel_sd`: the calibrated cameras' (N, 2) px and sd ((N,) or (N, 2) per
+    image axis); `done`: the triangulation's XYZ and sd of these rows when already computed."""
     from .regression.check import UNCHECKED, check_network
     from .triangulation_sd import triangulation_sd
 
     verdict = np.full(len(xyz), "", dtype=object)
     verdict[np.isfinite(xyz).all(axis=1)] = UNCHECKED
     seen = np.sum([np.isfinite(p).all(axis=1) for p in pixels.values()], axis=0) if pixels else 0
-    rows = np.isfinite(sd).all(axis=1) & (seen >= 2)
+    rows = np.isfinite(xyz).all(axis=1) & (seen >= 2)
     if not rows.any():
         return verdict
     used = {c: p[rows] for c, p in pixels.items()}

@@ -3,8 +3,8 @@ triangulation and by the network (a side and a front camera), XYZ by triangulati
 of two or more cameras), or x, y in mm through the scale (one camera). An XYZ cell ends with
 "± sd": the largest of its three 1-sigma sd (mm; "±?" where not known), and "~" when a camera's
 pixels came from its nearest frame instead of the two around (a seed frame). A network XYZ that
-disagrees with the triangulation beyond both their sd (`network_check` "inconsistent"; its sd is
-widened to the disagreement) ends with "!"."""
+disagrees with the triangulation beyond both their sd (`network_check` "inconsistent"; its sd then
+comes from the disagreement) ends with "!"."""
 
 from __future__ import annotations
 
