@@ -7,7 +7,8 @@ honest), for triangulation and the network.
    b. its tracked markers: auto-seed, track both ways, `compute_xyz` (each tracked point's sd from its
       match score), on the frames both cameras tracked; the network is the sample's own model.pt.
    `mlp_inconsistent_pct`: the share of the MLP's checked rows whose check against the triangulation
-   failed (`regression.check`; their sd widened to cover the disagreement).
+   failed (`regression.check`: the network's sd from its spread and that disagreement together; a failed
+   row's, and that of a row outside the training volume (`mlp_outside_*`), from the disagreement alone).
 2. The real stepped target (../shared/data/myptv_target, three cameras, surveyed dots): each camera fitted
    to two depth planes (`calibrate --from-points`, lens auto), the third plane triangulated, cameras 1+2
    and 1+2+3 (no network: three planes cannot train one). The pixel sd is each camera's own noise per

@@ -38,8 +38,11 @@ def test_demo_fast_end_to_end(tmp_path):
     # a few epochs on the sample's 9,037 points (measured: MLP 1.57 mm, triangulation and residual 0.049 mm)
     assert reg["points"] > 9000 and reg["mlp_mean_error_mm"] < 2.4
     assert reg["triangulation_mean_error_mm"] < 0.075 and reg["residual_mean_error_mm"] < 0.075
-    # the network's 95 % intervals on the held-out calibration points, against the true corners (measured 94.8-96.5)
-    assert all(92.0 <= reg[f"mlp_coverage95_pct_{a}"] <= 98.5 for a in "xyz")
+    # the network's 95 % intervals on the held-out calibration points, against the true corners: as wide as
+    # the triangulation's sd there, which over-states its error on the corners that calibrated it
+    # (measured MLP 99.6 / 98.8 / 96.2, triangulation 99.8 / 99.5 / 94.7)
+    assert all(93.0 <= reg[f"mlp_coverage95_pct_{a}"] <= max(97.0, reg[f"triangulation_coverage95_pct_{a}"]) + 1.5
+               for a in "xyz")
     assert {"mlp_coverage95_pct_x", "residual_coverage95_pct_z"} <= set(stages["xyz"])
 
     trk = stages["tracking"]
@@ -57,6 +60,8 @@ def test_demo_fast_end_to_end(tmp_path):
     assert xyz["mlp_mean_error_mm"] < 4.7  # the few-epoch network (measured 3.1 mm)
     # the tracked markers' triangulation sd (each point's from its match score): measured 95.8 / 95.9 / 94.9 %
     assert all(92.0 <= xyz[f"triangulation_coverage95_pct_{a}"] <= 98.5 for a in "xyz")
+    # the network's sd with the triangulation's evidence (regression.check): measured 96.2 / 96.9 / 96.4 %
+    assert all(93.0 <= xyz[f"mlp_coverage95_pct_{a}"] <= 98.0 for a in "xyz")
 
     cmp = stages["compare"]
     assert cmp["particles"] == 8 and within(cmp["shift_error_frames"], claimed("compare", "tracked"))
