@@ -194,14 +194,26 @@ def myptv_table() -> pd.DataFrame:
                     reason="real target ../shared/data/myptv_target absent")
 def test_real_target_with_the_outer_plane_held_out():
     """Fit on the planes Z = -12 and -6 mm, triangulate the held-out plane Z = 0 (extrapolation;
-    0.289 mm with the five-term model before the lens choice)."""
+    0.289 mm with the five-term model before the lens choice). The sd's jackknife runs over blocks of the
+    target, not over the dot columns the lens choice leaves out (a refit without a whole column
+    extrapolates it): X and Z within ±1.96 sqrt(sd² + σ_dot²) of the survey 94.8 / 99.0 % (cameras 1+2),
+    90.5 / 94.9 % (1+2+3), where the columns gave 99.7 / 100 and 94.6 / 100 % (measured)."""
+    from sandtrack_tui.regression.spread import coverage
+    from sandtrack_tui.triangulation_sd import camera_noise_px
+    from sandtrack_tui.xyz import triangulate_with_sd
+
     df = myptv_table()
     fit, held = df[df.Z_mm != 0], df[df.Z_mm == 0]
     errors = {}
     for cams in (("cam1", "cam2"), ("cam1", "cam2", "cam3")):
         cal = calibrate_from_points(fit, {c: (f"x_{c}", f"y_{c}") for c in cams})
-        xyz, _ = triangulate(cal, {c: held[[f"x_{c}", f"y_{c}"]].to_numpy(float) for c in cams}, refine=True)
-        errors[len(cams)] = np.nanmean(np.linalg.norm(xyz - held[["X_mm", "Y_mm", "Z_mm"]].to_numpy(), axis=1))
+        pix = {c: held[[f"x_{c}", f"y_{c}"]].to_numpy(float) for c in cams}
+        xyz, _, sd = triangulate_with_sd(cal, pix, {c: np.broadcast_to(camera_noise_px(cal, c), (len(held), 2))
+                                                    for c in cams}, refine=True)
+        err = xyz - held[["X_mm", "Y_mm", "Z_mm"]].to_numpy()
+        errors[len(cams)] = np.nanmean(np.linalg.norm(err, axis=1))
+        en = 100 * coverage(err, np.hypot(sd, cal.report["known_points_sd_mm"]))
+        assert 90.0 <= en[0] <= 98.0 and 90.0 <= en[2] <= 99.5, (cams, en)
     assert errors[2] < 0.15
     assert errors[3] < errors[2]
 

@@ -205,12 +205,15 @@ def calibrate_from_points(df: pd.DataFrame, cams: dict[str, tuple[str, str]],
     T0w = to_T(cameras[first].rvec, cameras[first].tvec)
     world_from_rig = inv_T(T0w)
     shared = known_point_errors(cameras, X_all, pixels, {n: len(parameter_names(c)) for n, c in cameras.items()})
+    # The jackknife's units: blocks of neighbouring points, also where the lens choice took the dot grid's
+    # columns of a two-plane target as its groups (each refit would extrapolate a whole column)
+    units = groups if in_3d or not on_two_planes(X_all) else world_blocks(X_all)[0]
     uncertainty = {}
     for name, cam in cameras.items():
         uv = pixels[name]
         unc = point_fit_uncertainty(cam, X_all, uv, None if shared is None else shared["noise_px"][name])
         if unc is not None and jackknife:
-            unc = _with_jackknife(unc, cam, X_all, uv, groups, cv[name][1] if name in cv else {})
+            unc = _with_jackknife(unc, cam, X_all, uv, units, cv[name][1] if name in cv and units is groups else {})
             uncertainty[name] = into_rig(unc, cam, world_from_rig)
         if shared is not None:
             reports[name]["noise_px"] = shared["noise_px"][name]
@@ -235,9 +238,9 @@ def calibrate_from_points(df: pd.DataFrame, cams: dict[str, tuple[str, str]],
 
 def _with_jackknife(unc, cam: Camera, X: np.ndarray, uv: np.ndarray, groups: np.ndarray | None, fits: dict):
     """`unc` raised, direction by direction, to the jackknife covariance over the units of points
-    (`point_uncertainty`): the groups of the lens choice (planes, frames, blocks of a two-plane target),
-    else 3 x 3 blocks of the image. fits: the lens choice's fits without one group, (lens, group) -> state,
-    reused."""
+    (`point_uncertainty`): `groups` (planes, frames, blocks of a two-plane target), else 3 x 3 blocks of
+    the image. fits: the lens choice's fits without one group, (lens, group) -> state, reused when
+    `groups` are its groups."""
     ok = np.isfinite(X).all(axis=1) & np.isfinite(uv).all(axis=1)
     X, uv = X[ok], uv[ok]
     units = groups[ok] if groups is not None else image_blocks(uv)[0]

@@ -7,8 +7,9 @@ Two estimates, and in every direction of parameter space the larger of the two (
   every camera shares, which moves the cameras together rather than one against the other), else σ² I
   with σ² the residuals' sum of squares over the degrees of freedom. It holds when the pixel errors are
   independent from point to point and the lens model fits the whole image.
-- a jackknife over units of points (the lens choice's groups: whole planes or frames when there are three
-  or more, blocks of a two-plane target, else a 3 x 3 grid of blocks of the image): the camera refitted
+- a jackknife over units of points (whole planes or frames when there are three or more, 3 x 3 blocks of
+  a two-plane target, also where the lens choice left out its dot columns, else a 3 x 3 grid of blocks of
+  the image): the camera refitted
   with each unit left out, each refit's change of the pixels of all points mapped back to the parameters
   through G (linearised: a poorly fixed lens term that moves no pixel moves no parameter), covariance
   (g - 1) / g Σ δθ δθᵀ. Errors shared by neighbouring points (a
