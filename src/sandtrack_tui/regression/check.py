@@ -36,6 +36,7 @@ from scipy.special import ndtr
 Z_CHECK = 2.934161015263939  # normal quantile 1 - (1 - 0.99^(1/3)) / 2: 1 % false alarms over three axes
 OK, INCONSISTENT, UNCHECKED = "ok", "inconsistent", "unchecked"
 Z_SIDE = 1.6448536269514722  # one-sided 95 % normal quantile
+Z_BOTH = 1.959963984540054  # two-sided 95 % normal quantile
 
 
 def check_network(xyz: np.ndarray, sd: np.ndarray, xyz_tri: np.ndarray, sd_tri: np.ndarray,
@@ -70,10 +71,10 @@ def interval_sd(mean: np.ndarray, sd: np.ndarray, iterations: int = 3) -> np.nda
     method from below (h >= max(|mean| + 1.645 sd, 1.96 sd); the coverage is concave in h there, so each
     step stays below the root; three steps: within 1e-8 of it)."""
     m, s = np.abs(mean), np.maximum(sd, 1e-12)
-    h = np.maximum(m + Z_SIDE * s, 1.959963984540054 * s)
+    h = np.maximum(m + Z_SIDE * s, Z_BOTH * s)
     for _ in range(iterations):
         hi, lo = (h - m) / s, (-h - m) / s
         f = ndtr(hi) - ndtr(lo) - 0.95
         slope = (np.exp(-0.5 * hi ** 2) + np.exp(-0.5 * lo ** 2)) / (np.sqrt(2 * np.pi) * s)
         h = h - f / np.maximum(slope, 1e-300)
-    return h / 1.959963984540054
+    return h / Z_BOTH
