@@ -22,7 +22,8 @@ held-out poses. What it leaves out: anything the calibration points cannot show.
 training volume gets no sd (NaN: the network extrapolates, and nothing measured its error there); near
 the volume's faces, inside the tolerance `outside_training` allows, the network's extrapolation error is
 not in it (the held-out poses lie between training poses, not beyond). Where a calibration gives a
-triangulation of the same pixels, `check` tests the MLP against it and widens the sd where they disagree.
+triangulation of the same pixels, `check` tests the MLP against it and gives the sd of both sources of
+evidence together (outside the training volume, of the disagreement alone).
 """
 
 from __future__ import annotations
