@@ -302,6 +302,14 @@ def test_no_confidence_outside_the_training_volume_and_old_files_load(trained, r
 
 
 
+def _noisy_pixels(rig, n: int, seed: int, noise_seed: int) -> tuple[np.ndarray, pd.DataFrame]:
+    """True XYZ of n calibration points and their pixels in both views with 0.3 px of noise (`sd_px` 0.3)."""
+    truth = calibration_points(rig, n_points=n, seed=seed, noise_px=0.0)[["X_mm", "Y_mm", "Z_mm"]].to_numpy()
+    px = np.hstack([rig.project_world("side", truth), rig.project_world("front", truth)])
+    px = px + np.random.default_rng(noise_seed).normal(0, 0.3, px.shape)
+    return truth, pd.DataFrame(px, columns=["xs", "ys", "xf", "yf"]).assign(sd_px=0.3)
+
+
 def test_the_network_checked_against_triangulation_covers_an_error_its_spread_misses(trained, rig):
     """A network off in Y by 1.5 of its sd (the sample's network below the board's lowest poses: too small
     for the check to flag a point, no calibration point shows it) or by 6 mm: with the triangulation of
@@ -312,10 +320,7 @@ def test_the_network_checked_against_triangulation_covers_an_error_its_spread_mi
 
     from sandtrack_tui.xyz_pixels import camera_columns, xyz_from_pixels
 
-    truth = calibration_points(rig, n_points=3000, seed=45, noise_px=0.0)[["X_mm", "Y_mm", "Z_mm"]].to_numpy()
-    px = np.hstack([rig.project_world("side", truth), rig.project_world("front", truth)])
-    px = px + np.random.default_rng(8).normal(0, 0.3, px.shape)
-    pixels = pd.DataFrame(px, columns=["xs", "ys", "xf", "yf"]).assign(sd_px=0.3)
+    truth, pixels = _noisy_pixels(rig, 3000, seed=45, noise_seed=8)
     cols = camera_columns(pixels.columns)
     spread_y = float(np.nanmedian(xyz_from_pixels(pixels, cols, None, trained[0], method="mlp")[0]["sd_Y_mm"]))
     for offset in (0.0, 1.5 * spread_y, 6.0):
@@ -361,10 +366,7 @@ def test_a_network_without_a_spread_gets_its_sd_from_the_triangulation(trained, 
 
     from sandtrack_tui.xyz_pixels import camera_columns, xyz_from_pixels
 
-    truth = calibration_points(rig, n_points=1500, seed=46, noise_px=0.0)[["X_mm", "Y_mm", "Z_mm"]].to_numpy()
-    px = np.hstack([rig.project_world("side", truth), rig.project_world("front", truth)])
-    px = px + np.random.default_rng(9).normal(0, 0.3, px.shape)
-    pixels = pd.DataFrame(px, columns=["xs", "ys", "xf", "yf"]).assign(sd_px=0.3)
+    truth, pixels = _noisy_pixels(rig, 1500, seed=46, noise_seed=9)
     model = copy.copy(trained[0])
     model.spreads = {}
     table, _ = xyz_from_pixels(pixels, camera_columns(pixels.columns), rig, model, method="mlp")
