@@ -22,7 +22,9 @@ KEY_FIGURES = {
     "regression": ("points", "mlp_mean_error_mm", "mlp_sd_mm", "triangulation_mean_error_mm", "train_seconds"),
     "tracking": ("mean_error_px", "p95_error_px", "false_locks", "hidden_flagged_pct", "ms_per_marker_frame"),
     "xyz": ("mean_error_mm", "p95_error_mm"),
-    "compare": ("recovered_shift_s", "true_shift_s", "shift_error_frames"),
+    "compare": ("recovered_shift_s", "true_shift_s", "shift_error_frames", "drifting_particles",
+                *(f"{m}_{k}" for m in ("triangulation", "mlp", "residual")
+                  for k in ("inconsistent_particles", "within_95_pct_of_true_particles"))),
 }
 
 

@@ -105,6 +105,36 @@ def test_a_1_5_mm_offset_is_detected_and_an_underestimated_sd_is_not_excused():
     assert half.summary["consistent"] is False and half.summary["chi2_reduced"] == pytest.approx(4.0, rel=0.1)
 
 
+def test_a_biased_measurement_with_its_bias_stated_is_judged_by_the_gaussian_behind_its_interval():
+    """An experiment whose error has a known, varying mean (a network's error as the triangulation measured
+    it, 2 mm) and 0.3 mm about it, stated as the export states it (sd: the 95 % interval around the XYZ;
+    bias_*: the mean): the χ² with the bias is the one of the noise alone, and the time shift is found; read
+    as centred, the same sd makes the exact DEM inconsistent (every error sits near its interval's edge)."""
+    from sandtrack_tui.interval import interval_sd
+
+    exp, dem = make_case(shift_s=0.137, seed=2)
+    t, m = exp["time_s"].to_numpy(), exp["marker"].to_numpy()
+    bias = np.column_stack([2.0 * np.sin(2 * np.pi * t / 3.0 + m + k) for k in range(3)])
+    biased = exp.assign(X_mm=exp["X_mm"] + bias[:, 0], Y_mm=exp["Y_mm"] + bias[:, 1], Z_mm=exp["Z_mm"] + bias[:, 2])
+    sd = interval_sd(bias, np.full(bias.shape, NOISE))
+    stated = biased.assign(**{c: sd[:, k] for k, c in enumerate(C.SD_COLUMNS)},
+                           **{c: bias[:, k] for k, c in enumerate(C.BIAS_COLUMNS)})
+    c = C.compare(stated, dem, fps=FPS)
+    assert abs(c.time_shift_s - 0.137) < 0.004
+    assert c.summary["consistent"] is True and c.summary["chi2_reduced"] == pytest.approx(1.0, abs=0.08)
+    assert 93.0 < c.summary["within_95_pct"] < 97.0
+    assert c.errors[1]["bias_Y_mm"].abs().max() > 1.5  # the plots' band is centred on it
+    centred = C.compare(stated.drop(columns=list(C.BIAS_COLUMNS)), dem, fps=FPS, time_shift_s=c.time_shift_s)
+    assert centred.summary["consistent"] is False and centred.summary["within_95_pct"] < 90, centred.summary
+    # rows without a bias (empty) are centred ones, as before
+    part = stated.copy()
+    part.loc[part["marker"] == 1, list(C.BIAS_COLUMNS)] = np.nan
+    part.loc[part["marker"] == 1, list(C.SD_COLUMNS)] = NOISE
+    part.loc[part["marker"] == 1, ["X_mm", "Y_mm", "Z_mm"]] = exp.loc[exp["marker"] == 1, ["X_mm", "Y_mm", "Z_mm"]]
+    mixed = C.compare(part, dem, fps=FPS)
+    assert mixed.summary["consistent"] is True and mixed.summary["chi2_reduced"] == pytest.approx(1.0, abs=0.08)
+
+
 def test_rows_without_sd_and_tables_without_sd_columns():
     exp, dem = make_case(shift_s=0.0, seed=5, n=4)
     exp = with_sd(exp)

@@ -11,6 +11,7 @@ import torch
 
 from sandtrack_tui.cli import main
 from sandtrack_tui.errors import SandtrackError
+from sandtrack_tui.interval import gaussian_sd, interval_sd
 from sandtrack_tui.regression import (
     TrainConfig,
     coverage,
@@ -335,10 +336,16 @@ def test_the_network_checked_against_triangulation_covers_an_error_its_spread_mi
         flagged = (checked["network_check"] == "inconsistent").mean()
         assert ((after > 0.93) & (after < 0.97)).all(), (offset, after)
         # measured 0.954 / 0.954 / 0.957 at each offset (Y with the spread alone 0.974, 0.692, 0.036)
+        # the Gaussian behind the interval: the error less its bias within ±1.96 of its own sd
+        bias = checked[["bias_X_mm", "bias_Y_mm", "bias_Z_mm"]].to_numpy()
+        centred = coverage(e - bias, gaussian_sd(sd1, bias))
+        assert ((centred > 0.93) & (centred < 0.97)).all(), (offset, centred)
         if offset == 6.0:
             assert before[1] < 0.1 and flagged > 0.8, (before, flagged)  # measured 0.036, 0.88
             # wide enough, not wider: the sd in Y is about the disagreement, the error itself
             assert np.nanmedian(sd1[:, 1]) < 1.2 * np.sqrt(np.nanmean(e[:, 1] ** 2))
+            # and XYZ less the bias is the triangulation's estimate: its error a fraction of the offset's
+            assert np.sqrt(np.nanmean((e[:, 1] - bias[:, 1]) ** 2)) < 0.1 * np.sqrt(np.nanmean(e[:, 1] ** 2))
         elif offset:
             assert before[1] < 0.8 and flagged < 0.2, (before, flagged)  # measured 0.692, 0.069
         else:
@@ -346,10 +353,8 @@ def test_the_network_checked_against_triangulation_covers_an_error_its_spread_mi
             assert (np.nanmedian(sd1, axis=0) < np.nanmedian(sd0, axis=0)).all()
 
 
-def test_the_networks_interval_holds_95_percent_of_a_gaussian_error():
+def test_the_networks_interval_holds_95_percent_of_a_gaussian_error_and_gives_it_back():
     from scipy.stats import norm
-
-    from sandtrack_tui.regression.check import interval_sd
 
     mean = np.array([0.0, 0.3, 1.0, 2.5, 40.0, -3.0])
     sd = np.array([1.0, 1.0, 2.0, 0.5, 1.0, 0.1])
@@ -357,6 +362,10 @@ def test_the_networks_interval_holds_95_percent_of_a_gaussian_error():
     held = norm.cdf((h - mean) / sd) - norm.cdf((-h - mean) / sd)
     assert np.allclose(held, 0.95, atol=1e-6), held
     assert h[0] == pytest.approx(1.959964, abs=1e-5)
+    assert np.allclose(gaussian_sd(interval_sd(mean, sd), mean), sd, rtol=1e-7)
+    # no bias: the sd itself; an interval that does not reach past its bias holds no Gaussian
+    assert gaussian_sd(np.array([0.7, 1.0, np.nan]), np.array([np.nan, 3.0, 0.0])) == pytest.approx(
+        [0.7, np.nan, np.nan], nan_ok=True)
 
 
 def test_a_network_without_a_spread_gets_its_sd_from_the_triangulation(trained, rig):

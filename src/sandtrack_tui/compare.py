@@ -32,7 +32,12 @@ stands in for them, each sample's difference is weighed against the combined cov
 experiment's plus `dem_sd_mm`² per axis): χ² per particle and per run with effective degrees of freedom
 (the time-shift fit and the samples' correlation along a trajectory accounted for), its p-value, the
 share of samples within the 95 % band, and a verdict per run: consistent when p >= `alpha`. Rows whose
-sd is NaN (e.g. a network's XYZ outside its training volume) count in the RMSE but not in the χ².
+sd is NaN (e.g. a network's XYZ outside its training volume) count in the RMSE but not in the χ². A row
+with ``bias_X_mm, bias_Y_mm, bias_Z_mm`` (a network's error as the triangulation measured it,
+`regression.check`) has an error that is not centred: its sd states the 95 % interval around its XYZ, and
+the χ² takes the Gaussian it came from (mean the bias, sd by `interval.gaussian_sd`); the RMSE and the
+distances stay those of the XYZ as given; the time alignment (onsets and RMSE) takes the best estimate, XYZ
+less the bias.
 Without sd columns and without `exp_sd_mm` the χ² part is not computed, and the summary says why.
 
 DTW, pinned here: Euclidean local cost d(i, j); step pattern "symmetric2": D(i, j) = min(D(i-1, j)
@@ -52,9 +57,11 @@ import pandas as pd
 
 from . import consistency as K
 from .errors import SandtrackError
+from .interval import gaussian_sd
 
 AXES = ("X_mm", "Y_mm", "Z_mm")
 SD_COLUMNS = ("sd_X_mm", "sd_Y_mm", "sd_Z_mm")
+BIAS_COLUMNS = ("bias_X_mm", "bias_Y_mm", "bias_Z_mm")
 COV_COLUMNS = ("cov_XY_mm2", "cov_XZ_mm2", "cov_YZ_mm2")
 CHI2_KEYS = ("chi2_reduced", "p_value", "within_95_pct", "samples_eff")
 UNOBSERVED = ("occluded", "lost")  # point statuses whose pixel is a prediction, not a measurement
@@ -185,7 +192,7 @@ def experiment_table(df: pd.DataFrame, method: str | None = None, source: str = 
             if method not in methods:
                 raise SandtrackError(f"{source}: no rows with method {method!r}")
             df = df[df["method"] == method]
-    extra = [c for c in (*SD_COLUMNS, *COV_COLUMNS) if c in df.columns]
+    extra = [c for c in (*SD_COLUMNS, *COV_COLUMNS, *BIAS_COLUMNS) if c in df.columns]
     if any(c in extra for c in SD_COLUMNS) and not all(c in extra for c in SD_COLUMNS):
         raise SandtrackError(f"{source}: give all of {', '.join(SD_COLUMNS)} or none")
     out = df[need + extra].apply(pd.to_numeric, errors="coerce")
@@ -286,6 +293,7 @@ class _Pairs:
                  dem_sd_mm: float = 0.0):
         self.items = []
         self.covs: dict[int, np.ndarray] = {}  # marker -> (n, 3, 3) combined covariance of its samples
+        self.bias: dict[int, np.ndarray] = {}  # marker -> (n, 3) the mean of its samples' error (0: centred)
         eg = dict(tuple(exp.groupby("marker")))
         dg = dict(tuple(dem.groupby("particle_id")))
         for m, pid in sorted(pairs.items()):
@@ -298,7 +306,13 @@ class _Pairs:
                 self.covs[m] = K.covariances(np.full((len(e), 3), float(exp_sd_mm)), None, dem_sd_mm)
             elif all(c in e.columns for c in SD_COLUMNS):
                 cov = e[list(COV_COLUMNS)].to_numpy(float) if all(c in e.columns for c in COV_COLUMNS) else None
-                self.covs[m] = K.covariances(e[list(SD_COLUMNS)].to_numpy(float), cov, dem_sd_mm)
+                sd = e[list(SD_COLUMNS)].to_numpy(float, copy=True)
+                if all(c in e.columns for c in BIAS_COLUMNS):
+                    bias = e[list(BIAS_COLUMNS)].to_numpy(float)
+                    shifted = np.isfinite(bias).any(axis=1)
+                    sd[shifted] = gaussian_sd(sd[shifted], bias[shifted])
+                    self.bias[m] = np.nan_to_num(bias)
+                self.covs[m] = K.covariances(sd, cov, dem_sd_mm)
         if not self.items:
             raise SandtrackError("matched particles have fewer than two samples each")
 
@@ -308,10 +322,14 @@ class _Pairs:
         return t, xe, xi
 
     def aligned_cov(self, shift: float, item):
-        """As `aligned`, plus the samples' combined covariance (n, 3, 3), or None without uncertainties."""
+        """As `aligned`, plus the samples' combined covariance (n, 3, 3) and their error's mean (n, 3), or
+        None, None without uncertainties."""
         t, xe, xi, ok = self._aligned(shift, item)
         cov = self.covs.get(item[0])
-        return t, xe, xi, None if cov is None else cov[ok]
+        if cov is None:
+            return t, xe, xi, None, None
+        bias = self.bias.get(item[0])
+        return t, xe, xi, cov[ok], np.zeros((int(ok.sum()), 3)) if bias is None else bias[ok]
 
     def _aligned(self, shift: float, item):
         m, pid, te, xe, td, xd = item
@@ -322,10 +340,19 @@ class _Pairs:
         xi = np.column_stack([np.interp(tq[ok], td, xd[:, k]) for k in range(3)])
         return te[ok], xe[ok], xi, ok
 
+    def best(self, item) -> np.ndarray:
+        """The experiment's best estimates of a pair's positions: XYZ less its bias, where it has one."""
+        bias = self.bias.get(item[0])
+        return item[3] if bias is None else item[3] - bias
+
     def rmse(self, shift: float) -> float:
+        """RMS distance of the experiment's best estimates (XYZ less its bias, where it has one) to the DEM,
+        the time alignment's cost."""
         sq, n = 0.0, 0
         for item in self.items:
-            _, xe, xi = self.aligned(shift, item)
+            _, xe, xi, ok = self._aligned(shift, item)
+            if item[0] in self.bias:
+                xe = xe - self.bias[item[0]][ok]
             if len(xe) >= 2:
                 sq += float(((xe - xi) ** 2).sum())
                 n += len(xe)
@@ -387,7 +414,7 @@ def compare(exp: pd.DataFrame, dem: pd.DataFrame, name: str = "dem", match: str 
     pairs_map = match_particles(exp, dem, match, max_match_mm)
     with_sd = has_sd(exp)
     if not with_sd and exp_sd_mm is None:
-        exp = exp.drop(columns=[c for c in (*SD_COLUMNS, *COV_COLUMNS) if c in exp.columns])
+        exp = exp.drop(columns=[c for c in (*SD_COLUMNS, *COV_COLUMNS, *BIAS_COLUMNS) if c in exp.columns])
     pairs = _Pairs(exp, dem, pairs_map, None if with_sd else exp_sd_mm, dem_sd_mm)
     onset: dict = {"source": None}
     if time_shift_s is None:
@@ -402,8 +429,9 @@ def compare(exp: pd.DataFrame, dem: pd.DataFrame, name: str = "dem", match: str 
             onset = {"source": "tool", "experiment_s": oe, "dem_s": od}
         if start is None:
             diffs = []
-            for _m, _pid, te, xe, td, xd in pairs.items:
-                oe, od = motion_onset(te, xe, onset_mm), motion_onset(td, xd, onset_mm)
+            for item in pairs.items:
+                te, td, xd = item[2], item[4], item[5]
+                oe, od = motion_onset(te, pairs.best(item), onset_mm), motion_onset(td, xd, onset_mm)
                 if oe is not None and od is not None:
                     diffs.append(oe - od)
             if diffs:
@@ -423,7 +451,7 @@ def compare(exp: pd.DataFrame, dem: pd.DataFrame, name: str = "dem", match: str 
         # Re-align without the outliers: a drifting particle would pull the shift towards itself.
         keep = set(per.loc[~per["flagged"], "marker"].astype(int))
         clean = _Pairs.__new__(_Pairs)
-        clean.items, clean.covs = [it for it in pairs.items if it[0] in keep], pairs.covs
+        clean.items, clean.covs, clean.bias = [it for it in pairs.items if it[0] in keep], pairs.covs, pairs.bias
         shift, _ = align_time(clean, shift, min(max_lag_s, 3.0 / fps), 1.0 / fps)
         onset["realigned_without"] = sorted(set(pairs_map) - keep)
     per, errors, parts = _metrics(pairs, shift, flag_mm, fps=fps, shift_fitted=time_shift_s is None)
@@ -479,7 +507,7 @@ def _metrics(pairs: _Pairs, shift: float, flag_mm: float, distances: bool = True
     share = 1.0 / max(sum(it[0] in pairs.covs for it in usable), 1) if shift_fitted else 0.0
     for item in usable:
         m, pid = item[0], item[1]
-        t, xe, xi, cov = pairs.aligned_cov(shift, item)
+        t, xe, xi, cov, bias = pairs.aligned_cov(shift, item)
         diff = xe - xi
         err = np.linalg.norm(diff, axis=1)
         slope = float(np.polyfit(t - t[0], err, 1)[0]) if t[-1] > t[0] else 0.0
@@ -499,13 +527,14 @@ def _metrics(pairs: _Pairs, shift: float, flag_mm: float, distances: bool = True
                                   "exp_Z_mm": xe[:, 2], "dem_X_mm": xi[:, 0], "dem_Y_mm": xi[:, 1],
                                   "dem_Z_mm": xi[:, 2]})
         if cov is not None:
-            w, _ = K.whiten(diff, cov)
+            w, _ = K.whiten(diff - bias, cov)
             part = K.chi2_of_track(np.rint((t - t[0]) * fps), w, share)
             parts.append(part)
             rows[-1].update({k: part.to_dict()[k] for k in ("chi2", "chi2_dof", "chi2_reduced", "dof_eff",
                                                             "samples_eff", "p_value", "within_95_pct")})
             sd = np.sqrt(np.diagonal(cov, axis1=1, axis2=2))
             errors[m] = errors[m].assign(sd_X_mm=sd[:, 0], sd_Y_mm=sd[:, 1], sd_Z_mm=sd[:, 2],
+                                         bias_X_mm=bias[:, 0], bias_Y_mm=bias[:, 1], bias_Z_mm=bias[:, 2],
                                          norm_dist=np.sqrt((w ** 2).sum(axis=1)))
     if not rows:
         raise SandtrackError("the experiment and DEM trajectories do not overlap in time after alignment")
@@ -628,10 +657,12 @@ def plot_comparison(cmp: Comparison, out_dir: str | Path, max_particles: int = 5
 
 
 def _band_panels(axes, e: pd.DataFrame) -> None:
-    """Per axis: DEM minus experiment over time, and the 95 % band of the combined uncertainty."""
+    """Per axis: DEM minus experiment over time, and the 95 % band of the combined uncertainty (around
+    minus the experiment's bias, where it has one)."""
     for ax, a in zip(axes, "XYZ", strict=True):
         t, band = e["time_s"].to_numpy(), K.Z95 * e[f"sd_{a}_mm"].to_numpy()
-        ax.fill_between(t, -band, band, color="tab:green", alpha=0.25, lw=0, label="95 % band")
+        centre = -e[f"bias_{a}_mm"].to_numpy() if f"bias_{a}_mm" in e.columns else np.zeros(len(t))
+        ax.fill_between(t, centre - band, centre + band, color="tab:green", alpha=0.25, lw=0, label="95 % band")
         ax.plot(t, e[f"dem_{a}_mm"] - e[f"exp_{a}_mm"], color="tab:orange", lw=1.0, label="DEM - experiment")
         ax.axhline(0.0, color="k", lw=0.5)
         ax.set_xlabel("experiment time (s)")

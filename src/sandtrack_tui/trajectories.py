@@ -6,8 +6,9 @@ Export
     each camera's pixels (``xs, ys`` side, ``xf, yf`` front, ``x_<camera>, y_<camera>`` any other),
     ``X_mm, Y_mm, Z_mm``, their 1-sigma ``sd_X_mm, sd_Y_mm, sd_Z_mm``, ``method, residual_px``,
     ``xyz_source`` ("interpolated", or "nearest_frame" where a camera had only one of the two frames
-    around the reference time) and ``network_check`` (the MLP rows' check against triangulation: "ok",
-    "inconsistent", "unchecked") (see `xyz.py`: the other cameras' tracks are
+    around the reference time), ``network_check`` (the MLP rows' check against triangulation: "ok",
+    "inconsistent", "unchecked") and ``bias_X_mm, bias_Y_mm, bias_Z_mm`` (a checked MLP row's error as the
+    triangulation measures it) (see `xyz.py`: the other cameras' tracks are
     interpolated to the reference frame's time through the sync offset; pixels in the OpenCV
     convention, origin at the top-left pixel's centre, y down).
 
@@ -45,7 +46,7 @@ import numpy as np
 import pandas as pd
 
 from .errors import SandtrackError
-from .xyz import SD_COLUMNS, XYZ_COLUMNS, NoXYZ, pixel_columns, xyz_columns
+from .xyz import BIAS_COLUMNS, SD_COLUMNS, XYZ_COLUMNS, NoXYZ, pixel_columns, xyz_columns
 
 TIDY_COLUMNS = XYZ_COLUMNS  # a side/front project's; others: xyz.xyz_columns(cameras)
 FORMATS = ("csv", "parquet", "dltdv")
@@ -93,6 +94,9 @@ def check_tidy(df: pd.DataFrame) -> pd.DataFrame:
         df = df.assign(xyz_source="interpolated")
     if "network_check" not in df.columns:  # a table from before the network's check
         df = df.assign(network_check="")
+    absent_bias = [c for c in BIAS_COLUMNS if c not in df.columns]
+    if absent_bias:  # a table from before the network's bias was kept
+        df = df.assign(**{c: np.nan for c in absent_bias})
     missing = [c for c in columns if c not in df.columns] if cameras else ["status_<camera>"]
     if missing:
         raise SandtrackError(f"trajectory table lacks columns: {', '.join(missing)}")

@@ -42,6 +42,9 @@ side/front project), marker and method, with the columns `xyz_columns(cameras)`:
   uncertainties), "inconsistent" (it does not, at the 99 % level; its sd then comes from the disagreement:
   `regression.check`) or "unchecked" (no triangulation: the spread alone; or no spread: the
   disagreement alone); empty for the other methods.
+- ``bias_X_mm, bias_Y_mm, bias_Z_mm``: for checked "mlp" rows, the network's error as the triangulation of
+  the same pixels measures it (the mean of `regression.check`'s Gaussian; X_mm - bias_X_mm is the best
+  estimate of X, and ±1.96 sd_X_mm around X_mm holds the error with 95 % probability); empty elsewhere.
 - ``residual_px``: RMS reprojection error of the XYZ through the calibration (px); a large value
   means the views do not agree (a bad track or a poor model). NaN without a calibration.
 
@@ -66,6 +69,7 @@ METHOD_CHOICES = ("triangulation", "mlp", "residual", "both", "all")
 OUTSIDE_POLICIES = ("flag", "nan", "keep")
 NETWORK_CAMERAS = ("side", "front")  # the network's inputs: xs, ys, xf, yf
 SD_COLUMNS = ("sd_X_mm", "sd_Y_mm", "sd_Z_mm")
+BIAS_COLUMNS = ("bias_X_mm", "bias_Y_mm", "bias_Z_mm")
 _PIXEL_ALIASES = {"side": ("xs", "ys"), "front": ("xf", "yf")}
 # Worse statuses win when two observations of a camera are combined.
 _SEVERITY = {"manual": 0, "tracked": 1, "imported": 2, "interpolated": 3, "occluded": 4, "lost": 5,
@@ -87,7 +91,7 @@ def xyz_columns(cameras) -> list[str]:
     """Columns of the XYZ table of a project with these cameras (the first is the reference)."""
     return ["frame", "time_s", "marker", *(f"status_{c}" for c in cameras),
             *(col for c in cameras for col in pixel_columns(c)), "X_mm", "Y_mm", "Z_mm", *SD_COLUMNS, "method",
-            "residual_px", "xyz_source", "network_check"]
+            "residual_px", "xyz_source", "network_check", *BIAS_COLUMNS]
 
 
 XYZ_COLUMNS = xyz_columns(NETWORK_CAMERAS)
@@ -427,7 +431,7 @@ def _solve(obs: dict, cameras: list[str], methods: list[str], model, calibration
         xyz, sd = np.full((n, 3), np.nan), np.full((n, 3), np.nan)
         res = np.full(n, np.nan)
         label = np.full(n, m, dtype=object)
-        check = np.full(n, "", dtype=object)
+        check, bias = np.full(n, "", dtype=object), np.full((n, 3), np.nan)
         if m == "triangulation":
             if ok.any():
                 used = {c: pix[c][ok] for c in tri_cams}
@@ -440,8 +444,9 @@ def _solve(obs: dict, cameras: list[str], methods: list[str], model, calibration
             unknown = ~np.isfinite(np.stack([obs["extra"][c] for c in NETWORK_CAMERAS], axis=1)).all(axis=1)
             sd[unknown] = np.nan  # a nearest frame whose motion is not known
             if m == "mlp":
-                check = check_network_rows(calibration, {c: pix[c] for c in tri_cams}, tsd, refine, xyz, sd, tri)
-        blocks.append((xyz, res, label, sd, check))
+                check, bias = check_network_rows(calibration, {c: pix[c] for c in tri_cams}, tsd, refine, xyz, sd,
+                                                 tri)
+        blocks.append((xyz, res, label, sd, check, bias))
     return _table(obs, cameras, blocks)
 
 
@@ -455,21 +460,23 @@ def pixel_sd(sd: np.ndarray, extra: np.ndarray, calibration, camera: str) -> np.
 
 
 def check_network_rows(calibration, pixels: dict, pixel_sd: dict, refine: bool, xyz: np.ndarray, sd: np.ndarray,
-                       done: tuple | None = None) -> np.ndarray:
+                       done: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The MLP's rows checked against triangulation (`regression.check`): their sd (N, 3) set in place
-    from the spread and the disagreement, and the verdict per row ("ok", "inconsistent"; "unchecked" for an
+    from the spread and the disagreement; the verdict per row ("ok", "inconsistent"; "unchecked" for an
     XYZ without a check: no triangulation, or no spread, whose sd then comes from the disagreement alone;
-    "" without an XYZ). `pixels`, `pixel_sd`: the calibrated cameras' (N, 2) px and sd ((N,) or (N, 2) per
-    image axis); `done`: the triangulation's XYZ and sd of these rows when already computed."""
+    "" without an XYZ) and the network's estimated error (N, 3) mm (NaN where not measured). `pixels`,
+    `pixel_sd`: the calibrated cameras' (N, 2) px and sd ((N,) or (N, 2) per image axis); `done`: the
+    triangulation's XYZ and sd of these rows when already computed."""
     from .regression.check import UNCHECKED, check_network
     from .triangulation_sd import triangulation_sd
 
     verdict = np.full(len(xyz), "", dtype=object)
     verdict[np.isfinite(xyz).all(axis=1)] = UNCHECKED
+    bias = np.full((len(xyz), 3), np.nan)
     seen = np.sum([np.isfinite(p).all(axis=1) for p in pixels.values()], axis=0) if pixels else 0
     rows = np.isfinite(xyz).all(axis=1) & (seen >= 2)
     if not rows.any():
-        return verdict
+        return verdict, bias
     used = {c: p[rows] for c, p in pixels.items()}
     used_sd = {c: v[rows] for c, v in pixel_sd.items()}
     if done is None:
@@ -477,8 +484,8 @@ def check_network_rows(calibration, pixels: dict, pixel_sd: dict, refine: bool, 
     else:
         tri, tri_sd = done[0][rows], done[1][rows]
     tri_sd_pixels = triangulation_sd(calibration, used, calibration.to_rig(tri), used_sd, with_calibration=False)
-    sd[rows], verdict[rows] = check_network(xyz[rows], sd[rows], tri, tri_sd, tri_sd_pixels)
-    return verdict
+    sd[rows], verdict[rows], bias[rows] = check_network(xyz[rows], sd[rows], tri, tri_sd, tri_sd_pixels)
+    return verdict, bias
 
 
 def triangulate_with_sd(calibration, pixels: dict, sd: dict, refine: bool):
@@ -504,7 +511,7 @@ def _solve_scaled(project, obs: dict, camera: str, calibration) -> pd.DataFrame:
     xyz = np.full((n, 3), np.nan)
     xyz[:, :2] = to_mm(obs["pixels"][camera], found[0], cam)
     return _table(obs, [camera], [(xyz, np.full(n, np.nan), np.full(n, "scale", dtype=object),
-                                   np.full((n, 3), np.nan), np.full(n, "", dtype=object))])
+                                   np.full((n, 3), np.nan), np.full(n, "", dtype=object), np.full((n, 3), np.nan))])
 
 
 def _table(obs: dict, cameras: list[str], blocks: list) -> pd.DataFrame:
@@ -512,7 +519,7 @@ def _table(obs: dict, cameras: list[str], blocks: list) -> pd.DataFrame:
     n = len(obs["frame"])
     columns = xyz_columns(cameras)
     cols: dict[str, list] = {c: [] for c in columns}
-    for xyz, res, label, sd, check in blocks:
+    for xyz, res, label, sd, check, bias in blocks:
         for c in ("frame", "time_s", "marker"):
             cols[c].append(obs[c])
         for c in cameras:
@@ -529,6 +536,8 @@ def _table(obs: dict, cameras: list[str], blocks: list) -> pd.DataFrame:
         cols["xyz_source"].append(np.where(obs.get("nearest", np.zeros(n, bool)), XYZ_SOURCES[1],
                                            XYZ_SOURCES[0]).astype(object))
         cols["network_check"].append(check)
+        for k, c in enumerate(BIAS_COLUMNS):
+            cols[c].append(bias[:, k])
     table = pd.DataFrame({c: np.concatenate(v) if v else np.zeros(0) for c, v in cols.items()})
     order = np.lexsort((np.repeat(np.arange(len(blocks)), n), table["marker"].to_numpy(),
                         table["frame"].to_numpy()))

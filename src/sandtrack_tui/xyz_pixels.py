@@ -4,7 +4,7 @@ A pixels table has one row per point and the pixels of each camera in two column
 (side) and ``xf, yf`` (front), or ``x_NAME, y_NAME`` for a camera NAME of the calibration, any number
 of cameras, NaN (an empty field) where a camera did not see the point. Every other column is passed
 through. The result adds ``X_mm, Y_mm, Z_mm, sd_X_mm, sd_Y_mm, sd_Z_mm, method, residual_px,
-network_check`` (see `xyz.py` for their meaning);
+network_check, bias_X_mm, bias_Y_mm, bias_Z_mm`` (see `xyz.py` for their meaning);
 with several methods each input row appears once per method, in input order. Triangulation uses every
 camera that saw a point (two or more); the network and its residual variant read the side and front
 pixels, as they were trained.
@@ -22,6 +22,7 @@ import pandas as pd
 
 from .errors import SandtrackError
 from .xyz import (
+    BIAS_COLUMNS,
     NETWORK_CAMERAS,
     SD_COLUMNS,
     check_choices,
@@ -32,7 +33,7 @@ from .xyz import (
     wanted_methods,
 )
 
-RESULT_COLUMNS = ["X_mm", "Y_mm", "Z_mm", *SD_COLUMNS, "method", "residual_px", "network_check"]
+RESULT_COLUMNS = ["X_mm", "Y_mm", "Z_mm", *SD_COLUMNS, "method", "residual_px", "network_check", *BIAS_COLUMNS]
 COMMAND_LINE_NEEDS = {
     "calibration": "triangulation needs --calibration CAL.toml",
     "model": "the {method} method needs --model MODEL.pt (sandtrack train)",
@@ -105,7 +106,7 @@ def xyz_from_pixels(df: pd.DataFrame, cams: dict[str, tuple[str, str]], calibrat
     for m in methods:
         xyz, res, sd = np.full((n, 3), np.nan), np.full(n, np.nan), np.full((n, 3), np.nan)
         label = np.full(n, m, dtype=object)
-        check = np.full(n, "", dtype=object)
+        check, bias = np.full(n, "", dtype=object), np.full((n, 3), np.nan)
         if m == "triangulation":
             used = {c: pix[c] for c in tri_cams}
             if n:
@@ -115,7 +116,8 @@ def xyz_from_pixels(df: pd.DataFrame, cams: dict[str, tuple[str, str]], calibrat
             network_rows(m, model, calibration, np.hstack([pix[c] for c in NETWORK_CAMERAS]), outside, xyz, res,
                          label, sd, np.repeat(np.stack([psd[c] for c in NETWORK_CAMERAS], axis=1), 2, axis=1))
             if m == "mlp":
-                check = check_network_rows(calibration, {c: pix[c] for c in tri_cams}, tsd, refine, xyz, sd, tri)
+                check, bias = check_network_rows(calibration, {c: pix[c] for c in tri_cams}, tsd, refine, xyz, sd,
+                                                 tri)
         out = base.copy()
         out["X_mm"], out["Y_mm"], out["Z_mm"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
         for k, c in enumerate(SD_COLUMNS):
@@ -123,6 +125,8 @@ def xyz_from_pixels(df: pd.DataFrame, cams: dict[str, tuple[str, str]], calibrat
         out["method"] = label
         out["residual_px"] = res
         out["network_check"] = check
+        for k, c in enumerate(BIAS_COLUMNS):
+            out[c] = bias[:, k]
         blocks.append(out)
     if len(blocks) == 1:
         return blocks[0].reset_index(drop=True), notes

@@ -19,7 +19,9 @@ that fails the test has shown its spread wrong: no prior, m = d and v = B + C (t
 triangulation's error); so has a point without a spread (outside the training volume, or a model file
 without one): verdict `UNCHECKED`, sd from the disagreement alone. The reported sd is the half-width of the
 interval around the network's XYZ that holds the error with 95 % probability, divided by 1.96, so that
-±1.96 sd is that interval (with m = 0 it is sqrt(v); it grows to |m| + 1.645 sqrt(v) as |m| grows).
+±1.96 sd is that interval (with m = 0 it is sqrt(v); it grows to |m| + 1.645 sqrt(v) as |m| grows). m is
+kept beside it (the bias columns): such an error is not centred, so a χ² over many points (`compare`) takes
+the Gaussian N(m, v) back (`interval.gaussian_sd`) instead of reading the sd as a centred one.
 
 What it includes: the network's error as far as the triangulation measures it, wherever the triangulation
 holds. What it leaves out: errors the two share (a calibration error the network learned from the same
@@ -31,26 +33,27 @@ is the triangulation plus a learned correction, not an independent estimate.
 from __future__ import annotations
 
 import numpy as np
-from scipy.special import ndtr
+
+from ..interval import interval_sd
 
 Z_CHECK = 2.934161015263939  # normal quantile 1 - (1 - 0.99^(1/3)) / 2: 1 % false alarms over three axes
 OK, INCONSISTENT, UNCHECKED = "ok", "inconsistent", "unchecked"
-Z_SIDE = 1.6448536269514722  # one-sided 95 % normal quantile
-Z_BOTH = 1.959963984540054  # two-sided 95 % normal quantile
 
 
 def check_network(xyz: np.ndarray, sd: np.ndarray, xyz_tri: np.ndarray, sd_tri: np.ndarray,
-                  sd_tri_pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The network's sd (N, 3) mm after the check and its verdict per row (OK, INCONSISTENT, UNCHECKED),
+                  sd_tri_pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The network's sd (N, 3) mm after the check, its verdict per row (OK, INCONSISTENT, UNCHECKED) and its
+    error's estimated mean m (N, 3) mm (the bias: XYZ - m is the best estimate; NaN without a triangulation),
     from the network's XYZ and sd (NaN: no spread) and the triangulation's XYZ, sd and sd from the pixels
     alone (each (N, 3) mm, world axes; see module docstring). Rows without a triangulation keep their sd."""
     xyz, sd = np.asarray(xyz, float), np.asarray(sd, float)
     xyz_tri, sd_tri, sd_pix = (np.asarray(a, float) for a in (xyz_tri, sd_tri, sd_tri_pixels))
     out = sd.copy()
     verdict = np.full(len(sd), UNCHECKED, dtype=object)
+    bias = np.full(sd.shape, np.nan)
     rows = np.isfinite(np.hstack([xyz, xyz_tri, sd_tri, sd_pix])).all(axis=1)
     if not rows.any():
-        return out, verdict
+        return out, verdict, bias
     d, s, st = xyz[rows] - xyz_tri[rows], sd[rows], sd_tri[rows]
     prior = np.isfinite(s).all(axis=1)
     common = np.minimum(sd_pix[rows] ** 2, np.fmin(s, st) ** 2)
@@ -62,19 +65,6 @@ def check_network(xyz: np.ndarray, sd: np.ndarray, xyz_tri: np.ndarray, sd_tri: 
     mean = np.where(trusted, a / total, 1.0) * d
     var = np.where(trusted, a * b / total, b) + common
     out[rows] = interval_sd(mean, np.sqrt(var))
+    bias[rows] = mean
     verdict[np.flatnonzero(rows)[prior]] = np.where(bad[prior], INCONSISTENT, OK)
-    return out, verdict
-
-
-def interval_sd(mean: np.ndarray, sd: np.ndarray, iterations: int = 3) -> np.ndarray:
-    """h / 1.96 where ±h around 0 holds a Gaussian error N(mean, sd²) with probability 95 %; by Newton's
-    method from below (h >= max(|mean| + 1.645 sd, 1.96 sd); the coverage is concave in h there, so each
-    step stays below the root; three steps: within 1e-8 of it)."""
-    m, s = np.abs(mean), np.maximum(sd, 1e-12)
-    h = np.maximum(m + Z_SIDE * s, Z_BOTH * s)
-    for _ in range(iterations):
-        hi, lo = (h - m) / s, (-h - m) / s
-        f = ndtr(hi) - ndtr(lo) - 0.95
-        slope = (np.exp(-0.5 * hi ** 2) + np.exp(-0.5 * lo ** 2)) / (np.sqrt(2 * np.pi) * s)
-        h = h - f / np.maximum(slope, 1e-300)
-    return h / Z_BOTH
+    return out, verdict, bias
