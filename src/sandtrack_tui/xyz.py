@@ -236,7 +236,7 @@ def compute_pixels(project, frames=None, times: dict | None = None) -> pd.DataFr
     n = len(obs["frame"])
     return _table(obs, timeline.cameras, [(np.full((n, 3), np.nan), np.full(n, np.nan),
                                            np.full(n, "pixels", dtype=object), np.full((n, 3), np.nan),
-                                           np.full(n, "", dtype=object))])
+                                           np.full(n, "", dtype=object), np.full((n, 3), np.nan))])
 
 
 def xyz_at_frame(project, frame: int, method: str = "both", **kw) -> pd.DataFrame:
