@@ -150,6 +150,8 @@ def test_rows_without_sd_and_tables_without_sd_columns():
     assert empty.summary["consistent"] is None  # sd columns that are all empty carry nothing
     with pytest.raises(Exception, match="or none"):
         C.compare(exp.drop(columns=["sd_Z_mm"]), dem, fps=FPS)
+    with pytest.raises(Exception, match="bias_X_mm, bias_Y_mm, bias_Z_mm or none"):
+        C.compare(exp.assign(bias_X_mm=0.0), dem, fps=FPS)
     with pytest.raises(Exception, match=">= 0"):
         C.compare(exp, dem, fps=FPS, dem_sd_mm=-1)
 

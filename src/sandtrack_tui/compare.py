@@ -193,8 +193,9 @@ def experiment_table(df: pd.DataFrame, method: str | None = None, source: str = 
                 raise SandtrackError(f"{source}: no rows with method {method!r}")
             df = df[df["method"] == method]
     extra = [c for c in (*SD_COLUMNS, *COV_COLUMNS, *BIAS_COLUMNS) if c in df.columns]
-    if any(c in extra for c in SD_COLUMNS) and not all(c in extra for c in SD_COLUMNS):
-        raise SandtrackError(f"{source}: give all of {', '.join(SD_COLUMNS)} or none")
+    for group in (SD_COLUMNS, BIAS_COLUMNS):
+        if any(c in extra for c in group) and not all(c in extra for c in group):
+            raise SandtrackError(f"{source}: give all of {', '.join(group)} or none")
     out = df[need + extra].apply(pd.to_numeric, errors="coerce")
     out = out[np.isfinite(out[need].to_numpy()).all(axis=1) & measured_rows(df)]
     if out.empty:
