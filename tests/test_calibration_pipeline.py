@@ -87,6 +87,11 @@ def test_cli_json_writes_files_and_project(session, tmp_path, capsys):
     assert r["reprojection_rmse_px"] < 0.03 and r["points"] > 400  # measured 0.020 px
     assert set(r["per_camera"]) == {"side", "front"} and r["per_camera"]["side"]["rmse_px"] < 0.021  # 0.014
     cal = Calibration.load(out)
+    for n in ("side", "front"):  # the report's camera is the file's, with its sd; the single-camera fit apart
+        c = r["per_camera"][n]
+        assert c["fx"] == pytest.approx(cal.cameras[n].matrix[0, 0], abs=1e-9) and 0 < c["fx_sd_px"] < 1.0
+        assert abs(c["fx"] - session["truth"].cameras[n].matrix[0, 0]) < 6 * c["fx_sd_px"]
+        assert set(c["single_camera_fit"]) == {"fx", "fy", "cx", "cy", "distortion"}
     table = pd.read_csv(pts)
     assert len(table) == r["points"]
     flat = table[table.frame == 0]
@@ -118,6 +123,10 @@ def test_cli_from_points(result, tmp_path, capsys):
     cal = Calibration.load(out)
     fx_true = result.calibration.cameras["side"].matrix[0, 0]
     assert abs(cal.cameras["side"].matrix[0, 0] / fx_true - 1) < 7e-6  # measured 4.6e-6
+    side = r["per_camera"]["side"]
+    assert side["fx"] == pytest.approx(cal.cameras["side"].matrix[0, 0], abs=1e-9) and side["fx_sd_px"] > 0
+    assert main(["calibrate", "--from-points", str(pts), "-o", str(out)]) == 0
+    assert f"side: fx {side['fx']:.2f} ± {side['fx_sd_px']:.2f} px (1 sd)" in capsys.readouterr().out
 
 
 def _cli_error(args, capsys) -> str:
@@ -217,3 +226,16 @@ def test_world_frame_from_known_points(session, result, tmp_path):
     assert res.report["world"]["rmse_mm"] < 0.047  # measured 0.031
     probe = np.array([[0.0, 0.0, 0.0], [200.0, 50.0, 300.0]])
     assert np.abs(res.calibration.to_world(probe) - result.calibration.to_world(probe)).max() < 0.081  # 0.054
+
+
+def test_the_calibration_screen_shows_each_camera_term_with_its_sd(result):
+    from rich.console import Console
+
+    from sandtrack_tui.calibration.report import camera_parameters
+    from sandtrack_tui.tui.screens.calibration import summary_table
+
+    console = Console(width=100, record=True)
+    console.print(summary_table(result.calibration))
+    text = console.export_text()
+    side = camera_parameters(result.calibration, "side")
+    assert f"{side['fx']:.1f}" in text and f"±{side['fx_sd_px']:.1f}" in text and "± 1 sd" in text

@@ -26,6 +26,7 @@ from .intrinsics import opencv_flags
 from .known_point_errors import known_point_errors
 from .lens_select import Candidate, choose, report, select_lens, why
 from .point_uncertainty import into_rig, jackknife_covariance, larger, parameter_names, point_fit_uncertainty
+from .report import camera_parameters
 
 MIN_POINTS = 12
 
@@ -221,6 +222,8 @@ def calibrate_from_points(df: pd.DataFrame, cams: dict[str, tuple[str, str]],
         cam.rvec, cam.tvec = r, t
     rmse = float(np.sqrt(np.mean([r["rmse_px"] ** 2 for r in reports.values()])))
     cal = Calibration(cameras=cameras, world_from_rig=world_from_rig, uncertainty=uncertainty)
+    for name in reports:
+        reports[name].update(camera_parameters(cal, name))
     # how well the fitted cameras give the known points back (triangulated from their own pixels)
     from ..triangulation import triangulate
 

@@ -22,7 +22,7 @@ from ..camera import Calibration
 from ..errors import SandtrackError
 from .detect import BoardView, detect_in_sources, detection_stride, frame_pairing, open_source
 from .points import calibration_points
-from .report import accuracy_report
+from .report import accuracy_report, camera_parameters
 from .rig import calibrate_rig, fit_frame_poses
 from .world import describe, world_from_board_pose, world_from_known_points
 
@@ -168,6 +168,10 @@ def calibrate_videos(videos: dict[str, str | Path], board: BoardSpec, *, offsets
     per_camera = {}
     for n in names:
         r = rig.intrinsics[n].report()
+        # the single-camera fit (its RMSE: rmse_px) that started the bundle adjustment, apart from the
+        # cameras the calibration file holds
+        r["single_camera_fit"] = {k: r.pop(k) for k in ("fx", "fy", "cx", "cy", "distortion")}
+        r.update(camera_parameters(calibration, n))
         r["reprojection_rmse_px"] = acc["per_camera_reprojection_rmse_px"].get(n)
         r["frames_with_board"] = len(views[n])
         r["mirrored_views"] = sum(v.mirrored for v in views[n].values())

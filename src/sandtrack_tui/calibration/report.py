@@ -21,6 +21,23 @@ from .geometry import inv_T
 Views = dict[str, dict[int, BoardView]]
 
 
+MATRIX = ("fx", "fy", "cx", "cy")
+
+
+def camera_parameters(calibration: Calibration, name: str) -> dict:
+    """A calibrated camera's matrix and lens as written to the calibration file (px), with the sd of each
+    matrix term from the calibration's parameter covariance (``fx_sd_px`` ...; absent without one)."""
+    cam = calibration.cameras[name]
+    K = cam.matrix
+    out = {"fx": float(K[0, 0]), "fy": float(K[1, 1]), "cx": float(K[0, 2]), "cy": float(K[1, 2]),
+           "distortion": [float(v) for v in cam.distortion]}
+    unc = calibration.uncertainty.get(name)
+    if unc is not None:
+        sd = np.sqrt(np.clip(np.diag(unc.covariance), 0.0, None))
+        out.update({f"{p}_sd_px": float(sd[unc.parameters.index(p)]) for p in MATRIX if p in unc.parameters})
+    return out
+
+
 def reprojection_errors(calibration: Calibration, views: Views, board: BoardSpec,
                         poses: dict[int, np.ndarray]) -> dict[str, np.ndarray]:
     """Per camera, the pixel error of every detected corner in the frames that have a pose."""

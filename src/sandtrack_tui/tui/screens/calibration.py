@@ -12,6 +12,7 @@ from textual.app import ComposeResult
 from textual.containers import Horizontal, VerticalScroll
 from textual.widgets import Button, Footer, Input, Label, Static
 
+from ...calibration.report import camera_parameters
 from ...camera import Calibration, euler_angles_deg
 from ...errors import SandtrackError
 from ..core import core
@@ -21,13 +22,14 @@ from .base import TaskScreen
 def summary_table(cal: Calibration | None):
     if cal is None:
         return "No calibration yet: calibrate from the board videos below, or load a calibration.toml."
-    t = Table(box=box.SIMPLE_HEAD, title="Cameras (rig frame = first camera, mm)", title_justify="left")
+    t = Table(box=box.SIMPLE_HEAD, title="Cameras (rig frame = first camera, mm; ± 1 sd)", title_justify="left")
     for c in ("camera", "lens", "size", "fx", "fy", "cx", "cy", "centre mm", "angles °", "rmse px"):
         t.add_column(c, justify="right")
     for name, c in cal.cameras.items():
-        K = c.matrix
-        t.add_row(name, c.lens, f"{c.width}×{c.height}", f"{K[0, 0]:.1f}", f"{K[1, 1]:.1f}", f"{K[0, 2]:.1f}",
-                  f"{K[1, 2]:.1f}", ", ".join(f"{v:.0f}" for v in c.center_mm),
+        par = camera_parameters(cal, name)
+        matrix = [f"{par[p]:.1f}" + (f"\n±{par[p + '_sd_px']:.1f}" if p + "_sd_px" in par else "")
+                  for p in ("fx", "fy", "cx", "cy")]
+        t.add_row(name, c.lens, f"{c.width}×{c.height}", *matrix, ", ".join(f"{v:.0f}" for v in c.center_mm),
                   ", ".join(f"{v:.1f}" for v in euler_angles_deg(c.R)),
                   "—" if c.rmse_px is None else f"{c.rmse_px:.3f}")
     names = list(cal.cameras)
