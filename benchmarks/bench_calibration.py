@@ -80,7 +80,55 @@ def real_footage() -> dict:
     out["beats_caliscope_and_aniposelib"] = bool(
         out["reprojection_rmse_px"] < 0.556 and out["board_rmse_mm"] < 0.367)
     out.update(lens_choice_on_the_rig(res, board))
+    out["parameter_sd_split_halves"] = split_half_parameters(res, board)
     return out
+
+
+def _parameter_values(cam, names: list[str]) -> np.ndarray:
+    """A camera's values of the covariance's parameters (rig-frame pose, matrix, distortion terms)."""
+    at = {"fx": (0, 0), "fy": (1, 1), "cx": (0, 2), "cy": (1, 2)}
+    return np.array([cam.rvec["xyz".index(p[1])] if p in ("rx", "ry", "rz") else
+                     cam.tvec["xyz".index(p[1])] if p in ("tx", "ty", "tz") else
+                     cam.matrix[at[p]] if p in at else cam.distortion[int(p[1:])] for p in names])
+
+
+def _chi2_of(diffs: dict) -> dict:
+    """{camera: (difference, covariance)} -> chi-square per camera and in all, with degrees of freedom."""
+    out, total, dof = {}, 0.0, 0
+    for n, (d, cov) in diffs.items():
+        chi2 = float(d @ np.linalg.solve(cov, d))
+        out[n] = [round(chi2, 1), len(d)]
+        total, dof = total + chi2, dof + len(d)
+    return {"per_camera_chi2_dof": out, "chi2": round(total, 1), "dof": dof, "chi2_per_dof": round(total / dof, 2)}
+
+
+def split_half_parameters(res, board) -> dict:
+    """The calibration's parameter covariance against the data: the session calibrated on its even and on its
+    odd frames (each camera's lens fixed to the whole session's choice); each camera's parameter difference
+    in units of the sum of the two halves' covariances. chi2 / dof is 1 when the stated sd are honest
+    (neighbouring frames are alike, so the halves are not fully independent: a lower bound)."""
+    sizes = {n: (c.width, c.height) for n, c in res.calibration.cameras.items()}
+    lenses = {n: c.lens for n, c in res.calibration.cameras.items()}
+    halves = [calibrate_rig({n: {f: v for f, v in views.items() if f % 2 == k} for n, views in res.views.items()},
+                            board, sizes, models=lenses).calibration for k in (0, 1)]
+    diffs = {}
+    for n in res.calibration.names:
+        a, b = (h.uncertainty.get(n) for h in halves)
+        if a is None or b is None or a.parameters != b.parameters:
+            continue
+        diffs[n] = (_parameter_values(halves[0].cameras[n], a.parameters)
+                    - _parameter_values(halves[1].cameras[n], a.parameters), a.covariance + b.covariance)
+    return _chi2_of(diffs)
+
+
+def parameters_against_truth(res, truth) -> dict:
+    """The estimated cameras' parameters minus the true ones (rig frame = the first camera's, as the truth's)
+    in units of the stated covariance: chi2 / dof 1 when the stated sd are honest."""
+    diffs = {}
+    for n, unc in res.calibration.uncertainty.items():
+        diffs[n] = (_parameter_values(res.calibration.cameras[n], unc.parameters)
+                    - _parameter_values(truth.cameras[n], unc.parameters), unc.covariance)
+    return _chi2_of(diffs)
 
 
 def lens_choice_on_the_rig(res, board) -> dict:
@@ -238,6 +286,7 @@ def sample_data_figures(folder: Path = SAMPLE, with_points: bool = True) -> dict
         out.update(_points_vs_truth(res, truth, folder))
     out.update(_corners_vs_truth(res, folder))
     out.update(half_sample_precision(res, board, truth))
+    out["parameter_sd_against_truth"] = parameters_against_truth(res, truth)
     return out
 
 
