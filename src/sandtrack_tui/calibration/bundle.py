@@ -185,6 +185,18 @@ def view_weights(res: np.ndarray, obs: Observations, clip_sigmas: float = 3.0) -
     return np.exp(centre - shrunk)[inv]
 
 
+def _weighted_residuals(layout: _Layout, state: BundleState, obs: Observations, weights: np.ndarray | None):
+    """The packed parameters -> the residuals (px), each scaled by the square root of its weight; and that
+    scale per residual (None without weights)."""
+    scale = None if weights is None else np.repeat(np.sqrt(np.asarray(weights, dtype=float)), 2)
+
+    def fun(xv):
+        r = residuals(layout.unpack(xv, state), obs).ravel()
+        return r if scale is None else r * scale
+
+    return fun, scale
+
+
 def _jacobian(fun, x: np.ndarray, r0: np.ndarray, S: csc_matrix, groups: list[np.ndarray]) -> csc_matrix:
     """Forward-difference Jacobian with the known sparsity: columns that share no residual row are
     perturbed together, so the cost is one evaluation per group, not per parameter."""
@@ -281,13 +293,7 @@ def bundle_adjust(state: BundleState, obs: Observations, free_intrinsics: bool =
     costs about 20 residual evaluations plus a small dense solve whatever the number of frames."""
     layout = _Layout(state, free_intrinsics, free_cameras, free_frames)
     x = layout.pack(state)
-
-    scale = None if weights is None else np.repeat(np.sqrt(np.asarray(weights, dtype=float)), 2)
-
-    def fun(xv):
-        r = residuals(layout.unpack(xv, state), obs).ravel()
-        return r if scale is None else r * scale
-
+    fun, scale = _weighted_residuals(layout, state, obs, weights)
     S = layout.sparsity(obs).tocsc()
     S.sort_indices()
     groups = _groups(layout, obs)
@@ -353,12 +359,7 @@ def camera_covariances(state: BundleState, obs: Observations, free_intrinsics: b
     dK (the K-th distortion coefficient)."""
     layout = _Layout(state, free_intrinsics, True, True)
     x = layout.pack(state)
-    scale = None if weights is None else np.repeat(np.sqrt(np.asarray(weights, dtype=float)), 2)
-
-    def fun(xv):
-        r = residuals(layout.unpack(xv, state), obs).ravel()
-        return r if scale is None else r * scale
-
+    fun, _ = _weighted_residuals(layout, state, obs, weights)
     S = layout.sparsity(obs).tocsc()
     S.sort_indices()
     r = fun(x)
