@@ -126,7 +126,7 @@ def test_cli_from_points(result, tmp_path, capsys):
     side = r["per_camera"]["side"]
     assert side["fx"] == pytest.approx(cal.cameras["side"].matrix[0, 0], abs=1e-9) and side["fx_sd_px"] > 0
     assert main(["calibrate", "--from-points", str(pts), "-o", str(out)]) == 0
-    assert f"side: fx {side['fx']:.2f} ± {side['fx_sd_px']:.2f} px (1 sd)" in capsys.readouterr().out
+    assert f"side: fx {side['fx']:.2f} ± {side['fx_sd_px']:.2f} px (1 sd of the fit), RMSE" in capsys.readouterr().out
 
 
 def _cli_error(args, capsys) -> str:

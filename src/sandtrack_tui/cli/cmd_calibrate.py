@@ -140,8 +140,8 @@ def _text(r: dict) -> str:
         rm = c.get("reprojection_rmse_px", c.get("rmse_px"))
         fx = c.get("fx")
         lens = f", lens {c['lens']}" if c.get("lens") else ""
-        sd = f" ± {c['fx_sd_px']:.2f}" if c.get("fx_sd_px") is not None else ""
-        lines.append(f"  {n}: fx {fx:.2f}{sd} px (1 sd), RMSE {rm:.3f} px{lens}" if fx is not None and rm is not None
+        sd = f" ± {c['fx_sd_px']:.2f} px (1 sd of the fit)" if c.get("fx_sd_px") is not None else " px"
+        lines.append(f"  {n}: fx {fx:.2f}{sd}, RMSE {rm:.3f} px{lens}" if fx is not None and rm is not None
                      else f"  {n}")
         if c.get("noise_px"):
             lines.append("    own pixel noise (the known points' error taken out) x {:.3f}, y {:.3f} px"
