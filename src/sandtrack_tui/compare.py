@@ -58,10 +58,9 @@ import pandas as pd
 from . import consistency as K
 from .errors import SandtrackError
 from .interval import gaussian_sd
+from .xyz import BIAS_COLUMNS, SD_COLUMNS
 
 AXES = ("X_mm", "Y_mm", "Z_mm")
-SD_COLUMNS = ("sd_X_mm", "sd_Y_mm", "sd_Z_mm")
-BIAS_COLUMNS = ("bias_X_mm", "bias_Y_mm", "bias_Z_mm")
 COV_COLUMNS = ("cov_XY_mm2", "cov_XZ_mm2", "cov_YZ_mm2")
 CHI2_KEYS = ("chi2_reduced", "p_value", "within_95_pct", "samples_eff")
 UNOBSERVED = ("occluded", "lost")  # point statuses whose pixel is a prediction, not a measurement
@@ -351,9 +350,8 @@ class _Pairs:
         the time alignment's cost."""
         sq, n = 0.0, 0
         for item in self.items:
-            _, xe, xi, ok = self._aligned(shift, item)
-            if item[0] in self.bias:
-                xe = xe - self.bias[item[0]][ok]
+            _, _, xi, ok = self._aligned(shift, item)
+            xe = self.best(item)[ok]
             if len(xe) >= 2:
                 sq += float(((xe - xi) ** 2).sum())
                 n += len(xe)

@@ -31,8 +31,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
+from .interval import Z_BOTH
+
 CHI2_95_3D = float(stats.chi2.ppf(0.95, 3))  # 7.81
-Z95 = float(stats.norm.ppf(0.975))  # 1.96: the 95 % band per axis is ±Z95 sd
+Z95 = Z_BOTH  # 1.96: the 95 % band per axis is ±Z95 sd
 SOKAL_C = 5.0
 
 
