@@ -40,7 +40,7 @@ def test_demo_fast_end_to_end(tmp_path):
     assert reg["triangulation_mean_error_mm"] < 0.075 and reg["residual_mean_error_mm"] < 0.075
     # the network's 95 % intervals on the held-out calibration points, against the true corners: as wide as
     # the triangulation's sd there, which over-states its error on the corners that calibrated it
-    # (measured MLP 99.6 / 98.8 / 96.2, triangulation 99.8 / 99.5 / 94.7)
+    # (measured MLP 99.4 / 97.9 / 95.9, triangulation 99.8 / 98.3 / 95.6)
     assert all(93.0 <= reg[f"mlp_coverage95_pct_{a}"] <= max(97.0, reg[f"triangulation_coverage95_pct_{a}"]) + 1.5
                for a in "xyz")
     assert {"mlp_coverage95_pct_x", "residual_coverage95_pct_z"} <= set(stages["xyz"])
@@ -58,19 +58,21 @@ def test_demo_fast_end_to_end(tmp_path):
     assert within(xyz["mean_error_mm"], claimed("demo", "xyz"))
     assert within(xyz["p95_error_mm"], claimed("demo", "xyz_p95"))
     assert xyz["mlp_mean_error_mm"] < 4.7  # the few-epoch network (measured 3.1 mm)
-    # the tracked markers' triangulation sd (each point's from its match score): measured 95.8 / 95.9 / 94.9 %
+    # the tracked markers' triangulation sd (each point's from its match score): measured 94.6 / 94.4 / 93.2 %
     assert all(92.0 <= xyz[f"triangulation_coverage95_pct_{a}"] <= 98.5 for a in "xyz")
-    # the network's sd with the triangulation's evidence (regression.check): measured 96.2 / 96.9 / 96.4 %
+    # the network's sd with the triangulation's evidence (regression.check): measured 94.7 / 96.8 / 95.9 %
     assert all(93.0 <= xyz[f"mlp_coverage95_pct_{a}"] <= 98.0 for a in "xyz")
 
     cmp = stages["compare"]
     assert cmp["particles"] == 8 and within(cmp["shift_error_frames"], claimed("compare", "tracked"))
     assert cmp["flagged_particles"] == cmp["drifting_particles"]
-    # in units of the triangulation's sd, the DEM's drifting particles and only they disagree
-    assert cmp["triangulation_inconsistent_particles"] == cmp["drifting_particles"]
-    # the network's too, judged by the Gaussian behind its interval (its bias kept beside its sd): measured
-    # 93.8 % of the exact particles' samples within the band, 46 % when its sd was read as a centred one
-    assert cmp["mlp_within_95_pct_of_true_particles"] > 88.0
-    mlp_flagged = set(cmp["mlp_inconsistent_particles"])
-    assert set(cmp["drifting_particles"]) <= mlp_flagged and len(mlp_flagged) <= len(cmp["drifting_particles"]) + 1
+    # in units of the measurement's sd the DEM's drifting particles disagree, and of its six exact particles at
+    # most one (the 5 % level rejects one or more of six in a quarter of such runs, two or more in 3 %):
+    # measured [1, 3, 6] for every method (particle 1: p 0.02, 87 % of its samples within the band). The
+    # network is judged by the Gaussian behind its interval (its bias kept beside its sd): measured 93.4 % of
+    # the exact particles' samples within the band, 46 % when its sd was read as a centred one
+    for method in ("triangulation", "mlp"):
+        flagged = set(cmp[f"{method}_inconsistent_particles"])
+        assert set(cmp["drifting_particles"]) <= flagged and len(flagged) <= len(cmp["drifting_particles"]) + 1
+        assert cmp[f"{method}_within_95_pct_of_true_particles"] > 88.0
     assert (tmp_path / "trajectories.csv").stat().st_size > 0

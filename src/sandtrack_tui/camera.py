@@ -207,14 +207,73 @@ class CameraUncertainty:
 
 
 @dataclass
+class RigUncertainty:
+    """The calibration's parameters taken together, with the world frame that depends on them.
+
+    parameters: "CAMERA/NAME" in `CameraUncertainty` terms, every camera's; covariance: their joint (P, P)
+    covariance (the bundle adjustment's, correlations between cameras kept). The world frame moves with
+    them: a small change δθ of the parameters moves a world point X by ω × X + τ with ψ = (ω, τ) =
+    world_jacobian @ δθ (rad, mm; (6, P)), because the world frame is refitted to its reference (a board
+    lying in a reference frame, or known points) seen through the changed cameras. world_covariance: ψ's own
+    (6, 6) covariance from the reference's measurement (its detections' noise), apart from the cameras'."""
+
+    parameters: list[str]
+    covariance: np.ndarray
+    world_jacobian: np.ndarray
+    world_covariance: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.parameters = [str(p) for p in self.parameters]
+        n = len(self.parameters)
+        self.covariance = np.asarray(self.covariance, dtype=np.float64).reshape(n, n)
+        self.world_jacobian = np.asarray(self.world_jacobian, dtype=np.float64).reshape(6, n)
+        self.world_covariance = np.asarray(self.world_covariance, dtype=np.float64).reshape(6, 6)
+
+    def world_frame_sd(self) -> dict:
+        """The world frame's own sd, the cameras' part included: its rotation (mrad, about X, Y, Z) and the
+        motion of the world origin (mm)."""
+        C = self.world_jacobian @ self.covariance @ self.world_jacobian.T + self.world_covariance
+        sd = np.sqrt(np.clip(np.diag(C), 0.0, None))
+        return {"rotation_sd_mrad": [float(v) for v in 1e3 * sd[:3]], "origin_sd_mm": [float(v) for v in sd[3:]]}
+
+    def camera_parameters(self, camera: str) -> tuple[list[str], np.ndarray]:
+        """(names, global column of each) of one camera's parameters."""
+        prefix = camera + "/"
+        cols = [i for i, p in enumerate(self.parameters) if p.startswith(prefix)]
+        return [self.parameters[i][len(prefix):] for i in cols], np.array(cols, dtype=np.int64)
+
+    def to_dict(self) -> dict:
+        return {"parameters": list(self.parameters), "covariance": self.covariance.tolist(),
+                "world_jacobian": self.world_jacobian.tolist(), "world_covariance": self.world_covariance.tolist()}
+
+    @classmethod
+    def from_dict(cls, d: dict, cameras) -> RigUncertainty:
+        try:
+            unc = cls(list(d["parameters"]), np.array(d["covariance"], dtype=float),
+                      np.array(d["world_jacobian"], dtype=float), np.array(d["world_covariance"], dtype=float))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise SandtrackError(f"rig_uncertainty: malformed entry ({exc})") from None
+        if not all(np.isfinite(a).all() for a in (unc.covariance, unc.world_jacobian, unc.world_covariance)):
+            raise SandtrackError("rig_uncertainty: a value is not a finite number")
+        unknown = sorted({p.split("/")[0] for p in unc.parameters} - set(cameras))
+        if unknown:
+            raise SandtrackError(f"rig_uncertainty: parameters of unknown camera(s) {', '.join(unknown)}")
+        return unc
+
+
+@dataclass
 class Calibration:
     """A calibrated rig: cameras (rig frame, mm) and the rig -> sand-box world transform; `uncertainty`:
-    per camera, the covariance of its parameters (absent in files written before it was kept)."""
+    per camera, the covariance of its parameters (absent in files written before it was kept);
+    `rig_uncertainty`: the same jointly, with the world frame's (absent where not known)."""
 
     cameras: dict[str, Camera]
     world_from_rig: np.ndarray = field(default_factory=lambda: np.eye(4))
     report: dict = field(default_factory=dict)
     uncertainty: dict[str, CameraUncertainty] = field(default_factory=dict)
+    # all cameras' parameters together and the world frame's dependence on them (None: each camera alone,
+    # the world frame taken as exact)
+    rig_uncertainty: RigUncertainty | None = None
 
     def __post_init__(self) -> None:
         self.world_from_rig = np.asarray(self.world_from_rig, dtype=np.float64).reshape(4, 4)
@@ -248,6 +307,8 @@ class Calibration:
         }
         if self.uncertainty:
             doc["uncertainty"] = {n: u.to_dict() for n, u in self.uncertainty.items() if n in self.cameras}
+        if self.rig_uncertainty is not None:
+            doc["rig_uncertainty"] = self.rig_uncertainty.to_dict()
         if self.report:
             doc["report"] = _plain(self.report)
         return tomli_w.dumps(doc)
@@ -276,7 +337,10 @@ class Calibration:
         unc = doc.get("uncertainty", {})
         unc = {n: CameraUncertainty.from_dict(n, d) for n, d in unc.items() if n in cameras and isinstance(d, dict)} \
             if isinstance(unc, dict) else {}
-        return cls(cameras=cameras, world_from_rig=world, report=doc.get("report", {}), uncertainty=unc)
+        rig_unc = doc.get("rig_uncertainty")
+        rig_unc = RigUncertainty.from_dict(rig_unc, cameras) if isinstance(rig_unc, dict) else None
+        return cls(cameras=cameras, world_from_rig=world, report=doc.get("report", {}), uncertainty=unc,
+                   rig_uncertainty=rig_unc)
 
     @classmethod
     def load(cls, path: str | Path) -> Calibration:

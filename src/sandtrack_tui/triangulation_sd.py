@@ -15,11 +15,19 @@ H⁻¹ (Σ ω² Jᵀ Σp J) H⁻¹, where Σp is each camera's pixel covariance 
   adjustment (`CameraUncertainty`, kept in calibration.toml) and G = d(pixel) / d(parameters) at the point
   (analytic for the translation and the camera matrix, finite differences for the rotation and the lens).
 
-Left out: correlations between the cameras' calibration errors (each camera's block is used alone), the
-uncertainty of the rig-to-world transform and of the board's own dimensions or the known points' survey
-(a calibration from known points reports the points' own error, `known_points_sd_mm`, for comparing a
-triangulated point with such a reference), and anything the calibration residuals cannot show (a lens
-model that does not fit the whole image, a rig that moved after calibrating).
+Where the calibration keeps its parameters' joint covariance with the world frame (`RigUncertainty`: a
+calibration from videos), the calibration's part is propagated jointly instead: a parameter change δθ moves
+the triangulated point by δX = -H⁻¹ Σ ω Jᵀ G δθ (rig frame) and the world frame by ψ = Ψ δθ (it is refitted
+to its reference through the same cameras), so the world point moves by M δθ with M = R_w (-H⁻¹ Σ ω Jᵀ G) +
+A(X) Ψ, A(X) ψ = ω × X + τ; its covariance M Σθ Mᵀ (correlations between cameras kept) plus the world
+frame's own, A Σψ Aᵀ (the reference's detections). Near the reference most of a camera's error cancels.
+
+Left out: without `RigUncertainty`, correlations between the cameras' calibration errors (each camera's
+block is used alone) and the uncertainty of the rig-to-world transform; always, the board's own dimensions
+or the known points' survey (a calibration from known points reports the points' own error,
+`known_points_sd_mm`, for comparing a triangulated point with such a reference), and anything the
+calibration residuals cannot show (a lens model that does not fit the whole image, a rig that moved after
+calibrating).
 """
 
 from __future__ import annotations
@@ -34,6 +42,7 @@ POSE_PARAMETERS = ("rx", "ry", "rz", "tx", "ty", "tz")
 MATRIX_PARAMETERS = ("fx", "fy", "cx", "cy")
 _ROTATION_STEP = 1e-6
 _LENS_STEP = 1e-7
+_CHUNK = 65536  # rows per pass of the joint propagation (its (rows, 3, parameters) array)
 
 
 def triangulation_sd(calibration: Calibration, pixels: dict[str, np.ndarray], points_rig: np.ndarray,
@@ -42,28 +51,25 @@ def triangulation_sd(calibration: Calibration, pixels: dict[str, np.ndarray], po
     NaN where unseen). pixel_sd: per camera, a scalar, (N,) or (N, 2) px (per image axis; default: the
     camera's `camera_noise_px`, else 1 px). NaN where fewer than two cameras saw the point or a needed sd
     is unknown."""
-    H, M, count = _accumulated(calibration, pixels, points_rig, pixel_sd, with_calibration)
-    return _world_sd(H, M, count, calibration.world_from_rig[:3, :3].copy())
-
-
-def triangulation_covariance(calibration: Calibration, pixels: dict[str, np.ndarray], points_rig: np.ndarray,
-                             pixel_sd: dict[str, np.ndarray] | None = None,
-                             with_calibration: bool = True) -> np.ndarray:
-    """(N, 3, 3) covariance (mm², rig frame) of the points of `triangulation_sd`."""
-    H, M, count = _accumulated(calibration, pixels, points_rig, pixel_sd, with_calibration)
-    out = np.full((len(H), 3, 3), np.nan)
-    good = count >= 2
-    if good.any():
-        Hi = np.linalg.inv(H[good])
-        out[good] = Hi @ M[good] @ Hi
+    joint = calibration.rig_uncertainty if with_calibration else None
+    if joint is None:
+        H, M, count = _accumulated(calibration, pixels, points_rig, pixel_sd, with_calibration)
+        return _world_sd(H, M, count, calibration.world_from_rig[:3, :3].copy())
+    X = np.asarray(points_rig, dtype=np.float64).reshape(-1, 3)
+    n = len(X)
+    pixels = {k: np.asarray(v, float).reshape(-1, 2) for k, v in pixels.items()}
+    if pixel_sd is not None:
+        pixel_sd = {k: _per_axis(v, n) for k, v in pixel_sd.items()}
+    out = np.full((n, 3), np.nan)
+    W = calibration.world_from_rig
+    for s in range(0, n, _CHUNK):
+        sl = slice(s, s + _CHUNK)
+        H, M, B, count = _accumulated_joint(calibration, joint, {k: v[sl] for k, v in pixels.items()}, X[sl],
+                                            None if pixel_sd is None else {k: v[sl] for k, v in pixel_sd.items()})
+        Xw = X[sl] @ W[:3, :3].T + W[:3, 3]
+        out[sl] = _world_sd_joint(H, M, B, count, W[:3, :3].copy(), np.ascontiguousarray(Xw), joint.covariance,
+                                  joint.world_jacobian, joint.world_covariance)
     return out
-
-
-def world_sd(calibration: Calibration, cov_rig: np.ndarray) -> np.ndarray:
-    """(N, 3) sd per world axis (mm) of rig-frame covariances."""
-    R = calibration.world_from_rig[:3, :3]
-    var = np.einsum("ij,njk,ik->ni", R, cov_rig, R)
-    return np.sqrt(np.clip(var, 0.0, None))
 
 
 def camera_noise_px(calibration: Calibration, name: str) -> np.ndarray:
@@ -103,24 +109,52 @@ def _accumulated(calibration, pixels, points_rig, pixel_sd, with_calibration):
         seen = np.isfinite(np.asarray(px, float).reshape(-1, 2)).all(axis=1) & ok_x
         if not seen.any():
             continue
-        sigma = _camera_sigma(cam)
-        given = None if pixel_sd is None else pixel_sd.get(name)
-        if given is None:
-            own = camera_noise_px(calibration, name)
-            sd = _per_axis(np.where(np.isnan(own), 1.0, own)[None, :], n)
-        else:
-            sd = _per_axis(given, n)
+        sd = _camera_pixel_sd(calibration, name, pixel_sd, n)
         unc = calibration.uncertainty.get(name) if with_calibration else None
         idx = np.nonzero(seen)[0]
-        parts = _camera_parts(cam, X[idx], unc)
-        _accumulate(H, M, count, idx, sd, 1.0 / sigma ** 2, *parts)
+        parts = _camera_parts(cam, X[idx], list(unc.parameters) if unc is not None else [])
+        cov = np.ascontiguousarray(unc.covariance) if unc is not None else np.zeros((0, 0))
+        _accumulate(H, M, count, idx, sd, 1.0 / _camera_sigma(cam) ** 2, *parts[:9], cov, *parts[9:])
     return H, M, count
 
 
-def _camera_parts(cam: Camera, X: np.ndarray, unc) -> tuple:
+def _camera_pixel_sd(calibration, name, pixel_sd, n) -> np.ndarray:
+    given = None if pixel_sd is None else pixel_sd.get(name)
+    if given is None:
+        own = camera_noise_px(calibration, name)
+        return _per_axis(np.where(np.isnan(own), 1.0, own)[None, :], n)
+    return _per_axis(given, n)
+
+
+def _accumulated_joint(calibration, joint, pixels, X, pixel_sd):
+    """H, the pixels' M (as `_accumulated` without the calibration) and B = Σ ω Jᵀ G over the joint
+    parameters (n, 3, P)."""
+    X = np.ascontiguousarray(X)
+    n = len(X)
+    H = np.zeros((n, 3, 3))
+    M = np.zeros((n, 3, 3))
+    B = np.zeros((n, 3, len(joint.parameters)))
+    count = np.zeros(n, dtype=np.int64)
+    ok_x = np.isfinite(X).all(axis=1)
+    for name, px in pixels.items():
+        cam = calibration.cameras.get(name)
+        if cam is None:
+            continue
+        seen = np.isfinite(px).all(axis=1) & ok_x
+        if not seen.any():
+            continue
+        sd = _camera_pixel_sd(calibration, name, pixel_sd, n)
+        names, cols = joint.camera_parameters(name)
+        idx = np.nonzero(seen)[0]
+        parts = _camera_parts(cam, X[idx], names)
+        _accumulate_joint(H, M, B, count, idx, sd, 1.0 / _camera_sigma(cam) ** 2, *parts, cols)
+    return H, M, B, count
+
+
+def _camera_parts(cam: Camera, X: np.ndarray, names: list[str]) -> tuple:
     """What the kernel needs of one camera at points X: normalised point (a, b), depth z, the lens's
-    Jacobian, the distorted normalised point, K's 2 x 2 part, R, and for the calibration part the
-    parameters' kinds, their covariance, the rotation's and the lens terms' finite differences."""
+    Jacobian, the distorted normalised point, K's 2 x 2 part, R, and for the calibration part the kinds
+    of the parameters `names`, the rotation's and the lens terms' finite differences."""
     R = cam.R
     xc = rotate(X, R) + cam.tvec
     z = xc[:, 2]
@@ -134,10 +168,8 @@ def _camera_parts(cam: Camera, X: np.ndarray, unc) -> tuple:
     K = cam.matrix
     K2 = np.array([[K[0, 0], K[0, 1]], [0.0, K[1, 1]]])
     n = len(X)
-    names = list(unc.parameters) if unc is not None else []
     kinds = np.array([_KINDS.get(p, -1) if not p.startswith("d") else 100 + int(p[1:]) for p in names],
                      dtype=np.int64)
-    cov = unc.covariance if unc is not None else np.zeros((0, 0))
     drot = np.zeros((n, 3, 3))
     if np.any((kinds >= 0) & (kinds < 3)):
         import cv2
@@ -154,7 +186,7 @@ def _camera_parts(cam: Camera, X: np.ndarray, unc) -> tuple:
             d[k] += _LENS_STEP
             x2, y2 = distort(a, b, d)
             dlens[:, j, 0], dlens[:, j, 1] = (x2 - xd) / _LENS_STEP, (y2 - yd) / _LENS_STEP
-    return (a, b, z, Jd, xd, yd, K2, R, kinds, np.ascontiguousarray(cov), drot, dlens)
+    return (a, b, z, Jd, xd, yd, K2, R, kinds, drot, dlens)
 
 
 def _per_axis(sd, n: int) -> np.ndarray:
@@ -169,6 +201,59 @@ _KINDS = {"rx": 0, "ry": 1, "rz": 2, "tx": 3, "ty": 4, "tz": 5, "fx": 6, "fy": 7
 
 
 @jit
+def _jacobians(q, a, b, z, Jd, K2, R, P, J):
+    """P = d pixel / d camera-frame point and J = d pixel / d rig point of point q."""
+    iz = 1.0 / z[q]
+    a00 = K2[0, 0] * Jd[q, 0] + K2[0, 1] * Jd[q, 2]
+    a01 = K2[0, 0] * Jd[q, 1] + K2[0, 1] * Jd[q, 3]
+    a10 = K2[1, 1] * Jd[q, 2]
+    a11 = K2[1, 1] * Jd[q, 3]
+    # d pixel / d camera-frame point: A @ [[1/z, 0, -a/z], [0, 1/z, -b/z]]
+    P[0, 0], P[0, 1], P[0, 2] = a00 * iz, a01 * iz, -(a00 * a[q] + a01 * b[q]) * iz
+    P[1, 0], P[1, 1], P[1, 2] = a10 * iz, a11 * iz, -(a10 * a[q] + a11 * b[q]) * iz
+    for r in range(2):
+        for c in range(3):
+            J[r, c] = P[r, 0] * R[0, c] + P[r, 1] * R[1, c] + P[r, 2] * R[2, c]
+
+
+@jit
+def _gradient(q, P, xd, yd, K2, kinds, drot, dlens, G):
+    """G = d pixel / d parameters of point q."""
+    lens = 0
+    for p in range(len(kinds)):
+        k = kinds[p]
+        g0, g1 = 0.0, 0.0
+        if k < 3 and k >= 0:
+            for c in range(3):
+                g0 += P[0, c] * drot[q, k, c]
+                g1 += P[1, c] * drot[q, k, c]
+        elif k < 6 and k >= 3:
+            g0, g1 = P[0, k - 3], P[1, k - 3]
+        elif k == 6:
+            g0 = xd[q]
+        elif k == 7:
+            g1 = yd[q]
+        elif k == 8:
+            g0 = 1.0
+        elif k == 9:
+            g1 = 1.0
+        elif k >= 100:
+            dx, dy = dlens[q, lens, 0], dlens[q, lens, 1]
+            g0, g1 = K2[0, 0] * dx + K2[0, 1] * dy, K2[1, 1] * dy
+            lens += 1
+        G[0, p], G[1, p] = g0, g1
+
+
+@jit
+def _add_point(H, M, i, w, J, S):
+    for u in range(3):
+        for v in range(3):
+            H[i, u, v] += w * (J[0, u] * J[0, v] + J[1, u] * J[1, v])
+            M[i, u, v] += w * w * (J[0, u] * (S[0, 0] * J[0, v] + S[0, 1] * J[1, v])
+                                   + J[1, u] * (S[1, 0] * J[0, v] + S[1, 1] * J[1, v]))
+
+
+@jit
 def _accumulate(H, M, count, idx, sd, w, a, b, z, Jd, xd, yd, K2, R, kinds, cov, drot, dlens):
     """Add one camera's terms to H = Σ ω JᵀJ and M = Σ ω² Jᵀ Σp J at the points idx."""
     n_par = len(kinds)
@@ -178,42 +263,10 @@ def _accumulate(H, M, count, idx, sd, w, a, b, z, Jd, xd, yd, K2, R, kinds, cov,
     S = np.empty((2, 2))
     for q in range(len(idx)):
         i = idx[q]
-        iz = 1.0 / z[q]
-        a00 = K2[0, 0] * Jd[q, 0] + K2[0, 1] * Jd[q, 2]
-        a01 = K2[0, 0] * Jd[q, 1] + K2[0, 1] * Jd[q, 3]
-        a10 = K2[1, 1] * Jd[q, 2]
-        a11 = K2[1, 1] * Jd[q, 3]
-        # d pixel / d camera-frame point: A @ [[1/z, 0, -a/z], [0, 1/z, -b/z]]
-        P[0, 0], P[0, 1], P[0, 2] = a00 * iz, a01 * iz, -(a00 * a[q] + a01 * b[q]) * iz
-        P[1, 0], P[1, 1], P[1, 2] = a10 * iz, a11 * iz, -(a10 * a[q] + a11 * b[q]) * iz
-        for r in range(2):
-            for c in range(3):
-                J[r, c] = P[r, 0] * R[0, c] + P[r, 1] * R[1, c] + P[r, 2] * R[2, c]
+        _jacobians(q, a, b, z, Jd, K2, R, P, J)
         S[0, 0], S[0, 1], S[1, 0], S[1, 1] = sd[i, 0] * sd[i, 0], 0.0, 0.0, sd[i, 1] * sd[i, 1]
         if n_par:
-            lens = 0
-            for p in range(n_par):
-                k = kinds[p]
-                g0, g1 = 0.0, 0.0
-                if k < 3 and k >= 0:
-                    for c in range(3):
-                        g0 += P[0, c] * drot[q, k, c]
-                        g1 += P[1, c] * drot[q, k, c]
-                elif k < 6 and k >= 3:
-                    g0, g1 = P[0, k - 3], P[1, k - 3]
-                elif k == 6:
-                    g0 = xd[q]
-                elif k == 7:
-                    g1 = yd[q]
-                elif k == 8:
-                    g0 = 1.0
-                elif k == 9:
-                    g1 = 1.0
-                elif k >= 100:
-                    dx, dy = dlens[q, lens, 0], dlens[q, lens, 1]
-                    g0, g1 = K2[0, 0] * dx + K2[0, 1] * dy, K2[1, 1] * dy
-                    lens += 1
-                G[0, p], G[1, p] = g0, g1
+            _gradient(q, P, xd, yd, K2, kinds, drot, dlens, G)
             for r in range(2):
                 for c in range(2):
                     acc = 0.0
@@ -223,12 +276,73 @@ def _accumulate(H, M, count, idx, sd, w, a, b, z, Jd, xd, yd, K2, R, kinds, cov,
                             for m in range(n_par):
                                 acc += gp * cov[p, m] * G[c, m]
                     S[r, c] += acc
-        for u in range(3):
-            for v in range(3):
-                H[i, u, v] += w * (J[0, u] * J[0, v] + J[1, u] * J[1, v])
-                M[i, u, v] += w * w * (J[0, u] * (S[0, 0] * J[0, v] + S[0, 1] * J[1, v])
-                                       + J[1, u] * (S[1, 0] * J[0, v] + S[1, 1] * J[1, v]))
+        _add_point(H, M, i, w, J, S)
         count[i] += 1
+
+
+@jit
+def _accumulate_joint(H, M, B, count, idx, sd, w, a, b, z, Jd, xd, yd, K2, R, kinds, drot, dlens, cols):
+    """Add one camera's terms to H, the pixels' M and B = Σ ω Jᵀ G (columns `cols` of the joint
+    parameters) at the points idx."""
+    n_par = len(kinds)
+    P = np.empty((2, 3))
+    J = np.empty((2, 3))
+    G = np.empty((2, n_par))
+    S = np.zeros((2, 2))
+    for q in range(len(idx)):
+        i = idx[q]
+        _jacobians(q, a, b, z, Jd, K2, R, P, J)
+        S[0, 0], S[1, 1] = sd[i, 0] * sd[i, 0], sd[i, 1] * sd[i, 1]
+        _gradient(q, P, xd, yd, K2, kinds, drot, dlens, G)
+        for u in range(3):
+            for p in range(n_par):
+                B[i, u, cols[p]] += w * (J[0, u] * G[0, p] + J[1, u] * G[1, p])
+        _add_point(H, M, i, w, J, S)
+        count[i] += 1
+
+
+@jit
+def _inv3(h, Hi) -> bool:
+    c00 = h[1, 1] * h[2, 2] - h[1, 2] * h[2, 1]
+    c01 = h[1, 2] * h[2, 0] - h[1, 0] * h[2, 2]
+    c02 = h[1, 0] * h[2, 1] - h[1, 1] * h[2, 0]
+    det = h[0, 0] * c00 + h[0, 1] * c01 + h[0, 2] * c02
+    if not abs(det) > 1e-300:
+        return False
+    Hi[0, 0], Hi[1, 0], Hi[2, 0] = c00 / det, c01 / det, c02 / det
+    Hi[0, 1] = (h[0, 2] * h[2, 1] - h[0, 1] * h[2, 2]) / det
+    Hi[1, 1] = (h[0, 0] * h[2, 2] - h[0, 2] * h[2, 0]) / det
+    Hi[2, 1] = (h[0, 1] * h[2, 0] - h[0, 0] * h[2, 1]) / det
+    Hi[0, 2] = (h[0, 1] * h[1, 2] - h[0, 2] * h[1, 1]) / det
+    Hi[1, 2] = (h[0, 2] * h[1, 0] - h[0, 0] * h[1, 2]) / det
+    Hi[2, 2] = (h[0, 0] * h[1, 1] - h[0, 1] * h[1, 0]) / det
+    return True
+
+
+@jit
+def _sandwich_world(Hi, Mi, Rw, C):
+    """C = Rw Hi Mi Hi Rwᵀ."""
+    T = np.empty((3, 3))
+    U = np.empty((3, 3))
+    for u in range(3):
+        for v in range(3):
+            acc = 0.0
+            for k in range(3):
+                acc += Hi[u, k] * Mi[k, v]
+            T[u, v] = acc
+    for u in range(3):
+        for v in range(3):
+            acc = 0.0
+            for k in range(3):
+                acc += T[u, k] * Hi[k, v]
+            U[u, v] = acc
+    for u in range(3):
+        for v in range(3):
+            acc = 0.0
+            for k in range(3):
+                for m in range(3):
+                    acc += Rw[u, k] * U[k, m] * Rw[v, m]
+            C[u, v] = acc
 
 
 @jit
@@ -238,40 +352,60 @@ def _world_sd(H, M, count, Rw):
     out = np.full((n, 3), np.nan)
     Hi = np.empty((3, 3))
     C = np.empty((3, 3))
-    T = np.empty((3, 3))
     for i in range(n):
-        if count[i] < 2:
+        if count[i] < 2 or not _inv3(H[i], Hi):
             continue
-        h = H[i]
-        c00 = h[1, 1] * h[2, 2] - h[1, 2] * h[2, 1]
-        c01 = h[1, 2] * h[2, 0] - h[1, 0] * h[2, 2]
-        c02 = h[1, 0] * h[2, 1] - h[1, 1] * h[2, 0]
-        det = h[0, 0] * c00 + h[0, 1] * c01 + h[0, 2] * c02
-        if not abs(det) > 1e-300:
-            continue
-        Hi[0, 0], Hi[1, 0], Hi[2, 0] = c00 / det, c01 / det, c02 / det
-        Hi[0, 1] = (h[0, 2] * h[2, 1] - h[0, 1] * h[2, 2]) / det
-        Hi[1, 1] = (h[0, 0] * h[2, 2] - h[0, 2] * h[2, 0]) / det
-        Hi[2, 1] = (h[0, 1] * h[2, 0] - h[0, 0] * h[2, 1]) / det
-        Hi[0, 2] = (h[0, 1] * h[1, 2] - h[0, 2] * h[1, 1]) / det
-        Hi[1, 2] = (h[0, 2] * h[1, 0] - h[0, 0] * h[1, 2]) / det
-        Hi[2, 2] = (h[0, 0] * h[1, 1] - h[0, 1] * h[1, 0]) / det
-        for u in range(3):
-            for v in range(3):
-                acc = 0.0
-                for k in range(3):
-                    acc += Hi[u, k] * M[i, k, v]
-                T[u, v] = acc
-        for u in range(3):
-            for v in range(3):
-                acc = 0.0
-                for k in range(3):
-                    acc += T[u, k] * Hi[k, v]
-                C[u, v] = acc
+        _sandwich_world(Hi, M[i], Rw, C)
         for ax in range(3):
-            var = 0.0
-            for u in range(3):
-                for v in range(3):
-                    var += Rw[ax, u] * C[u, v] * Rw[ax, v]
+            var = C[ax, ax]
+            out[i, ax] = np.sqrt(max(var, 0.0)) if np.isfinite(var) else np.nan
+    return out
+
+
+@jit
+def _world_sd_joint(H, M, B, count, Rw, Xw, cov, Psi, Spsi):
+    """sd per world axis of the pixels' sandwich plus the joint calibration part M Σθ Mᵀ, M = Rw (-H⁻¹ B) +
+    A(X) Ψ, plus the world frame's own A Σψ Aᵀ (A(X) ψ = ω × X + τ); NaN below two cameras."""
+    n = len(H)
+    n_par = cov.shape[0]
+    out = np.full((n, 3), np.nan)
+    Hi = np.empty((3, 3))
+    C = np.empty((3, 3))
+    A = np.zeros((3, 6))
+    L = np.empty((3, n_par))
+    Mw = np.empty((3, n_par))
+    for i in range(n):
+        if count[i] < 2 or not _inv3(H[i], Hi):
+            continue
+        _sandwich_world(Hi, M[i], Rw, C)
+        x, y, z = Xw[i, 0], Xw[i, 1], Xw[i, 2]
+        # ω × X = -[X]× ω
+        A[0, 0], A[0, 1], A[0, 2] = 0.0, z, -y
+        A[1, 0], A[1, 1], A[1, 2] = -z, 0.0, x
+        A[2, 0], A[2, 1], A[2, 2] = y, -x, 0.0
+        A[0, 3], A[1, 4], A[2, 5] = 1.0, 1.0, 1.0
+        for u in range(3):
+            for p in range(n_par):
+                L[u, p] = -(Hi[u, 0] * B[i, 0, p] + Hi[u, 1] * B[i, 1, p] + Hi[u, 2] * B[i, 2, p])
+        for u in range(3):
+            for p in range(n_par):
+                acc = Rw[u, 0] * L[0, p] + Rw[u, 1] * L[1, p] + Rw[u, 2] * L[2, p]
+                for k in range(6):
+                    acc += A[u, k] * Psi[k, p]
+                Mw[u, p] = acc
+        for ax in range(3):
+            var = C[ax, ax]
+            for p in range(n_par):
+                mp = Mw[ax, p]
+                if mp != 0.0:
+                    acc = 0.0
+                    for m in range(n_par):
+                        acc += cov[p, m] * Mw[ax, m]
+                    var += mp * acc
+            for k in range(6):
+                acc = 0.0
+                for m in range(6):
+                    acc += Spsi[k, m] * A[ax, m]
+                var += A[ax, k] * acc
             out[i, ax] = np.sqrt(max(var, 0.0)) if np.isfinite(var) else np.nan
     return out

@@ -27,7 +27,8 @@ side/front project), marker and method, with the columns `xyz_columns(cameras)`:
   method "pixels" and X_mm, Y_mm, Z_mm NaN: the pixel trajectories alone.
 - ``sd_X_mm, sd_Y_mm, sd_Z_mm``: 1-sigma uncertainty of X, Y, Z (mm). For "triangulation" rows each
   pixel's sd (the tracker's estimate where the points table has one, else the camera's calibration RMSE)
-  and the calibration's parameter covariance, propagated to first order (`triangulation_sd`). For "mlp"
+  and the calibration's parameter covariance with the world frame's, propagated to first order
+  (`triangulation_sd`). For "mlp"
   and "residual" rows the network's spread (`regression.spread`: its error on calibration points it never
   saw, plus the pixels' noise above theirs); NaN outside the training volume and for a model file without
   a spread. NaN where a pixel's sd is not known. With a calibration, an "mlp" row's sd is what its spread

@@ -350,11 +350,12 @@ def bundle_adjust(state: BundleState, obs: Observations, free_intrinsics: bool =
     return out, info
 
 
-def camera_covariances(state: BundleState, obs: Observations, free_intrinsics: bool = True, loss: str = "soft_l1",
-                       f_scale: float = 2.0, weights: np.ndarray | None = None) -> dict:
-    """Covariance of each camera's parameters at a bundle adjustment's solution: (JᵀWJ)⁻¹ σ², the board
-    poses marginalised (Schur complement), W the robust loss's weights, σ² the weighted residuals' sum of
-    squares over the degrees of freedom. {camera index: (parameter names, covariance)}; the first camera's
+def parameter_covariance(state: BundleState, obs: Observations, free_intrinsics: bool = True, loss: str = "soft_l1",
+                         f_scale: float = 2.0, weights: np.ndarray | None = None) -> tuple[list[tuple[int, str]],
+                                                                                         np.ndarray]:
+    """Joint covariance of every camera's parameters at a bundle adjustment's solution: (JᵀWJ)⁻¹ σ², the
+    board poses marginalised (Schur complement), W the robust loss's weights, σ² the weighted residuals' sum
+    of squares over the degrees of freedom. Returns ([(camera index, name)], (P, P)); the first camera's
     pose defines the rig frame and has none. Names: rx ry rz tx ty tz (pose, rig -> camera), fx fy cx cy,
     dK (the K-th distortion coefficient)."""
     layout = _Layout(state, free_intrinsics, True, True)
@@ -370,19 +371,22 @@ def camera_covariances(state: BundleState, obs: Observations, free_intrinsics: b
     dof = max(len(r) - layout.n, 1)
     sigma2 = float(np.sum(wr * r * r)) / dof
     cov = _head_inverse(A, layout.frame0, layout.F) * sigma2
+    labels: list[tuple[int, str]] = [(0, "")] * layout.frame0
+    for c, o in layout.cam_pose.items():
+        for k, name in enumerate(("rx", "ry", "rz", "tx", "ty", "tz")):
+            labels[o + k] = (c, name)
+    for c, (o, _, mask) in layout.intr.items():
+        for k, name in enumerate(["fx", "fy", "cx", "cy", *(f"d{k}" for k in np.nonzero(mask)[0])]):
+            labels[o + k] = (c, name)
+    return labels, cov
+
+
+def camera_covariances(labels: list[tuple[int, str]], cov: np.ndarray) -> dict:
+    """Each camera's block of `parameter_covariance`: {camera index: (parameter names, covariance)}."""
     out = {}
-    for c in range(layout.C):
-        names, idx = [], []
-        if c in layout.cam_pose:
-            o = layout.cam_pose[c]
-            names += ["rx", "ry", "rz", "tx", "ty", "tz"]
-            idx += list(range(o, o + 6))
-        if c in layout.intr:
-            o, n, mask = layout.intr[c]
-            names += ["fx", "fy", "cx", "cy", *(f"d{k}" for k in np.nonzero(mask)[0])]
-            idx += list(range(o, o + n))
-        if idx:
-            out[c] = (names, cov[np.ix_(idx, idx)])
+    for c in sorted({c for c, _ in labels}):
+        idx = [i for i, (ci, _) in enumerate(labels) if ci == c]
+        out[c] = ([labels[i][1] for i in idx], cov[np.ix_(idx, idx)])
     return out
 
 

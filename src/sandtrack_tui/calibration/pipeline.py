@@ -25,6 +25,7 @@ from .points import calibration_points
 from .report import accuracy_report, camera_parameters
 from .rig import calibrate_rig, fit_frame_poses
 from .world import describe, world_from_board_pose, world_from_known_points
+from .world_uncertainty import board_reference, known_points_reference, rig_frame
 
 ProgressFn = Callable[[str, int, int], None]
 MIN_SHARED_VIEWS = 12
@@ -142,6 +143,9 @@ def calibrate_videos(videos: dict[str, str | Path], board: BoardSpec, *, offsets
     # world frame
     world: dict = {"method": "rig frame (no reference given)"}
     warnings += rig.warnings
+    joint = (rig.joint_parameters, rig.joint_covariance) if rig.joint_covariance is not None else None
+    if joint is not None:
+        calibration.rig_uncertainty = rig_frame(*joint)
     if known_points is not None:
         from ..triangulation import triangulate
         from .points import pixel_columns
@@ -152,17 +156,26 @@ def calibrate_videos(videos: dict[str, str | Path], board: BoardSpec, *, offsets
         T, res = world_from_known_points(xyz, known_points[["X_mm", "Y_mm", "Z_mm"]].to_numpy(float))
         calibration.world_from_rig = T
         world = {"method": "known points (Kabsch)", "points": int(len(known_points)), "rmse_mm": res}
+        if joint is not None:
+            calibration.rig_uncertainty = known_points_reference(
+                calibration, px, known_points[["X_mm", "Y_mm", "Z_mm"]].to_numpy(float), *joint)
     elif reference_frame is not None:
         if reference_frame not in poses:
             raise SandtrackError(
                 f"the board was not found in reference frame {reference_frame}: pick a frame where the board lies "
                 "flat on the sand and is fully visible")
         calibration.world_from_rig = world_from_board_pose(poses[reference_frame], origin_mm)
+        if joint is not None:
+            calibration.rig_uncertainty = board_reference(
+                calibration, {n: views[n][reference_frame] for n in names if reference_frame in views[n]}, board,
+                poses[reference_frame], origin_mm, *joint)
         world = {"method": "board lying flat in a reference frame", "frame": int(reference_frame),
                  "origin_mm": [float(v) for v in origin_mm]}
     else:
         warnings.append("no reference frame: the world frame is the first camera's frame")
     world.update(describe(calibration.world_from_rig))
+    if calibration.rig_uncertainty is not None:
+        world.update(calibration.rig_uncertainty.world_frame_sd())
     acc = accuracy_report(calibration, views, board, poses)
     points = calibration_points(calibration, views, board, poses, names[:2]) if with_points else None
     per_camera = {}

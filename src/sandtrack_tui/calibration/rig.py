@@ -13,7 +13,15 @@ from ..board import BoardSpec
 from ..camera import Calibration, Camera, CameraUncertainty
 from ..errors import SandtrackError
 from ..lens import LENSES, padded
-from .bundle import BundleState, Observations, bundle_adjust, camera_covariances, residuals, view_weights
+from .bundle import (
+    BundleState,
+    Observations,
+    bundle_adjust,
+    camera_covariances,
+    parameter_covariance,
+    residuals,
+    view_weights,
+)
 from .detect import BoardView
 from .geometry import from_T, inv_T, mean_rotation, rotation_angle_deg, to_T
 from .intrinsics import IntrinsicsResult, board_pose, calibrate_intrinsics
@@ -32,6 +40,9 @@ class RigResult:
     skipped_duplicates: int = 0
     skipped_blurred: int = 0  # camera views left out of the calibration as blurred
     warnings: list[str] = field(default_factory=list)
+    # every camera's parameters ("CAMERA/NAME") and their joint covariance from the bundle adjustment
+    joint_parameters: list[str] = field(default_factory=list)
+    joint_covariance: np.ndarray | None = None
 
     def frame_pose(self, frame: int) -> np.ndarray | None:
         """Board -> rig 4x4 of a bundle-adjusted frame."""
@@ -258,10 +269,12 @@ def calibrate_rig(views: Views, board: BoardSpec, sizes: dict[str, tuple[int, in
                             rmse_px=float(np.sqrt(np.mean(err[m] ** 2))) if m.any() else None,
                             lens=intr[n].lens)
     warnings = [w for n in names for w in intr[n].warnings]
+    labels, joint = parameter_covariance(state, obs, free_intr, weights=weights)
     uncertainty = {names[c]: CameraUncertainty(p, cov, info["rmse_px"])
-                   for c, (p, cov) in camera_covariances(state, obs, free_intr, weights=weights).items()}
+                   for c, (p, cov) in camera_covariances(labels, joint).items()}
     return RigResult(calibration=Calibration(cameras=cameras, uncertainty=uncertainty), intrinsics=intr, state=state,
-                     frames=frames, obs=obs,
+                     frames=frames, obs=obs, joint_parameters=[f"{names[c]}/{p}" for c, p in labels],
+                     joint_covariance=joint,
                      bundle=info, skipped_duplicates=skipped, skipped_blurred=blurred,
                      warnings=warnings)
 

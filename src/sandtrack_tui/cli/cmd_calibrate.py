@@ -151,6 +151,11 @@ def _text(r: dict) -> str:
         lines.append("known points' own error (sd per axis, X / Y / Z): {:.4f} / {:.4f} / {:.4f} mm, from {} "
                      "points seen by two cameras or more".format(*r["known_points_sd_mm"],
                                                                  r.get("known_points_in_two_cameras")))
+    world = r.get("world") or {}
+    if world.get("rotation_sd_mrad"):
+        lines.append("world frame ({}): rotation ± {:.3f} / {:.3f} / {:.3f} mrad about X / Y / Z, origin ± {:.3f} / "
+                     "{:.3f} / {:.3f} mm (1 sd, the cameras' part included)"
+                     .format(world.get("method", ""), *world["rotation_sd_mrad"], *world["origin_sd_mm"]))
     if "views_used" in r:
         lines.append(f"views used {r['views_used']}, points {r.get('points', 0)}, {r.get('seconds', 0):.1f} s")
     for w in r.get("warnings", []) or []:

@@ -1,0 +1,131 @@
+"""The calibration's part of an XYZ sd, propagated jointly with the world frame it moves: cameras drawn from
+a joint covariance (correlated across cameras), the world frame refitted each time to a board lying in a
+reference frame with noisy detections: the joint sd covers the true errors; each camera alone with the world
+frame taken as exact does not. The joint block survives the calibration file."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sandtrack_tui.board import BoardSpec
+from sandtrack_tui.calibration.detect import BoardView
+from sandtrack_tui.calibration.geometry import inv_T, kabsch
+from sandtrack_tui.calibration.rig import fit_frame_poses
+from sandtrack_tui.calibration.world import WORLD_FROM_BOARD_AXES, world_from_board_pose
+from sandtrack_tui.calibration.world_uncertainty import board_reference, known_points_reference, perturbed, psi
+from sandtrack_tui.camera import Calibration, CameraUncertainty
+from sandtrack_tui.errors import SandtrackError
+from sandtrack_tui.regression.spread import coverage
+from sandtrack_tui.regression.synthetic import study_rig
+from sandtrack_tui.triangulation import triangulate
+from sandtrack_tui.xyz import triangulate_with_sd
+
+NOISE_PX = 0.2
+ORIGIN = (-87.5, 0.0, -50.0)
+PARAMETERS = ([f"front/{p}" for p in ("rx", "ry", "rz", "tx", "ty", "tz")]
+              + [f"{c}/{p}" for c in ("side", "front") for p in ("fx", "fy", "cx", "cy", "d0", "d1")])
+SD = np.array([4e-4, 4e-4, 4e-4, 0.4, 0.4, 0.8] + [2.0, 2.0, 1.5, 1.5, 2e-3, 2e-3] * 2)
+
+
+def _rig():
+    rig = study_rig()
+    for c in rig.cameras.values():
+        c.rmse_px = NOISE_PX * np.sqrt(2)
+    return rig
+
+
+def _joint_covariance(rng):
+    A = rng.normal(size=(len(SD), len(SD))) * 0.3 + np.eye(len(SD))
+    C = A @ A.T
+    d = np.sqrt(np.diag(C))
+    return C / np.outer(d, d) * np.outer(SD, SD)
+
+
+def _reference(rig, board, rng):
+    T_world_board = np.eye(4)
+    T_world_board[:3, :3], T_world_board[:3, 3] = WORLD_FROM_BOARD_AXES, ORIGIN
+    T_rig_board = inv_T(rig.world_from_rig) @ T_world_board
+    pts = board.corner_points_mm()
+    rig_pts = pts @ T_rig_board[:3, :3].T + T_rig_board[:3, 3]
+    ids = np.arange(len(pts))
+    views = {c: BoardView(0, 0, ids, rig.cameras[c].project(rig_pts) + rng.normal(0, NOISE_PX, (len(pts), 2)))
+             for c in rig.cameras}
+    return views, T_rig_board
+
+
+def _blocks(cov):
+    out = {}
+    for cam in ("side", "front"):
+        idx = [i for i, p in enumerate(PARAMETERS) if p.startswith(cam + "/")]
+        out[cam] = CameraUncertainty([PARAMETERS[i].split("/")[1] for i in idx], cov[np.ix_(idx, idx)])
+    return out
+
+
+def test_the_world_frame_moves_with_the_cameras_and_the_joint_sd_covers_the_errors():
+    rng = np.random.default_rng(5)
+    true = _rig()
+    board = BoardSpec()
+    cov = _joint_covariance(rng)
+    errs, joint_sd, alone_sd = [], [], []
+    for _ in range(150):
+        est = perturbed(true, PARAMETERS, rng.multivariate_normal(np.zeros(len(SD)), cov))
+        views, T_true = _reference(true, board, rng)
+        pose = fit_frame_poses(est, {c: {0: v} for c, v in views.items()}, board, [0], {0: T_true})[0]
+        est.world_from_rig = world_from_board_pose(pose, ORIGIN)
+        est.uncertainty = _blocks(cov)
+        est.rig_uncertainty = board_reference(est, views, board, pose, ORIGIN, PARAMETERS, cov)
+        X = np.stack([rng.uniform(-150, 150, 20), rng.uniform(0, 60, 20), rng.uniform(-150, 150, 20)], axis=1)
+        pix = {c: true.project_world(c, X) + rng.normal(0, NOISE_PX, (len(X), 2)) for c in true.cameras}
+        sd = {c: np.full(len(X), NOISE_PX) for c in pix}
+        xyz, _, s_joint = triangulate_with_sd(est, pix, sd, refine=True)
+        est.rig_uncertainty = None
+        _, _, s_alone = triangulate_with_sd(est, pix, sd, refine=True)
+        errs.append(xyz - X)
+        joint_sd.append(s_joint)
+        alone_sd.append(s_alone)
+    e, sj, sa = np.concatenate(errs), np.concatenate(joint_sd), np.concatenate(alone_sd)
+    cj, ca = coverage(e, sj), coverage(e, sa)
+    assert np.all(np.abs(cj - 0.95) < 0.025), cj  # measured 0.94-0.96
+    # each camera alone, the world frame exact: the camera errors the refit cancels are counted in full
+    assert np.any(ca > 0.985), ca
+    assert np.median(sj / sa) < 0.8
+
+
+def test_the_known_points_world_frame_covariance_matches_refits():
+    """A Kabsch world frame: its own covariance (from the fit's residual) against refits to re-noised
+    points, and its motion with a camera parameter against a refit through the changed camera."""
+    rng = np.random.default_rng(6)
+    rig = _rig()
+    world = np.stack([rng.uniform(-150, 150, 30), rng.uniform(0, 80, 30), rng.uniform(-150, 150, 30)], axis=1)
+    pix = {c: rig.project_world(c, world) for c in rig.cameras}
+    sigma = 0.05
+    noisy = world + rng.normal(0, sigma, world.shape)
+    unc = known_points_reference(rig, pix, noisy, PARAMETERS, np.diag(SD ** 2))
+    draws = np.array([psi(kabsch(rig.to_rig(world), world + rng.normal(0, sigma, world.shape)), rig.world_from_rig)
+                      for _ in range(400)])
+    sd_model = np.sqrt(np.diag(unc.world_covariance))
+    assert np.all(np.abs(sd_model / draws.std(axis=0) - 1) < 0.2), (sd_model, draws.std(axis=0))
+    W0 = kabsch(rig.to_rig(world), noisy)
+    for name, h in (("front/tz", 0.5), ("side/fx", 2.0), ("front/ry", 5e-4)):
+        k = PARAMETERS.index(name)
+        moved = perturbed(rig, PARAMETERS, h * np.eye(len(PARAMETERS))[k])
+        W1 = kabsch(triangulate(moved, pix, refine=True, world=False)[0], noisy)
+        assert np.allclose(psi(W1, W0) / h, unc.world_jacobian[:, k], rtol=0.02, atol=1e-6), name
+
+
+def test_the_calibration_file_keeps_the_joint_block(tmp_path):
+    rng = np.random.default_rng(7)
+    rig = _rig()
+    cov = _joint_covariance(rng)
+    views, T = _reference(rig, BoardSpec(), rng)
+    rig.rig_uncertainty = board_reference(rig, views, BoardSpec(), T, ORIGIN, PARAMETERS, cov)
+    rig.save(tmp_path / "cal.toml")
+    back = Calibration.load(tmp_path / "cal.toml").rig_uncertainty
+    assert back.parameters == PARAMETERS and np.allclose(back.covariance, cov)
+    assert np.allclose(back.world_jacobian, rig.rig_uncertainty.world_jacobian)
+    assert np.allclose(back.world_covariance, rig.rig_uncertainty.world_covariance)
+    text = (tmp_path / "cal.toml").read_text()
+    (tmp_path / "bad.toml").write_text(text.replace('"front/rx"', '"top/rx"'))
+    with pytest.raises(SandtrackError, match="unknown camera"):
+        Calibration.load(tmp_path / "bad.toml")
