@@ -247,3 +247,5 @@ def test_the_calibration_screen_shows_each_camera_term_with_its_sd(result):
     text = console.export_text()
     side = camera_parameters(result.calibration, "side")
     assert f"{side['fx']:.1f}" in text and f"±{side['fx_sd_px']:.1f}" in text and "± 1 sd" in text
+    world = result.calibration.rig_uncertainty.world_frame_sd()
+    assert f"world frame ± {world['rotation_sd_mrad'][0]:.2f} / " in " ".join(text.split())
