@@ -320,29 +320,25 @@ def _inv3(h, Hi) -> bool:
 
 
 @jit
+def _mul3(A, B, out, b_transposed):
+    """out = A @ B (or A @ Bᵀ), 3 x 3."""
+    for u in range(3):
+        for v in range(3):
+            acc = 0.0
+            for k in range(3):
+                acc += A[u, k] * (B[v, k] if b_transposed else B[k, v])
+            out[u, v] = acc
+
+
+@jit
 def _sandwich_world(Hi, Mi, Rw, C):
     """C = Rw Hi Mi Hi Rwᵀ."""
     T = np.empty((3, 3))
     U = np.empty((3, 3))
-    for u in range(3):
-        for v in range(3):
-            acc = 0.0
-            for k in range(3):
-                acc += Hi[u, k] * Mi[k, v]
-            T[u, v] = acc
-    for u in range(3):
-        for v in range(3):
-            acc = 0.0
-            for k in range(3):
-                acc += T[u, k] * Hi[k, v]
-            U[u, v] = acc
-    for u in range(3):
-        for v in range(3):
-            acc = 0.0
-            for k in range(3):
-                for m in range(3):
-                    acc += Rw[u, k] * U[k, m] * Rw[v, m]
-            C[u, v] = acc
+    _mul3(Hi, Mi, T, False)
+    _mul3(T, Hi, U, False)
+    _mul3(Rw, U, T, False)
+    _mul3(T, Rw, C, True)
 
 
 @jit
