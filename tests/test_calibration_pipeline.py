@@ -234,6 +234,19 @@ def test_world_frame_from_known_points(session, result, tmp_path):
     assert res.report["world"]["rmse_mm"] < 0.047  # measured 0.031
     probe = np.array([[0.0, 0.0, 0.0], [200.0, 50.0, 300.0]])
     assert np.abs(res.calibration.to_world(probe) - result.calibration.to_world(probe)).max() < 0.081  # 0.054
+    # each world frame's sd at the probes (the cameras' part included) holds their difference (measured 0.75 sd)
+    sd = [_world_frame_sd_at(c.rig_uncertainty, c.to_world(probe)) for c in (res.calibration, result.calibration)]
+    diff = res.calibration.to_world(probe) - result.calibration.to_world(probe)
+    assert np.all(np.abs(diff) < 3 * np.hypot(*sd))
+
+
+def _world_frame_sd_at(unc, X):
+    C = unc.world_jacobian @ unc.covariance @ unc.world_jacobian.T + unc.world_covariance
+    out = []
+    for x in X:
+        A = np.hstack([np.array([[0, x[2], -x[1]], [-x[2], 0, x[0]], [x[1], -x[0], 0]]), np.eye(3)])
+        out.append(np.sqrt(np.diag(A @ C @ A.T)))
+    return np.array(out)
 
 
 def test_the_calibration_screen_shows_each_camera_term_with_its_sd(result):
