@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 
 from sandtrack_tui.calibration import from_points
-from sandtrack_tui.calibration.point_uncertainty import larger
+from sandtrack_tui.calibration.geometry import larger
 from sandtrack_tui.camera import Camera
 from sandtrack_tui.regression.spread import coverage
 from sandtrack_tui.triangulation_sd import camera_noise_px

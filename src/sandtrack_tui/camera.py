@@ -166,8 +166,9 @@ def euler_angles_deg(R: np.ndarray) -> tuple[float, float, float]:
 
 @dataclass
 class CameraUncertainty:
-    """Covariance of a camera's calibrated parameters (from its bundle adjustment: (JᵀJ)⁻¹ σ² at the
-    solution, the board poses marginalised). parameters: names in `triangulation_sd` terms (rx ry rz
+    """Covariance of a camera's calibrated parameters (from its bundle adjustment: (JᵀWJ)⁻¹ σ² at the
+    solution, the board poses marginalised, raised to the per-view sandwich where there are views enough;
+    `bundle.parameter_covariance`). parameters: names in `triangulation_sd` terms (rx ry rz
     tx ty tz: the pose, fx fy cx cy: the camera matrix, dK: the K-th distortion coefficient)."""
 
     parameters: list[str]

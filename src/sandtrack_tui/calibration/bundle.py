@@ -8,12 +8,17 @@ pose per frame. Residuals: distorted reprojection error of every observed corner
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.sparse import csc_matrix, lil_matrix
+from scipy.sparse import csc_matrix, csr_matrix, lil_matrix
 
-from .geometry import distort_project, rodrigues
+from .geometry import distort_project, larger, rodrigues
+
+# frames (views) needed to estimate the per-view sandwich covariance (and at least two per parameter: with
+# fewer clusters than parameters it is singular)
+MIN_CLUSTERS = 20
 
 
 @dataclass
@@ -355,9 +360,12 @@ def parameter_covariance(state: BundleState, obs: Observations, free_intrinsics:
                                                                                          np.ndarray]:
     """Joint covariance of every camera's parameters at a bundle adjustment's solution: (JᵀWJ)⁻¹ σ², the
     board poses marginalised (Schur complement), W the robust loss's weights, σ² the weighted residuals' sum
-    of squares over the degrees of freedom. Returns ([(camera index, name)], (P, P)); the first camera's
-    pose defines the rig frame and has none. Names: rx ry rz tx ty tz (pose, rig -> camera), fx fy cx cy,
-    dK (the K-th distortion coefficient)."""
+    of squares over the degrees of freedom; raised, direction by direction, to the sandwich that takes each
+    view (frame) as one cluster of errors (A⁻¹ Σ_f s_f s_fᵀ A⁻¹, s_f the frame's score JᵀWr), where there
+    are MIN_CLUSTERS frames or more and two per parameter: a view's corners share errors (a blur, a detection
+    offset) that the independent-residual formula cannot see. Returns ([(camera index, name)], (P, P)); the
+    first camera's pose defines the rig frame and has none. Names: rx ry rz tx ty tz (pose, rig -> camera), fx
+    fy cx cy, dK (the K-th distortion coefficient)."""
     layout = _Layout(state, free_intrinsics, True, True)
     x = layout.pack(state)
     fun, _ = _weighted_residuals(layout, state, obs, weights)
@@ -370,7 +378,12 @@ def parameter_covariance(state: BundleState, obs: Observations, free_intrinsics:
     A = (J.T.multiply(wr[None, :]).tocsr() @ J).tocsc()
     dof = max(len(r) - layout.n, 1)
     sigma2 = float(np.sum(wr * r * r)) / dof
-    cov = _head_inverse(A, layout.frame0, layout.F) * sigma2
+    Sinv, W, Vinv = _schur_parts(A, layout.frame0, layout.F)
+    cov = Sinv * sigma2
+    n_clusters = layout.F
+    if n_clusters >= max(MIN_CLUSTERS, 2 * layout.frame0):
+        with contextlib.suppress(np.linalg.LinAlgError):  # a covariance not positive definite stays as it is
+            cov = larger(cov, _per_view_sandwich(J, wr * r, obs.frame, layout.frame0, layout.F, Sinv, W, Vinv))
     labels: list[tuple[int, str]] = [(0, "")] * layout.frame0
     for c, o in layout.cam_pose.items():
         for k, name in enumerate(("rx", "ry", "rz", "tx", "ty", "tz")):
@@ -390,13 +403,13 @@ def camera_covariances(labels: list[tuple[int, str]], cov: np.ndarray) -> dict:
     return out
 
 
-def _head_inverse(A, n_head: int, F: int) -> np.ndarray:
-    """The leading n_head x n_head block of A⁻¹ (the trailing 6F frame-pose block is block-diagonal):
-    the inverse of its Schur complement."""
+def _schur_parts(A, n_head: int, F: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The leading n_head x n_head block of A⁻¹ (the trailing 6F frame-pose block is block-diagonal): the
+    inverse of its Schur complement; with the coupling W (n_head, F, 6) and the frame blocks' inverses."""
     A = A.tocsr()
     U = A[:n_head, :n_head].toarray()
     if F == 0:
-        return np.linalg.pinv(U)
+        return np.linalg.pinv(U), np.zeros((n_head, 0, 6)), np.zeros((0, 6, 6))
     Vsub = A[n_head:, n_head:].tocoo()
     Vb = np.zeros((F, 6, 6))
     fr, fc = Vsub.row // 6, Vsub.col // 6
@@ -405,4 +418,17 @@ def _head_inverse(A, n_head: int, F: int) -> np.ndarray:
     Vinv = np.linalg.pinv(Vb)
     W = A[:n_head, n_head:].toarray().reshape(n_head, F, 6)
     Sm = U - np.einsum("afi,fij,bfj->ab", W, Vinv, W)
-    return np.linalg.pinv(Sm)
+    return np.linalg.pinv(Sm), W, Vinv
+
+
+def _per_view_sandwich(J, weighted_residuals, frame, n_head: int, F: int, Sinv, W, Vinv) -> np.ndarray:
+    """The head block of A⁻¹ (Σ_f s_f s_fᵀ) A⁻¹ · F / (F - 1), s_f = Jᵀ W r over frame f's residuals: each
+    frame's score only touches the head and its own pose, so (A⁻¹ s_f)_head = S⁻¹ (s_h - W_f V_f⁻¹ s_v)."""
+    rows = np.repeat(np.asarray(frame), 2)
+    scores = csc_matrix(J).multiply(np.asarray(weighted_residuals)[:, None]).tocsr()
+    cluster = csr_matrix((np.ones(len(rows)), (rows, np.arange(len(rows)))), shape=(F, len(rows)))
+    summed = (cluster @ scores).toarray()
+    s_head = summed[:, :n_head]
+    s_own = summed[:, n_head:].reshape(F, F, 6)[np.arange(F), np.arange(F)]
+    u = (s_head - np.einsum("afi,fij,fj->fa", W, Vinv, s_own)) @ Sinv
+    return F / (F - 1) * u.T @ u

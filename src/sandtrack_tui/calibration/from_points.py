@@ -21,11 +21,11 @@ from ..errors import SandtrackError
 from ..lens import LENSES, Lens, get_lens, lens_of, padded, project
 from ..xyz_pixels import camera_columns
 from .bundle import BundleState
-from .geometry import from_T, inv_T, radial_is_monotonic, to_T
+from .geometry import from_T, inv_T, larger, radial_is_monotonic, to_T
 from .intrinsics import opencv_flags
 from .known_point_errors import known_point_errors
 from .lens_select import Candidate, choose, report, select_lens, why
-from .point_uncertainty import into_rig, jackknife_covariance, larger, parameter_names, point_fit_uncertainty
+from .point_uncertainty import into_rig, jackknife_covariance, parameter_names, point_fit_uncertainty
 from .report import camera_parameters
 
 MIN_POINTS = 12

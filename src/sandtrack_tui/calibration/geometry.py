@@ -100,3 +100,12 @@ def kabsch(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     T[:3, :3] = R
     T[:3, 3] = cd - R @ cs
     return T
+
+
+def larger(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The covariance that is, in every direction, the larger of a (positive definite) and b: a's
+    Cholesky factor L, the eigenvalues λ of L⁻¹ b L⁻ᵀ raised to at least 1."""
+    L = np.linalg.cholesky(a)
+    Li = np.linalg.inv(L)
+    lam, V = np.linalg.eigh(Li @ b @ Li.T)
+    return L @ V @ np.diag(np.maximum(lam, 1.0)) @ V.T @ L.T

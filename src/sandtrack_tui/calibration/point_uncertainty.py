@@ -90,14 +90,6 @@ def jackknife_covariance(cam: Camera, X: np.ndarray, uv: np.ndarray, units: np.n
     return CameraUncertainty(names, (g - 1) / g * dev.T @ dev, None)
 
 
-def larger(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The covariance that is, in every direction, the larger of a (positive definite) and b: a's
-    Cholesky factor L, the eigenvalues λ of L⁻¹ b L⁻ᵀ raised to at least 1."""
-    L = np.linalg.cholesky(a)
-    Li = np.linalg.inv(L)
-    lam, V = np.linalg.eigh(Li @ b @ Li.T)
-    return L @ V @ np.diag(np.maximum(lam, 1.0)) @ V.T @ L.T
-
 
 def into_rig(unc: CameraUncertainty, cam_world: Camera, world_from_rig: np.ndarray) -> CameraUncertainty:
     """The same covariance for the camera's rig-frame pose (T_rig = T_world @ world_from_rig, the transform
