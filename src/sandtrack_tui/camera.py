@@ -230,9 +230,11 @@ class RigUncertainty:
         self.world_jacobian = np.asarray(self.world_jacobian, dtype=np.float64).reshape(6, n)
         self.world_covariance = np.asarray(self.world_covariance, dtype=np.float64).reshape(6, 6)
 
-    def world_frame_sd(self) -> dict:
+    def world_frame_sd(self) -> dict | None:
         """The world frame's own sd, the cameras' part included: its rotation (mrad, about X, Y, Z) and the
-        motion of the world origin (mm)."""
+        motion of the world origin (mm); None where nothing moves it (the world is the rig frame)."""
+        if not (self.world_jacobian.any() or self.world_covariance.any()):
+            return None
         C = self.world_jacobian @ self.covariance @ self.world_jacobian.T + self.world_covariance
         sd = np.sqrt(np.clip(np.diag(C), 0.0, None))
         return {"rotation_sd_mrad": [float(v) for v in 1e3 * sd[:3]], "origin_sd_mm": [float(v) for v in sd[3:]]}

@@ -53,7 +53,7 @@ def triangulation_sd(calibration: Calibration, pixels: dict[str, np.ndarray], po
     is unknown."""
     joint = calibration.rig_uncertainty if with_calibration else None
     if joint is None:
-        H, M, count = _accumulated(calibration, pixels, points_rig, pixel_sd, with_calibration)
+        H, M, _, count = _accumulated(calibration, pixels, points_rig, pixel_sd, with_calibration)
         return _world_sd(H, M, count, calibration.world_from_rig[:3, :3].copy())
     X = np.asarray(points_rig, dtype=np.float64).reshape(-1, 3)
     n = len(X)
@@ -64,8 +64,9 @@ def triangulation_sd(calibration: Calibration, pixels: dict[str, np.ndarray], po
     W = calibration.world_from_rig
     for s in range(0, n, _CHUNK):
         sl = slice(s, s + _CHUNK)
-        H, M, B, count = _accumulated_joint(calibration, joint, {k: v[sl] for k, v in pixels.items()}, X[sl],
-                                            None if pixel_sd is None else {k: v[sl] for k, v in pixel_sd.items()})
+        H, M, B, count = _accumulated(calibration, {k: v[sl] for k, v in pixels.items()}, X[sl],
+                                      None if pixel_sd is None else {k: v[sl] for k, v in pixel_sd.items()}, True,
+                                      joint)
         Xw = X[sl] @ W[:3, :3].T + W[:3, 3]
         out[sl] = _world_sd_joint(H, M, B, count, W[:3, :3].copy(), np.ascontiguousarray(Xw), joint.covariance,
                                   joint.world_jacobian, joint.world_covariance)
@@ -95,11 +96,16 @@ def _camera_sigma(cam: Camera) -> float:
     return float(r) if r and np.isfinite(r) and r > 0 else 1.0
 
 
-def _accumulated(calibration, pixels, points_rig, pixel_sd, with_calibration):
+def _accumulated(calibration, pixels, points_rig, pixel_sd, with_calibration, joint=None):
+    """H = Σ ω JᵀJ and M = Σ ω² Jᵀ Σp J per point over the cameras that saw it, and their count. Without
+    `joint`, Σp holds each camera's calibration part (its own covariance block; none without
+    `with_calibration`) and B is None; with `joint` (a `RigUncertainty`), Σp is the pixels' alone and B =
+    Σ ω Jᵀ G (n, 3, P) over the joint parameters."""
     X = np.ascontiguousarray(np.asarray(points_rig, dtype=np.float64).reshape(-1, 3))
     n = len(X)
     H = np.zeros((n, 3, 3))
     M = np.zeros((n, 3, 3))
+    B = np.zeros((n, 3, len(joint.parameters))) if joint is not None else np.zeros((0, 3, 0))
     count = np.zeros(n, dtype=np.int64)
     ok_x = np.isfinite(X).all(axis=1)
     for name, px in pixels.items():
@@ -109,13 +115,18 @@ def _accumulated(calibration, pixels, points_rig, pixel_sd, with_calibration):
         seen = np.isfinite(np.asarray(px, float).reshape(-1, 2)).all(axis=1) & ok_x
         if not seen.any():
             continue
-        sd = _camera_pixel_sd(calibration, name, pixel_sd, n)
-        unc = calibration.uncertainty.get(name) if with_calibration else None
+        if joint is not None:
+            names, cols = joint.camera_parameters(name)
+            cov = np.zeros((0, 0))
+        else:
+            unc = calibration.uncertainty.get(name) if with_calibration else None
+            names = list(unc.parameters) if unc is not None else []
+            cols = np.zeros(0, dtype=np.int64)
+            cov = np.ascontiguousarray(unc.covariance) if unc is not None else np.zeros((0, 0))
         idx = np.nonzero(seen)[0]
-        parts = _camera_parts(cam, X[idx], list(unc.parameters) if unc is not None else [])
-        cov = np.ascontiguousarray(unc.covariance) if unc is not None else np.zeros((0, 0))
-        _accumulate(H, M, count, idx, sd, 1.0 / _camera_sigma(cam) ** 2, *parts[:9], cov, *parts[9:])
-    return H, M, count
+        _accumulate(H, M, B, count, idx, _camera_pixel_sd(calibration, name, pixel_sd, n),
+                    1.0 / _camera_sigma(cam) ** 2, *_camera_parts(cam, X[idx], names), cov, cols)
+    return H, M, (B if joint is not None else None), count
 
 
 def _camera_pixel_sd(calibration, name, pixel_sd, n) -> np.ndarray:
@@ -124,31 +135,6 @@ def _camera_pixel_sd(calibration, name, pixel_sd, n) -> np.ndarray:
         own = camera_noise_px(calibration, name)
         return _per_axis(np.where(np.isnan(own), 1.0, own)[None, :], n)
     return _per_axis(given, n)
-
-
-def _accumulated_joint(calibration, joint, pixels, X, pixel_sd):
-    """H, the pixels' M (as `_accumulated` without the calibration) and B = Σ ω Jᵀ G over the joint
-    parameters (n, 3, P)."""
-    X = np.ascontiguousarray(X)
-    n = len(X)
-    H = np.zeros((n, 3, 3))
-    M = np.zeros((n, 3, 3))
-    B = np.zeros((n, 3, len(joint.parameters)))
-    count = np.zeros(n, dtype=np.int64)
-    ok_x = np.isfinite(X).all(axis=1)
-    for name, px in pixels.items():
-        cam = calibration.cameras.get(name)
-        if cam is None:
-            continue
-        seen = np.isfinite(px).all(axis=1) & ok_x
-        if not seen.any():
-            continue
-        sd = _camera_pixel_sd(calibration, name, pixel_sd, n)
-        names, cols = joint.camera_parameters(name)
-        idx = np.nonzero(seen)[0]
-        parts = _camera_parts(cam, X[idx], names)
-        _accumulate_joint(H, M, B, count, idx, sd, 1.0 / _camera_sigma(cam) ** 2, *parts, cols)
-    return H, M, B, count
 
 
 def _camera_parts(cam: Camera, X: np.ndarray, names: list[str]) -> tuple:
@@ -254,9 +240,12 @@ def _add_point(H, M, i, w, J, S):
 
 
 @jit
-def _accumulate(H, M, count, idx, sd, w, a, b, z, Jd, xd, yd, K2, R, kinds, cov, drot, dlens):
-    """Add one camera's terms to H = Σ ω JᵀJ and M = Σ ω² Jᵀ Σp J at the points idx."""
+def _accumulate(H, M, B, count, idx, sd, w, a, b, z, Jd, xd, yd, K2, R, kinds, drot, dlens, cov, cols):
+    """Add one camera's terms at the points idx to H = Σ ω JᵀJ and M = Σ ω² Jᵀ Σp J, Σp the pixel's
+    covariance plus, with `cov` (this camera's parameters), G cov Gᵀ; with a non-empty B instead, add
+    ω Jᵀ G to B's columns `cols` (the joint parameters)."""
     n_par = len(kinds)
+    joint = B.shape[0] > 0
     P = np.empty((2, 3))
     J = np.empty((2, 3))
     G = np.empty((2, n_par))
@@ -267,36 +256,20 @@ def _accumulate(H, M, count, idx, sd, w, a, b, z, Jd, xd, yd, K2, R, kinds, cov,
         S[0, 0], S[0, 1], S[1, 0], S[1, 1] = sd[i, 0] * sd[i, 0], 0.0, 0.0, sd[i, 1] * sd[i, 1]
         if n_par:
             _gradient(q, P, xd, yd, K2, kinds, drot, dlens, G)
-            for r in range(2):
-                for c in range(2):
-                    acc = 0.0
+            if joint:
+                for u in range(3):
                     for p in range(n_par):
-                        gp = G[r, p]
-                        if gp != 0.0:
-                            for m in range(n_par):
-                                acc += gp * cov[p, m] * G[c, m]
-                    S[r, c] += acc
-        _add_point(H, M, i, w, J, S)
-        count[i] += 1
-
-
-@jit
-def _accumulate_joint(H, M, B, count, idx, sd, w, a, b, z, Jd, xd, yd, K2, R, kinds, drot, dlens, cols):
-    """Add one camera's terms to H, the pixels' M and B = Σ ω Jᵀ G (columns `cols` of the joint
-    parameters) at the points idx."""
-    n_par = len(kinds)
-    P = np.empty((2, 3))
-    J = np.empty((2, 3))
-    G = np.empty((2, n_par))
-    S = np.zeros((2, 2))
-    for q in range(len(idx)):
-        i = idx[q]
-        _jacobians(q, a, b, z, Jd, K2, R, P, J)
-        S[0, 0], S[1, 1] = sd[i, 0] * sd[i, 0], sd[i, 1] * sd[i, 1]
-        _gradient(q, P, xd, yd, K2, kinds, drot, dlens, G)
-        for u in range(3):
-            for p in range(n_par):
-                B[i, u, cols[p]] += w * (J[0, u] * G[0, p] + J[1, u] * G[1, p])
+                        B[i, u, cols[p]] += w * (J[0, u] * G[0, p] + J[1, u] * G[1, p])
+            else:
+                for r in range(2):
+                    for c in range(2):
+                        acc = 0.0
+                        for p in range(n_par):
+                            gp = G[r, p]
+                            if gp != 0.0:
+                                for m in range(n_par):
+                                    acc += gp * cov[p, m] * G[c, m]
+                        S[r, c] += acc
         _add_point(H, M, i, w, J, S)
         count[i] += 1
 

@@ -174,8 +174,8 @@ def calibrate_videos(videos: dict[str, str | Path], board: BoardSpec, *, offsets
     else:
         warnings.append("no reference frame: the world frame is the first camera's frame")
     world.update(describe(calibration.world_from_rig))
-    if calibration.rig_uncertainty is not None and (known_points is not None or reference_frame is not None):
-        world.update(calibration.rig_uncertainty.world_frame_sd())
+    if calibration.rig_uncertainty is not None:
+        world.update(calibration.rig_uncertainty.world_frame_sd() or {})
     acc = accuracy_report(calibration, views, board, poses)
     points = calibration_points(calibration, views, board, poses, names[:2]) if with_points else None
     per_camera = {}

@@ -117,18 +117,17 @@ def known_points_reference(calibration: Calibration, pixels: dict[str, np.ndarra
 
     world_points = np.asarray(world_points, float).reshape(-1, 3)
 
-    def fitted(cal: Calibration) -> tuple[np.ndarray, np.ndarray]:
+    def fitted(cal: Calibration) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         rig, _ = triangulate(cal, pixels, refine=True, world=False)
         ok = np.isfinite(rig).all(1) & np.isfinite(world_points).all(1)
-        return kabsch(rig[ok], world_points[ok]), ok
+        return kabsch(rig[ok], world_points[ok]), ok, rig
 
-    W0, ok = fitted(calibration)
+    W0, ok, rig = fitted(calibration)
     steps = _steps(covariance, 0.1)
     J = np.stack([(psi(fitted(perturbed(calibration, parameters, h * e))[0], W0)
                    - psi(fitted(perturbed(calibration, parameters, -h * e))[0], W0)) / (2 * h)
                   for h, e in zip(steps, np.eye(len(parameters)), strict=True)], axis=1) \
         if parameters else np.zeros((6, 0))
-    rig, _ = triangulate(calibration, pixels, refine=True, world=False)
     fit = rig[ok] @ W0[:3, :3].T + W0[:3, 3]
     res = world_points[ok] - fit
     n = len(res)

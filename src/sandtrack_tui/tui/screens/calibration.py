@@ -36,8 +36,8 @@ def summary_table(cal: Calibration | None):
     if len(names) >= 2:
         base = float(np.linalg.norm(cal.cameras[names[0]].center_mm - cal.cameras[names[1]].center_mm))
         t.caption = f"baseline {names[0]}–{names[1]}: {base:.1f} mm"
-    if cal.rig_uncertainty is not None:
-        w = cal.rig_uncertainty.world_frame_sd()
+    w = cal.rig_uncertainty.world_frame_sd() if cal.rig_uncertainty is not None else None
+    if w is not None:
         t.caption = ((t.caption + "; ") if t.caption else "") + "world frame ± {} mrad, origin ± {} mm".format(
             " / ".join(f"{v:.2f}" for v in w["rotation_sd_mrad"]), " / ".join(f"{v:.3f}" for v in w["origin_sd_mm"]))
     scalars = {k: v for k, v in (cal.report or {}).items() if isinstance(v, (int, float, str))}
