@@ -143,7 +143,7 @@ def _camera_parts(cam: Camera, X: np.ndarray, names: list[str]) -> tuple:
     of the parameters `names`, the rotation's and the lens terms' finite differences."""
     R = cam.R
     xc = rotate(X, R) + cam.tvec
-    z = xc[:, 2]
+    z = xc[:, 2].copy()  # contiguous and writable, as every array the kernels take: one compiled version
     a, b = xc[:, 0] / z, xc[:, 1] / z
     distort = distort_fisheye if cam.model == "fisheye" else distort_normalised
     xd, yd = distort(a, b, cam.distortion)
@@ -180,7 +180,7 @@ def _per_axis(sd, n: int) -> np.ndarray:
     a = np.asarray(sd, float)
     if a.ndim == 1:
         a = a[:, None]
-    return np.ascontiguousarray(np.broadcast_to(a, (n, 2)))
+    return np.array(np.broadcast_to(a, (n, 2)), dtype=np.float64, order="C")
 
 
 _KINDS = {"rx": 0, "ry": 1, "rz": 2, "tx": 3, "ty": 4, "tz": 5, "fx": 6, "fy": 7, "cx": 8, "cy": 9}
