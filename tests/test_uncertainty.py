@@ -128,6 +128,36 @@ def test_pixels_csv_reads_each_cameras_sd(tmp_path):
     assert (s1 < s0).all()  # a noise-free front camera
 
 
+def test_xyz_says_what_the_sd_holds(tmp_path):
+    from sandtrack_tui.camera import RigUncertainty
+
+    rig = _rig(rmse=0.3)
+    X = _points(np.random.default_rng(4), 20)
+    df = pd.DataFrame({"xs": 0.0, "ys": 0.0, "xf": 0.0, "yf": 0.0}, index=range(len(X)))
+    df[["xs", "ys"]], df[["xf", "yf"]] = rig.project_world("side", X), rig.project_world("front", X)
+
+    def told(cal, table=df):
+        out, notes = xyz_from_pixels(table, camera_columns(table.columns), cal, method="triangulation")
+        return out[list(SD_COLUMNS)].to_numpy(), next(n for n in notes if n.startswith("triangulation sd:"))
+
+    bare, note = told(rig)
+    assert note.endswith("only: the calibration file keeps no parameter covariance (calibrate from videos or "
+                         "points to have it)") and "each camera's pixel noise" in note
+    assert "each row's sd_px" in told(rig, df.assign(sd_px=0.2))[1]
+    names = ["rx", "ry", "rz", "tx", "ty", "tz"]
+    rig.uncertainty = {"front": CameraUncertainty(names, np.diag([1e-8] * 3 + [0.5] * 3))}
+    front, note = told(rig)
+    assert "each camera's parameter covariance alone" in note and note.endswith("none for side)")
+    assert (front > bare).all()
+    joint = np.kron(np.eye(2), np.diag([1e-8] * 3 + [0.5] * 3))
+    params = [f"{c}/{p}" for c in ("side", "front") for p in names]
+    rig.rig_uncertainty = RigUncertainty(params, joint, np.zeros((6, 12)), np.zeros((6, 6)))
+    assert told(rig)[1].endswith("cameras together (world = first camera)")
+    rig.rig_uncertainty = RigUncertainty(params, joint, np.zeros((6, 12)), np.eye(6) * 0.01)
+    both, note = told(rig)
+    assert note.endswith("cameras together with the world frame's") and (both > front).all()
+
+
 def test_pixel_sd_of_the_tracker_by_status():
     sd = point_sd_px([0.97, 0.90, 0.9, 0.9, 0.9], ["tracked", "tracked", "manual", "occluded", "interpolated"])
     assert 0.08 < sd[0] < sd[1] < 0.3 and np.isnan(sd[2]) and np.isinf(sd[3:]).all()

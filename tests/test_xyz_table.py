@@ -166,8 +166,10 @@ def test_cli_xyz_frame_and_csv(project, model_file, tmp_path, capsys):
     out = json.loads(capsys.readouterr().out)
     csv = pd.read_csv(tmp_path / "xyz.csv")
     assert list(csv.columns) == XYZ_COLUMNS and len(csv) == out["rows"] == len(START) * N_FRAMES
+    assert out["sd_holds"].startswith("triangulation sd: each tracked point's sd (its match score)")
     assert main(["xyz", path, "--frame", "12"]) == 0
-    assert "triangulation" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "triangulation" in printed and out["sd_holds"] in printed
     assert main(["xyz", path, "--frame", "3", "--method", "residual"]) == 1
     assert "residual" in capsys.readouterr().err
 

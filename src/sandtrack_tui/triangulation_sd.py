@@ -73,6 +73,24 @@ def triangulation_sd(calibration: Calibration, pixels: dict[str, np.ndarray], po
     return out
 
 
+def sd_holds(calibration: Calibration, cameras, pixel_sd: str = "each camera's pixel noise (its calibration)") -> str:
+    """One line for the user: what the triangulation's sd of these cameras' points holds, and what it leaves
+    out that a user could add (pixel_sd: where the pixels' own sd comes from)."""
+    cameras = [c for c in cameras if c in calibration.cameras]
+    missing = [c for c in cameras if c not in calibration.uncertainty]
+    joint = calibration.rig_uncertainty
+    if joint is not None:
+        world = "with the world frame's" if joint.world_frame_sd() else "(world = first camera)"
+        part = f"and the calibration's parameter covariance, cameras together {world}"
+    elif len(missing) == len(cameras):
+        return (f"triangulation sd: {pixel_sd} only: the calibration file keeps no parameter covariance "
+                "(calibrate from videos or points to have it)")
+    else:
+        part = "and each camera's parameter covariance alone (the world frame taken as exact"
+        part += f"; none for {', '.join(missing)})" if missing else ")"
+    return f"triangulation sd: {pixel_sd} {part}"
+
+
 def camera_noise_px(calibration: Calibration, name: str) -> np.ndarray:
     """(2,) a camera's pixel noise per image axis (px): its own noise from the calibration (`noise_px`),
     else its RMSE (a 2-D distance) over √2 on both axes; NaN when neither is known."""

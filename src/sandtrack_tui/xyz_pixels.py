@@ -78,7 +78,7 @@ def xyz_from_pixels(df: pd.DataFrame, cams: dict[str, tuple[str, str]], calibrat
                     method: str = "both", outside: str = "flag", refine: bool = True) -> tuple[pd.DataFrame, list[str]]:
     """The table with XYZ by each method, and notes for the user (renamed columns)."""
     check_choices(method, outside)
-    from .triangulation_sd import pixel_sd_axes
+    from .triangulation_sd import pixel_sd_axes, sd_holds
     from .xyz import check_network_rows, triangulate_with_sd
 
     if calibration is not None and "triangulation" in wanted_methods(method):
@@ -100,6 +100,10 @@ def xyz_from_pixels(df: pd.DataFrame, cams: dict[str, tuple[str, str]], calibrat
     blocks, tri = [], None
     tri_cams = [c for c in pix if calibration is not None and c in calibration.cameras]
     tsd = {c: pixel_sd_axes(given_sd(df, c), np.zeros(n), calibration, c) for c in tri_cams}
+    if "triangulation" in methods:
+        given = any(np.isfinite(given_sd(df, c)).any() for c in tri_cams)
+        own = ("each row's sd_px (else its camera's noise)",) if given else ()
+        notes.append(sd_holds(calibration, tri_cams, *own))
     if "mlp" in methods and len(tri_cams) < 2:
         notes.append("the MLP's sd is its spread alone: no triangulation to check it against "
                      "(--calibration with two of the table's cameras)")

@@ -114,6 +114,7 @@ def run_project(args) -> int:
     with Project.open(args.project) as project:
         frames = None if args.frame is None else [args.frame]
         table = compute_xyz(project, method=args.method, frames=frames, outside=args.outside)
+        holds = _sd_holds(project, table)
     if args.output:
         out = Path(args.output)
         if not out.parent.exists():
@@ -128,6 +129,8 @@ def run_project(args) -> int:
               "methods": {m: {"rows": int(len(g)), "with_xyz": int(g["X_mm"].notna().sum())}
                           for m, g in table.groupby("method")},
               "seconds": time.perf_counter() - t0}
+    if holds:
+        result["sd_holds"] = holds
     if args.output:
         result["output"] = str(args.output)
     if args.frame is not None:
@@ -136,8 +139,19 @@ def run_project(args) -> int:
         text = _format(table) if len(table) else f"frame {args.frame}: no points"
     else:
         text = "\n".join(f"{m}: {v['rows']} rows, {v['with_xyz']} with XYZ" for m, v in result["methods"].items())
-    emit(result, args.json, text)
+    emit(result, args.json, text + (f"\n{holds}" if holds else ""))
     return 0
+
+
+def _sd_holds(project, table) -> str | None:
+    """What the triangulated rows' sd holds (None without triangulated rows)."""
+    from ..triangulation_sd import sd_holds
+    from ..xyz import project_calibration
+
+    calibration = project_calibration(project)
+    if calibration is None or not (table["method"] == "triangulation").any():
+        return None
+    return sd_holds(calibration, project.cameras(), "each tracked point's sd (its match score)")
 
 
 def _format(table) -> str:
