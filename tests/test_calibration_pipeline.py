@@ -262,3 +262,11 @@ def test_the_calibration_screen_shows_each_camera_term_with_its_sd(result):
     assert f"{side['fx']:.1f}" in text and f"±{side['fx_sd_px']:.1f}" in text and "± 1 sd" in text
     world = result.calibration.rig_uncertainty.world_frame_sd()
     assert f"world frame ± {world['rotation_sd_mrad'][0]:.2f} / " in " ".join(text.split())
+    assert "the calibration's parameter covariance, cameras together with the world frame's" in " ".join(text.split())
+    result.calibration.rig_uncertainty, kept = None, result.calibration.rig_uncertainty
+    result.calibration.uncertainty, cameras = {}, result.calibration.uncertainty
+    try:
+        console.print(summary_table(result.calibration))
+        assert "only: the calibration file keeps no parameter covariance" in " ".join(console.export_text().split())
+    finally:
+        result.calibration.rig_uncertainty, result.calibration.uncertainty = kept, cameras

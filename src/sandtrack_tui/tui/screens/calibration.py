@@ -40,6 +40,10 @@ def summary_table(cal: Calibration | None):
     if w is not None:
         t.caption = ((t.caption + "; ") if t.caption else "") + "world frame ± {} mrad, origin ± {} mm".format(
             " / ".join(f"{v:.2f}" for v in w["rotation_sd_mrad"]), " / ".join(f"{v:.3f}" for v in w["origin_sd_mm"]))
+    if len(names) >= 2:
+        from ...triangulation_sd import sd_holds  # numba's import only when a calibration is shown
+
+        t.caption += "\n" + sd_holds(cal, names, "each tracked point's sd (its match score)")
     scalars = {k: v for k, v in (cal.report or {}).items() if isinstance(v, (int, float, str))}
     if not scalars:
         return t
