@@ -11,11 +11,12 @@ $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 
 # torch is pinned (an unpinned torch pulls several GB of CUDA wheels); pyproject.toml pins it too.
-# pip byte-compiles the installed packages on one core: compileall does it on all of them, at the same time
-# as the compiled kernels of the tracker, the sixel encoder, the triangulation and its sd are built (cached on disk).
+# pip byte-compiles the installed packages on one core: compileall does it on all of them (and on our own
+# sources, which an editable install leaves to each process), at the same time as the compiled kernels of
+# the tracker, the sixel encoder, the triangulation and its sd are built (cached on disk).
 $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/pip install --disable-pip-version-check -q --no-compile "torch==2.13.0" -e ".[dev]"
-	$(BIN)/python -m compileall -q -j 0 $(VENV)/lib >/dev/null & c=$$!; \
+	$(BIN)/python -m compileall -q -j 0 $(VENV)/lib src >/dev/null & c=$$!; \
 		$(BIN)/python -m sandtrack_tui.tracking.warmup & k=$$!; $(BIN)/python -m sandtrack_tui.tui.sixel & s=$$!; \
 		$(BIN)/python -m sandtrack_tui.triangulation && $(BIN)/python -m sandtrack_tui.triangulation_sd; t=$$?; \
 		wait $$c; wait $$k && wait $$s && test $$t -eq 0
