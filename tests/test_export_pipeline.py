@@ -54,7 +54,11 @@ def project(tmp_path_factory):
 def test_export_compare_chain(project, tmp_path, capsys):
     out = tmp_path / "traj.csv"
     assert main(["export", str(project), "-o", str(out), "--method", "triangulation", "--json"]) == 0
-    json.loads(capsys.readouterr().out)
+    summary = json.loads(capsys.readouterr().out)
+    # the study rig's calibration keeps no parameter covariance: its sd is the tracked pixels' part alone
+    assert summary["sd_holds"] == ("triangulation sd: each tracked point's sd (its match score) only: the "
+                                   "calibration file keeps no parameter covariance (calibrate from videos or "
+                                   "points to have it)")
     df = pd.read_csv(out)
     assert list(df.columns) == tr.TIDY_COLUMNS
     good = df.dropna(subset=["X_mm"])

@@ -205,6 +205,16 @@ def project_calibration(project):
     return _calibration_from_text(text) if text else None
 
 
+def project_sd_holds(project, table: pd.DataFrame) -> str | None:
+    """One line: what the sd of a project table's triangulated rows holds (None without such rows)."""
+    from .triangulation_sd import sd_holds
+
+    calibration = project_calibration(project)
+    if calibration is None or not (table["method"] == "triangulation").any():
+        return None
+    return sd_holds(calibration, project.cameras(), "each tracked point's sd (its match score)")
+
+
 # -- main entry points ----------------------------------------------------------------------------
 def compute_xyz(project, method: str = "both", frames=None, model=None, calibration=None,
                 times: dict | None = None, outside: str = "flag", refine: bool = True) -> pd.DataFrame:

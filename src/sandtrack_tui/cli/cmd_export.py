@@ -24,6 +24,7 @@ def register(sub) -> None:
 def run(args) -> int:
     from ..store import Project
     from ..trajectories import export, export_table
+    from ..xyz import project_sd_holds
 
     with Project.open(args.project) as proj:
         vids = proj.videos()
@@ -32,11 +33,14 @@ def run(args) -> int:
         heights = {c: float(v.height) for c, v in vids.items()}
         log(f"export: computing 3D positions ({args.method})")
         df, pixels_only = export_table(proj, method=args.method)
+        holds = None if pixels_only or "method" not in df else project_sd_holds(proj, df)
     if pixels_only:
         log(f"export: {pixels_only}")
     method = None if args.method in ("both", "all") or pixels_only else args.method
     paths = export(df, Path(args.output), fmt=args.format, heights=heights, method=method)
     result = {"files": [str(p) for p in paths], "rows": int(len(df)), "markers": int(df["marker"].nunique()),
               "frames": int(df["frame"].nunique()), "pixels_only": pixels_only}
-    emit(result, args.json, text="\n".join(f"wrote {p}" for p in paths))
+    if holds:
+        result["sd_holds"] = holds
+    emit(result, args.json, text="\n".join([f"wrote {p}" for p in paths] + ([holds] if holds else [])))
     return 0

@@ -104,7 +104,7 @@ def run_pixels(args) -> int:
 
 def run_project(args) -> int:
     from ..store import Project
-    from ..xyz import compute_xyz
+    from ..xyz import compute_xyz, project_sd_holds
 
     t0 = time.perf_counter()
     if args.frame is None and not args.output:
@@ -114,7 +114,7 @@ def run_project(args) -> int:
     with Project.open(args.project) as project:
         frames = None if args.frame is None else [args.frame]
         table = compute_xyz(project, method=args.method, frames=frames, outside=args.outside)
-        holds = _sd_holds(project, table)
+        holds = project_sd_holds(project, table)
     if args.output:
         out = Path(args.output)
         if not out.parent.exists():
@@ -141,17 +141,6 @@ def run_project(args) -> int:
         text = "\n".join(f"{m}: {v['rows']} rows, {v['with_xyz']} with XYZ" for m, v in result["methods"].items())
     emit(result, args.json, text + (f"\n{holds}" if holds else ""))
     return 0
-
-
-def _sd_holds(project, table) -> str | None:
-    """What the triangulated rows' sd holds (None without triangulated rows)."""
-    from ..triangulation_sd import sd_holds
-    from ..xyz import project_calibration
-
-    calibration = project_calibration(project)
-    if calibration is None or not (table["method"] == "triangulation").any():
-        return None
-    return sd_holds(calibration, project.cameras(), "each tracked point's sd (its match score)")
 
 
 def _format(table) -> str:
