@@ -158,6 +158,26 @@ def test_xyz_says_what_the_sd_holds(tmp_path):
     assert note.endswith("cameras together with the world frame's") and (both > front).all()
 
 
+def test_many_rows_on_several_threads_give_the_same_xyz_and_sd(monkeypatch):
+    import sandtrack_tui.cores
+    import sandtrack_tui.xyz as xyz_module
+
+    rig = _rig(rmse=0.3)
+    names = ["rx", "ry", "rz", "tx", "ty", "tz", "fx", "fy", "cx", "cy", "d0"]
+    rig.uncertainty = {c: CameraUncertainty(names, np.eye(len(names)) * 1e-6) for c in rig.cameras}
+    rng = np.random.default_rng(5)
+    X = _points(rng, 997)
+    pixels = {c: rig.project_world(c, X) + rng.normal(0, 0.3, (len(X), 2)) for c in ("side", "front")}
+    pixels["front"][::7] = np.nan
+    sd = {"side": rng.uniform(0.05, 0.5, (len(X), 2)), "front": 0.2}
+    one = triangulate_with_sd(rig, pixels, sd, True)
+    monkeypatch.setattr(xyz_module, "PARALLEL_ROWS", 100)
+    monkeypatch.setattr(sandtrack_tui.cores, "usable_cores", lambda: 3)
+    three = triangulate_with_sd(rig, pixels, sd, True)
+    assert all(np.array_equal(a, b, equal_nan=True) for a, b in zip(one, three, strict=True))
+    assert np.isfinite(one[2][1:7]).all() and np.isnan(one[2][::7]).all()  # one camera: no XYZ, no sd
+
+
 def test_pixel_sd_of_the_tracker_by_status():
     sd = point_sd_px([0.97, 0.90, 0.9, 0.9, 0.9], ["tracked", "tracked", "manual", "occluded", "interpolated"])
     assert 0.08 < sd[0] < sd[1] < 0.3 and np.isnan(sd[2]) and np.isinf(sd[3:]).all()

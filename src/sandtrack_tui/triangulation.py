@@ -99,7 +99,7 @@ def _solve3(A, b):
     return out
 
 
-@jit
+@jit(nogil=True)
 def _solve_points(uv, seen, R, t, W, scale, iterations):
     """Per point: least squares on the DLT equations of the cameras that saw it (normalised
     coordinates, translations divided by `scale`), then `iterations` Gauss-Newton steps on the

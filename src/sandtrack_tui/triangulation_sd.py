@@ -257,7 +257,7 @@ def _add_point(H, M, i, w, J, S):
                                    + J[1, u] * (S[1, 0] * J[0, v] + S[1, 1] * J[1, v]))
 
 
-@jit
+@jit(nogil=True)
 def _accumulate(H, M, B, count, idx, sd, w, a, b, z, Jd, xd, yd, K2, R, kinds, drot, dlens, cov, cols):
     """Add one camera's terms at the points idx to H = Σ ω JᵀJ and M = Σ ω² Jᵀ Σp J, Σp the pixel's
     covariance plus, with `cov` (this camera's parameters), G cov Gᵀ; with a non-empty B instead, add
@@ -332,7 +332,7 @@ def _sandwich_world(Hi, Mi, Rw, C):
     _mul3(T, Rw, C, True)
 
 
-@jit
+@jit(nogil=True)
 def _world_sd(H, M, count, Rw):
     """sd per world axis of the sandwich H⁻¹ M H⁻¹ rotated into the world frame; NaN below two cameras."""
     n = len(H)
@@ -349,7 +349,7 @@ def _world_sd(H, M, count, Rw):
     return out
 
 
-@jit
+@jit(nogil=True)
 def _world_sd_joint(H, M, B, count, Rw, Xw, cov, Psi, Spsi):
     """sd per world axis of the pixels' sandwich plus the joint calibration part M Σθ Mᵀ, M = Rw (-H⁻¹ B) +
     A(X) Ψ, plus the world frame's own A Σψ Aᵀ (A(X) ψ = ω × X + τ); NaN below two cameras."""

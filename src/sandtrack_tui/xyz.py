@@ -71,6 +71,7 @@ OUTSIDE_POLICIES = ("flag", "nan", "keep")
 NETWORK_CAMERAS = ("side", "front")  # the network's inputs: xs, ys, xf, yf
 SD_COLUMNS = ("sd_X_mm", "sd_Y_mm", "sd_Z_mm")
 BIAS_COLUMNS = ("bias_X_mm", "bias_Y_mm", "bias_Z_mm")
+PARALLEL_ROWS = 100_000  # rows per thread at least: on fewer, the split costs more than the second core saves
 _PIXEL_ALIASES = {"side": ("xs", "ys"), "front": ("xf", "yf")}
 # Worse statuses win when two observations of a camera are combined.
 _SEVERITY = {"manual": 0, "tracked": 1, "imported": 2, "interpolated": 3, "occluded": 4, "lost": 5,
@@ -501,7 +502,29 @@ def check_network_rows(calibration, pixels: dict, pixel_sd: dict, refine: bool, 
 
 def triangulate_with_sd(calibration, pixels: dict, sd: dict, refine: bool):
     """XYZ (world, mm), residual (px) and sd per world axis (mm) of `triangulation.triangulate`, the sd by
-    `triangulation_sd` (pixel noise and the calibration's parameter covariance)."""
+    `triangulation_sd` (pixel noise and the calibration's parameter covariance). Many rows are split in
+    contiguous parts, one per core, computed on threads at once (the kernels and numpy release the GIL)."""
+    from .cores import usable_cores
+
+    n = len(next(iter(pixels.values()))) if pixels else 0
+    threads = min(usable_cores(), n // PARALLEL_ROWS)
+    if threads < 2:
+        return _triangulate_with_sd(calibration, pixels, sd, refine)
+    edges = np.linspace(0, n, threads + 1).astype(int)
+
+    def part(k: int):
+        rows = slice(edges[k], edges[k + 1])
+        return _triangulate_with_sd(calibration, {c: p[rows] for c, p in pixels.items()},
+                                    {c: v[rows] if np.ndim(v) and len(v) == n else v for c, v in sd.items()}, refine)
+
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(threads) as pool:
+        done = list(pool.map(part, range(threads)))
+    return tuple(np.concatenate([d[k] for d in done]) for k in range(3))
+
+
+def _triangulate_with_sd(calibration, pixels: dict, sd: dict, refine: bool):
     from .triangulation import triangulate
     from .triangulation_sd import triangulation_sd
 

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import copy
 import math
-import os
 import threading
 import time
 from collections.abc import Callable
@@ -22,6 +21,7 @@ import pandas as pd
 import torch
 from scipy.spatial import ConvexHull, QhullError
 
+from ..cores import usable_cores
 from ..errors import SandtrackError
 from .dataset import INPUTS, TARGETS, check_points, split_by_frame
 from .model import MLP, SPREAD_HIDDEN, STUDY_HIDDEN, RegressionModel, hull_distance, outside_training, predict
@@ -68,13 +68,6 @@ def pick_device(name: str | None = None) -> torch.device:
     if torch.cuda.is_available():
         return torch.device("cuda")
     return torch.device("cpu")
-
-
-def cpu_count() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:
-        return os.cpu_count() or 1
 
 
 def train(points: pd.DataFrame, config: TrainConfig | None = None, calibration=None,
@@ -163,7 +156,7 @@ def _fit_spreads(model: RegressionModel, cfg: TrainConfig, calibration, x, y, xn
 def _fastest_threads(cfg: TrainConfig, device) -> int:
     """All cores, unless other processes keep them busy: then OpenMP threads wait on each other and one
     thread trains faster (measured: 4x on 2 busy cores). Decided by timing a few training steps."""
-    n = cpu_count()
+    n = usable_cores()
     if n <= 1:
         return 1
     probe = MLP(hidden=cfg.hidden, dropout=cfg.dropout).to(device)

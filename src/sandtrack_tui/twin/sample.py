@@ -430,7 +430,3 @@ def preset_names() -> list[str]:
 
 def describe_preset(name: str) -> dict:
     return asdict(PRESETS[name])
-
-
-def cpu_count() -> int:
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
