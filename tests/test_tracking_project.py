@@ -157,6 +157,7 @@ def test_cli_track_with_csv_and_bad_input(stereo_data, tmp_path, capsys):
     assert out["per_marker"]["1"]["side"]["tracked"] == 9
     # the tracked markers' XYZ uncertainty: a median sd per axis over the points that have one
     assert out["xyz_points_with_sd"] >= 2 * 8 and all(0 < out["xyz_sd_median_mm"][a] < 1.0 for a in "XYZ")
+    assert out["xyz_sd_holds"].startswith("triangulation sd: each tracked point's sd (its match score)")
 
     bad = tmp_path / "bad.csv"
     bad.write_text("frame,camera,marker,x,y,w,h\n0,side,1,5000,10,12,12\n")

@@ -197,7 +197,7 @@ def xyz_uncertainty(project, summary: dict) -> dict:
     without a calibration."""
     import numpy as np
 
-    from ..xyz import SD_COLUMNS, compute_xyz
+    from ..xyz import SD_COLUMNS, compute_xyz, project_sd_holds
 
     first, last = summary.get("first_frame"), summary.get("last_frame")
     if first is None or last is None or project.calibration() is None:
@@ -213,7 +213,7 @@ def xyz_uncertainty(project, summary: dict) -> dict:
         return {"xyz_points_with_sd": 0}
     med = np.median(sd[ok], axis=0)
     return {"xyz_sd_median_mm": {a: round(float(v), 4) for a, v in zip("XYZ", med, strict=True)},
-            "xyz_points_with_sd": int(ok.sum())}
+            "xyz_points_with_sd": int(ok.sum()), "xyz_sd_holds": project_sd_holds(project, table)}
 
 
 def _run_every(args) -> int:
@@ -289,6 +289,8 @@ def _text(s: dict) -> str:
         sd = s["xyz_sd_median_mm"]
         lines.append(f"  XYZ by triangulation, median sd (1 sigma): X {sd['X']:.3f}, Y {sd['Y']:.3f}, "
                      f"Z {sd['Z']:.3f} mm over {s['xyz_points_with_sd']} points")
+        if s.get("xyz_sd_holds"):
+            lines.append(f"  {s['xyz_sd_holds']}")
     if s.get("stopped"):
         lines.append("  stopped early; what was tracked is saved")
     return "\n".join(lines)
