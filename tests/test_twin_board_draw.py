@@ -83,3 +83,14 @@ def test_point_lookups_and_blocked_products_match_whole_array_results():
     a = rng.normal(size=(10_000, 3)) * 300
     m = np.linalg.qr(rng.normal(size=(3, 3)))[0]
     assert np.array_equal(_times(a, m, rows=999), (a.reshape(100, 100, 3) @ m).reshape(-1, 3))
+
+
+def test_the_board_rests_where_it_is_told_then_moves_alike():
+    from sandtrack_tui.twin.board_motion import FLAT_UNTIL_S, LIFT_S, R_REF, REF_ORIGIN
+
+    default, moved = BoardMotion(BOARD, 3), BoardMotion(BOARD, 3, REF_ORIGIN + [30.0, 0.0, -45.0])
+    for t in (0.0, 0.5 * FLAT_UNTIL_S):
+        assert np.array_equal(default.pose(t)[0], R_REF) and np.array_equal(default.pose(t)[1], REF_ORIGIN)
+        assert np.array_equal(moved.pose(t)[1], REF_ORIGIN + [30.0, 0.0, -45.0])
+    later = FLAT_UNTIL_S + LIFT_S + 2.0  # lifted: the hand's motion, wherever the board lay
+    assert all(np.allclose(a, b) for a, b in zip(default.pose(later), moved.pose(later), strict=True))

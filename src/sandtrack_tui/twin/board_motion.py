@@ -42,12 +42,14 @@ def _rz(a):
 
 
 class BoardMotion:
-    def __init__(self, board: BoardSpec, seed: int):
+    def __init__(self, board: BoardSpec, seed: int, rest_origin=REF_ORIGIN):
+        """rest_origin: the board's origin (mm, world) while it lies flat on the sand at first."""
         self.board = board
         rng = np.random.default_rng(seed + 71)
         w, h = board.size_mm
         self.half = np.array([w / 2, h / 2, 0.0])
-        self.ref_center = REF_ORIGIN + R_REF @ self.half
+        self.rest_origin = np.asarray(rest_origin, dtype=float).copy()
+        self.ref_center = self.rest_origin + R_REF @ self.half
         # sums of sinusoids: (amplitude, frequency Hz, phase) per parameter
         def comp(amps, f_lo, f_hi):
             return [(a, rng.uniform(f_lo, f_hi), rng.uniform(0, 2 * np.pi)) for a in amps]
@@ -83,7 +85,7 @@ class BoardMotion:
         w = float(np.clip((t - FLAT_UNTIL_S) / LIFT_S, 0, 1))
         w = w * w * (3 - 2 * w)
         if w <= 0:
-            return R_REF.copy(), REF_ORIGIN.copy()
+            return R_REF.copy(), self.rest_origin.copy()
         jerk = np.zeros(3)
         for t0, dur, amp in self.flicks:
             if t0 <= t <= t0 + dur:

@@ -157,14 +157,15 @@ def _experiment_worker(args, view: CameraView | None = None) -> dict:
     return {"camera": camera, "rows": rows, "traj": traj, "tool": tool, "frames": n}
 
 
-def _calibration_worker(args, view: CameraView | None = None) -> dict:
+def _calibration_worker(args, view: CameraView | None = None, rest_origin=REF_ORIGIN) -> dict:
+    """One camera's calibration video; the board lies flat at `rest_origin` (mm, world) at first."""
     camera, seed, preset, out_path = args
     cv2.setNumThreads(1)
     pr = PRESETS[preset]
     tl = Timeline()
     cam = world_cameras()[camera]
     view = view or _make_view(camera, seed)
-    motion = BoardMotion(BOARD, seed)
+    motion = BoardMotion(BOARD, seed, rest_origin)
     painter = BoardRenderer(BOARD)
     rng = np.random.default_rng(seed + (5 if camera == "side" else 6))
     start = CAL_OFFSET_FRAMES / FPS if camera == "front" else 0.0
