@@ -18,7 +18,13 @@ honest), for triangulation and the network.
    held-out plane): the surveyed place is a reference with its own error, compared as a metrologist's
    Eₙ. `floor_*`: the same coverage by cameras fitted on all three planes (the held-out dots then in the
    fit).
-3. `sandtrack xyz PIXELS.csv` on 1 M rows with that calibration (its covariance kept, so every row gets
+3. Other calibration sessions of the twin (`calibration_sessions`): seeds 2.. of the small preset's
+   calibration videos, the board resting at another place each (up to 40 mm across, 60 mm along the box) so
+   that its reference detections, and the world frame fitted to them, are a new draw; each calibrated as the
+   sample is, its corners scored as 1a, then pooled: the coverage over repeated calibrations, which one
+   calibration's corners (one draw of the world frame and of the cameras) cannot judge. A session whose
+   calibration fails is reported with its message.
+4. `sandtrack xyz PIXELS.csv` on 1 M rows with that calibration (its covariance kept, so every row gets
    its sd): wall time of the whole command, best of `repeats`.
 
 Run: `python benchmarks/bench_uncertainty.py` (prints JSON), or `run()` from benchmarks/run_all.py.
@@ -152,6 +158,72 @@ def myptv() -> dict:
     return out
 
 
+def _session(seed: int) -> dict:
+    """One calibration session of the twin, the board resting at a place drawn from the seed: coverage of its
+    corners, their error, what the calibration chose."""
+    import functools
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    import pandas as pd
+
+    from sandtrack_tui.board import load_board
+    from sandtrack_tui.calibration.pipeline import calibrate_videos
+    from sandtrack_tui.errors import SandtrackError
+    from sandtrack_tui.regression.spread import coverage
+    from sandtrack_tui.triangulation import triangulate
+    from sandtrack_tui.triangulation_sd import triangulation_sd
+    from sandtrack_tui.twin import sample as twin
+    from sandtrack_tui.twin.board_motion import REF_ORIGIN
+
+    rng = np.random.default_rng(1000 + seed)
+    rest = REF_ORIGIN + np.array([rng.uniform(-40, 40), 0.0, rng.uniform(-60, 60)])
+    out = {"seed": seed, "rest_origin_mm": [round(float(v), 1) for v in rest]}
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        # spawned, not forked: this process already runs threads (a fork could inherit a held lock)
+        with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("spawn")) as pool:
+            rendered = list(pool.map(functools.partial(twin._calibration_worker, rest_origin=rest),
+                                     [(c, seed, "small", str(folder / f"{c}.mp4")) for c in ("side", "front")]))
+        try:
+            videos = {c: folder / f"{c}.mp4" for c in ("side", "front")}
+            res = calibrate_videos(videos, load_board(SAMPLE / "board.toml"), reference_frame=twin.REF_FRAME,
+                                   origin_mm=rest, with_points=True)
+        except SandtrackError as exc:
+            return {**out, "failed": str(exc)}
+    truth = pd.DataFrame(next(r for r in rendered if r["camera"] == "side")["corners"],
+                         columns=["frame", "corner_id", "x_px", "y_px", "X_mm", "Y_mm", "Z_mm"])
+    pts = res.points.reset_index(drop=True)
+    X = pts[["frame", "corner_id"]].merge(truth, on=["frame", "corner_id"], how="left")[["X_mm", "Y_mm", "Z_mm"]]
+    pixels = {"side": pts[["xs", "ys"]].to_numpy(float), "front": pts[["xf", "yf"]].to_numpy(float)}
+    rig, _ = triangulate(res.calibration, pixels, refine=True, world=False)
+    err = res.calibration.to_world(rig) - X.to_numpy(float)
+    sd = triangulation_sd(res.calibration, pixels, rig)
+    ok = np.isfinite(err).all(axis=1) & np.isfinite(sd).all(axis=1)
+    moving = ok & (pts["frame"].to_numpy() >= 80)  # the board lies at rest for the first 1.6 s
+    return {**out, "corners": int(ok.sum()), "pct": _pct(coverage(err[ok], sd[ok])),
+            "reprojection_rmse_px": round(float(res.report["reprojection_rmse_px"]), 3),
+            "lens": {n: c.lens for n, c in res.calibration.cameras.items()},
+            "moving_mean_error_mm": [round(float(v), 3) for v in err[moving].mean(axis=0)],
+            "moving_rms_error_mm": [round(float(v), 3) for v in np.sqrt((err[moving] ** 2).mean(axis=0))],
+            "moving_median_sd_mm": [round(float(v), 3) for v in np.median(sd[moving], axis=0)],
+            "_err": err[ok], "_sd": sd[ok]}
+
+
+def calibration_sessions(seeds=range(2, 8)) -> dict:
+    """`_session` for each seed, and the coverage of their corners pooled."""
+    from sandtrack_tui.regression.spread import coverage
+
+    sessions = [_session(s) for s in seeds]
+    done = [s for s in sessions if "failed" not in s]
+    out = {"sessions": [{k: v for k, v in s.items() if not k.startswith("_")} for s in sessions]}
+    if done:
+        err, sd = np.vstack([s["_err"] for s in done]), np.vstack([s["_sd"] for s in done])
+        out["pooled_pct"] = _pct(coverage(err, sd))
+        out["per_session_mean_pct"] = [round(float(v), 1) for v in np.mean([s["pct"] for s in done], axis=0)]
+    return out
+
+
 def _scored(cal, test, cams, out: dict, key: str) -> tuple[list[float], list[float]]:
     """Coverage of the test dots (raw and Eₙ, module docstring) into out[key + "_pct" / "_en_pct"], the
     median sd and the rms error per axis beside them."""
@@ -200,6 +272,7 @@ def run(repeats: int = 2) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         out["tracked_markers"] = tracked_markers(res.calibration, Path(tmp))
     out["myptv"] = myptv()
+    out["calibration_sessions"] = calibration_sessions()
     out["xyz_cli_1m"] = xyz_cli(res.calibration, repeats)
     out["seconds"] = round(time.perf_counter() - t0, 1)
     return out
