@@ -226,6 +226,29 @@ def test_fractional_sync_offset_is_interpolated(tmp_path):
     assert err["focal_rel_err"] < 0.001  # measured 0.068 %
 
 
+def test_a_weakly_heard_clap_gives_its_best_guess_which_the_board_checks(tmp_path, monkeypatch):
+    """Audio sync below its confidence threshold: its best guess is used, with a warning, and the board's
+    reprojection error accepts a right guess and refuses a wrong one (the videos here start together)."""
+    import sandtrack_tui.sync as sync
+
+    s = write_session(tmp_path, n_views=12, seed=3, flat_reference=False, video_fps=25.0)
+    guess = {"offset_s": 0.0}
+
+    def weak(side, front, method="auto", min_confidence=sync.MIN_CONFIDENCE, **_):
+        if min_confidence > 0.2:
+            raise sync.LowConfidence("audio sync is not reliable (confidence 0.20 < 0.35)")
+        return sync.SyncResult(guess["offset_s"], guess["offset_s"] * 25.0, 0.2, "audio", 25.0)
+
+    monkeypatch.setattr(sync, "estimate_offset", weak)
+    res = calibrate_videos(s["videos"], s["board"], detect_budget=12)
+    assert res.report["sync"]["front"]["method"] == "audio (weak)" and res.report["reprojection_rmse_px"] < 0.3
+    assert any("heard only weakly in front (sync confidence 0.20): its best guess, +0.0 ms, is used" in w
+               for w in res.report["warnings"])
+    guess["offset_s"] = 0.2  # five frames off: the board's views pair wrongly
+    with pytest.raises(SandtrackError, match="cameras disagree"):
+        calibrate_videos(s["videos"], s["board"], detect_budget=12)
+
+
 def test_world_frame_from_known_points(session, result, tmp_path):
     # known world points (here: corners placed by the reference-frame calibration) define the same world frame
     known = result.points.iloc[::25].reset_index(drop=True)

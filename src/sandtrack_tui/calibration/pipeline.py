@@ -46,12 +46,24 @@ def _offsets(videos, sources, given: dict[str, float] | None, warnings: list[str
             offsets[n] = 0.0
             info[n] = {"offset_s": 0.0, "method": "image folders: taken as simultaneous"}
             continue
-        from ..sync import estimate_offset
+        from ..sync import LowConfidence, estimate_offset
 
         try:
-            res = estimate_offset(videos[names[0]], videos[n], method="audio")
+            try:
+                res = estimate_offset(videos[names[0]], videos[n], method="audio")
+                weak = False
+            except LowConfidence:
+                # the clap heard, not clearly: its best guess, which the board's reprojection error checks (a
+                # wrong offset makes the cameras disagree), rather than no offset at all
+                res = estimate_offset(videos[names[0]], videos[n], method="audio", min_confidence=0.0)
+                weak = True
             offsets[n] = float(res.offset_s)
-            info[n] = {"offset_s": offsets[n], "method": res.method, "confidence": float(res.confidence)}
+            info[n] = {"offset_s": offsets[n], "method": res.method + (" (weak)" if weak else ""),
+                       "confidence": float(res.confidence)}
+            if weak:
+                warnings.append(f"the clap was heard only weakly in {n} (sync confidence {res.confidence:.2f}): its "
+                                f"best guess, {1000 * offsets[n]:+.1f} ms, is used; check the reprojection error, or "
+                                "give the offset (--offset-s)")
         except SandtrackError as exc:
             offsets[n] = 0.0
             info[n] = {"offset_s": 0.0, "method": "none"}
