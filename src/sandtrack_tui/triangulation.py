@@ -205,15 +205,20 @@ def fundamental_matrix(calibration: Calibration, cam_a: str, cam_b: str) -> np.n
     return np.linalg.inv(B.matrix).T @ E @ np.linalg.inv(A.matrix)
 
 
+def warm_up_rig() -> tuple[Calibration, np.ndarray]:
+    """Two small cameras and two points they both see (mm): what the kernels' warm-ups run on."""
+    cams = {n: Camera(n, 640, 480, [[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]], [-0.1, 0.01, 0, 0, 0],
+                      rvec=[0.0, ry, 0.0], tvec=[tx, 0.0, 0.0], rmse_px=0.1)
+            for n, ry, tx in (("a", 0.0, 0.0), ("b", -0.3, -200))}
+    return Calibration(cameras=cams), np.array([[10.0, 5.0, 900.0], [-40.0, 20.0, 1100.0]])
+
+
 def warm_up() -> None:
     """Compile (or load) the triangulation kernels once, on two cameras and a few points: run after
     installing, so the first `sandtrack xyz` does not pay the compilation (a few seconds)."""
-    cams = {n: Camera(n, 640, 480, [[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]], [-0.1, 0.01, 0, 0, 0],
-                      rvec=[0.0, ry, 0.0], tvec=[tx, 0.0, 0.0]) for n, ry, tx in (("a", 0.0, 0.0), ("b", -0.3, -200))}
-    cal = Calibration(cameras=cams)
-    X = np.array([[10.0, 5.0, 900.0], [-40.0, 20.0, 1100.0]])
+    cal, X = warm_up_rig()
     for refine in (False, True):
-        triangulate(cal, {n: c.project(X) for n, c in cams.items()}, refine=refine)
+        triangulate(cal, {n: c.project(X) for n, c in cal.cameras.items()}, refine=refine)
 
 
 if __name__ == "__main__":

@@ -403,15 +403,12 @@ def warm_up() -> None:
     the pixels' sd given and not: run after installing, so the first `sandtrack xyz` with sd does not pay
     the compilation (several seconds)."""
     from .camera import CameraUncertainty, RigUncertainty
-    from .triangulation import triangulate
+    from .triangulation import triangulate, warm_up_rig
 
-    lens = [-0.1, 0.01, 0.0, 0.0, 0.0]
-    cams = {n: Camera(n, 640, 480, [[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]], lens, rvec=[0.0, ry, 0.0],
-                      tvec=[tx, 0.0, 0.0], rmse_px=0.1) for n, ry, tx in (("a", 0.0, 0.0), ("b", -0.3, -200))}
+    cal, X = warm_up_rig()
+    cams = cal.cameras
     names = [*POSE_PARAMETERS, *MATRIX_PARAMETERS, "d0", "d1"]
-    cal = Calibration(cameras=cams)
     cal.uncertainty = {n: CameraUncertainty(names, np.eye(len(names)) * 1e-8) for n in cams}
-    X = np.array([[10.0, 5.0, 900.0], [-40.0, 20.0, 1100.0]])
     pixels = {n: c.project(X) for n, c in cams.items()}
     rig, _ = triangulate(cal, pixels, world=False)
     joint = RigUncertainty([f"{c}/{p}" for c in cams for p in names], np.eye(2 * len(names)) * 1e-8,

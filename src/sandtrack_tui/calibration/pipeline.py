@@ -46,17 +46,8 @@ def _offsets(videos, sources, given: dict[str, float] | None, warnings: list[str
             offsets[n] = 0.0
             info[n] = {"offset_s": 0.0, "method": "image folders: taken as simultaneous"}
             continue
-        from ..sync import LowConfidence, estimate_offset
-
         try:
-            try:
-                res = estimate_offset(videos[names[0]], videos[n], method="audio")
-                weak = False
-            except LowConfidence:
-                # the clap heard, not clearly: its best guess, which the board's reprojection error checks (a
-                # wrong offset makes the cameras disagree), rather than no offset at all
-                res = estimate_offset(videos[names[0]], videos[n], method="audio", min_confidence=0.0)
-                weak = True
+            res, weak = _audio_offset(videos[names[0]], videos[n])
             offsets[n] = float(res.offset_s)
             info[n] = {"offset_s": offsets[n], "method": res.method + (" (weak)" if weak else ""),
                        "confidence": float(res.confidence)}
@@ -69,6 +60,17 @@ def _offsets(videos, sources, given: dict[str, float] | None, warnings: list[str
             info[n] = {"offset_s": 0.0, "method": "none"}
             warnings.append(f"could not synchronise {n} with {names[0]} ({exc}); assuming they started together")
     return offsets, info
+
+
+def _audio_offset(reference, other):
+    """(SyncResult, weak) from the clap: a clap heard, not clearly, gives its best guess (weak), which the
+    board's reprojection error checks (a wrong offset makes the cameras disagree), rather than no offset."""
+    from ..sync import LowConfidence, estimate_offset
+
+    try:
+        return estimate_offset(reference, other, method="audio"), False
+    except LowConfidence:
+        return estimate_offset(reference, other, method="audio", min_confidence=0.0), True
 
 
 @dataclass

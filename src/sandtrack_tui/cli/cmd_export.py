@@ -33,7 +33,7 @@ def run(args) -> int:
         heights = {c: float(v.height) for c, v in vids.items()}
         log(f"export: computing 3D positions ({args.method})")
         df, pixels_only = export_table(proj, method=args.method)
-        holds = None if pixels_only or "method" not in df else project_sd_holds(proj, df)
+        holds = None if pixels_only else project_sd_holds(proj, df)
     if pixels_only:
         log(f"export: {pixels_only}")
     method = None if args.method in ("both", "all") or pixels_only else args.method
