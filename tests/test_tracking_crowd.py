@@ -161,11 +161,13 @@ def test_a_registration_shifted_onto_lookalikes_no_track_follows_is_refused_by_t
     # lost ones are.
     layer, now, group, anchors, lookalikes, shown, beads = _hidden_row()
     ends = (layer[anchors], now[anchors])
-    # On the beads alone the group fits the row of lookalikes as well, shifted by a row (and pairs more of
-    # it): every bead measured around the patch then lies a row off where that map puts it.
-    at, agreed = crowd.register(layer[group], now[beads], R, 6 * R)
-    assert at is not None and all(beads[b] in lookalikes for b in agreed.values())
-    assert crowd.anchor_misfit(_map_of(layer[group], at), *ends) > 2 * R
+    # On the beads alone the group fits the row of lookalikes better (it pairs more of it), shifted by a row,
+    # and as well a bead along it: two perfect fits, so nothing is registered. Every bead measured around the
+    # patch lies a row off where such a map puts it.
+    assert crowd.register(layer[group], now[beads], R, 6 * R) == (None, {})
+    for start in (1, 2):
+        row_off = _map_of(layer[group], now[lookalikes[start:start + len(group)]])
+        assert crowd.anchor_misfit(row_off, *ends) > 2 * R
     # Fitted with the anchors, the map is the patch's: each shown bead its own, none a lookalike.
     at, agreed = crowd.register(layer[group], now[beads], R, 6 * R, anchors=ends)
     assert at is not None and np.hypot(*(at - now[group]).T).max() < 0.5 * R

@@ -50,6 +50,7 @@ MIN_GROUP = 4  # lost beads (and pairs) a registration of a hidden patch of the 
 # patch stays lost (flagged) rather than stall the run.
 MAX_GROUP = 32
 REGISTER_MARGIN = 0.85  # a registration's score must be under this share of any other pairing's
+FIT_FLOOR_PX = 0.02  # per bead: no bead is placed closer than this, so scores below it tell nothing apart
 # A packing of identical beads looks the same turned by 60 degrees: a hidden patch is taken as turned by
 # less than half that (the smallest turn that explains it).
 MAX_TURN_DEG = 30.0
@@ -288,8 +289,9 @@ def register(old: np.ndarray, beads: np.ndarray, radius: float, reach: float, ma
             (fixed is not None and anchor_misfit(m, *anchors) > radius):
         return None, {}
     rivals = []
+    floor = FIT_FLOOR_PX * n  # fits this close are equally perfect: their ratio is rounding
     for pairs, (cost, _at, _m) in ranked[1:]:
-        if best <= margin * cost:
+        if best + floor < margin * (cost + floor):
             break
         if len(set(pairs) & set(best_pairs)) < 0.5 * len(best_pairs):
             return None, {}
