@@ -204,6 +204,7 @@ def _session(seed: int) -> dict:
     return {**out, "corners": int(ok.sum()), "pct": _pct(coverage(err[ok], sd[ok])),
             "reprojection_rmse_px": round(float(res.report["reprojection_rmse_px"]), 3),
             "lens": {n: c.lens for n, c in res.calibration.cameras.items()},
+            "lens_choice_spread": res.report["bundle"].get("lens_choice_spread"),
             "moving_mean_error_mm": [round(float(v), 3) for v in err[moving].mean(axis=0)],
             "moving_rms_error_mm": [round(float(v), 3) for v in np.sqrt((err[moving] ** 2).mean(axis=0))],
             "moving_median_sd_mm": [round(float(v), 3) for v in np.median(sd[moving], axis=0)],

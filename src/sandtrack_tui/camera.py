@@ -177,6 +177,9 @@ class CameraUncertainty:
     # the camera's own pixel noise per image axis (x, y), apart from the known points' shared error
     # (calibration.known_point_errors); None where not separated
     noise_px: list[float] | None = None
+    # the lens model that fitted the left-out views better where a simpler one was kept: the covariance
+    # holds the spread between the two (calibration.model_choice)
+    better_lens: str | None = None
 
     def __post_init__(self) -> None:
         self.parameters = [str(p) for p in self.parameters]
@@ -191,13 +194,16 @@ class CameraUncertainty:
             d["sigma_px"] = float(self.sigma_px)
         if self.noise_px is not None:
             d["noise_px"] = list(self.noise_px)
+        if self.better_lens is not None:
+            d["better_lens"] = self.better_lens
         return d
 
     @classmethod
     def from_dict(cls, name: str, d: dict) -> CameraUncertainty:
         try:
             unc = cls(list(d["parameters"]), np.array(d["covariance"], dtype=float),
-                      None if d.get("sigma_px") is None else float(d["sigma_px"]), d.get("noise_px"))
+                      None if d.get("sigma_px") is None else float(d["sigma_px"]), d.get("noise_px"),
+                      None if d.get("better_lens") is None else str(d["better_lens"]))
         except (KeyError, TypeError, ValueError) as exc:
             raise SandtrackError(f"uncertainty of camera {name}: malformed entry ({exc})") from None
         if not np.isfinite(unc.covariance).all():

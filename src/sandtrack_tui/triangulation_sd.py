@@ -88,6 +88,10 @@ def sd_holds(calibration: Calibration, cameras, pixel_sd: str = "each camera's p
     else:
         part = "and each camera's parameter covariance alone (the world frame taken as exact"
         part += f"; none for {', '.join(missing)})" if missing else ")"
+    choice = [f"{c}: {u.better_lens} against the kept {calibration.cameras[c].lens}" for c in cameras
+              if (u := calibration.uncertainty.get(c)) is not None and u.better_lens]
+    if choice:
+        part += f", and the lens choice's spread ({'; '.join(choice)})"
     return f"triangulation sd: {pixel_sd} {part}"
 
 

@@ -384,14 +384,42 @@ def parameter_covariance(state: BundleState, obs: Observations, free_intrinsics:
     if n_clusters >= max(MIN_CLUSTERS, 2 * layout.frame0):
         with contextlib.suppress(np.linalg.LinAlgError):  # a covariance not positive definite stays as it is
             cov = larger(cov, _per_view_sandwich(J, wr * r, obs.frame, layout.frame0, layout.F, Sinv, W, Vinv))
-    labels: list[tuple[int, str]] = [(0, "")] * layout.frame0
+    return _labels(layout), cov
+
+
+def first_order_change(state: BundleState, obs: Observations, target_px: np.ndarray,
+                       weights: np.ndarray | None = None) -> dict[tuple[int, str], float]:
+    """The change of every parameter (cameras' and board poses') that moves `state`'s pixels of the
+    observations to `target_px` ((M, 2)) to first order, by weighted least squares through the Jacobian at
+    `state`; returned for the cameras' parameters, by (camera index, name) as `parameter_covariance`'s."""
+    layout = _Layout(state, True, True, True)
+    x = layout.pack(state)
+    fun, scale = _weighted_residuals(layout, state, obs, weights)
+    S = layout.sparsity(obs).tocsc()
+    S.sort_indices()
+    J = _jacobian(fun, x, fun(x), S, _groups(layout, obs))
+    d = (np.asarray(target_px, dtype=float) - project_all(state, obs)).ravel()
+    d = np.nan_to_num(d if scale is None else d * scale)
+    dx = _solve_damped((J.T @ J).tocsc(), -(J.T @ d), 1e-9, layout.frame0, layout.F)
+    return dict(zip(_labels(layout), dx[:layout.frame0].tolist(), strict=True))
+
+
+def parameter_values(state: BundleState, free_intrinsics: bool = True) -> dict[tuple[int, str], float]:
+    """The cameras' parameters of `parameter_covariance`, by (camera index, name), at `state`."""
+    layout = _Layout(state, free_intrinsics, True, False)
+    return dict(zip(_labels(layout), layout.pack(state)[:layout.n].tolist(), strict=True))
+
+
+def _labels(layout: _Layout) -> list[tuple[int, str]]:
+    n = layout.frame0 if layout.frame0 is not None else layout.n
+    labels: list[tuple[int, str]] = [(0, "")] * n
     for c, o in layout.cam_pose.items():
         for k, name in enumerate(("rx", "ry", "rz", "tx", "ty", "tz")):
             labels[o + k] = (c, name)
     for c, (o, _, mask) in layout.intr.items():
         for k, name in enumerate(["fx", "fy", "cx", "cy", *(f"d{k}" for k in np.nonzero(mask)[0])]):
             labels[o + k] = (c, name)
-    return labels, cov
+    return labels
 
 
 def camera_covariances(labels: list[tuple[int, str]], cov: np.ndarray) -> dict:

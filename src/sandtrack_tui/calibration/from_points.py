@@ -25,6 +25,7 @@ from .geometry import from_T, inv_T, larger, radial_is_monotonic, to_T
 from .intrinsics import opencv_flags
 from .known_point_errors import known_point_errors
 from .lens_select import Candidate, choose, report, select_lens, why
+from .model_choice import point_fit_spread, spread_line
 from .point_uncertainty import into_rig, jackknife_covariance, parameter_names, point_fit_uncertainty
 from .report import camera_parameters
 
@@ -202,6 +203,13 @@ def calibrate_from_points(df: pd.DataFrame, cams: dict[str, tuple[str, str]],
                 cameras[name] = cam
                 reports[name].update({k: v for k, v in rep.items() if k != "lens_selection"})
                 reports[name]["lens_selection"]["chosen"] = chosen
+    better = {}  # the better-fitting model's camera where a simpler one was kept
+    for name, rep in reports.items():
+        lens_b = better_fitting(rep.get("lens_selection"))
+        if lens_b is not None and jackknife:
+            uv = pixels[name]
+            ok = np.isfinite(uv).all(1) & np.isfinite(X_all).all(1)
+            better[name] = fit_camera(name, X_all[ok], uv[ok], (sizes or {}).get(name), lens_b)[0]
     first = next(iter(cameras))
     T0w = to_T(cameras[first].rvec, cameras[first].tvec)
     world_from_rig = inv_T(T0w)
@@ -215,6 +223,10 @@ def calibrate_from_points(df: pd.DataFrame, cams: dict[str, tuple[str, str]],
         unc = point_fit_uncertainty(cam, X_all, uv, None if shared is None else shared["noise_px"][name])
         if unc is not None and jackknife:
             unc = _with_jackknife(unc, cam, X_all, uv, units, cv[name][1] if name in cv and units is groups else {})
+            if name in better:
+                unc, moved = point_fit_spread(unc, cam, better[name], X_all)
+                sel = reports[name]["lens_selection"]
+                sel["spread"] = spread_line(sel.get("chosen"), better[name].lens, moved)
             uncertainty[name] = into_rig(unc, cam, world_from_rig)
         if shared is not None:
             reports[name]["noise_px"] = shared["noise_px"][name]
@@ -237,6 +249,20 @@ def calibrate_from_points(df: pd.DataFrame, cams: dict[str, tuple[str, str]],
         cal.report["known_points_sd_mm"] = shared["sd_mm"]
         cal.report["known_points_in_two_cameras"] = shared["points"]
     return cal
+
+
+def better_fitting(selection: dict | None) -> str | None:
+    """The lens model that did best on the left-out points (in 3D where the choice was judged there) when a
+    simpler one was kept; None otherwise."""
+    if not selection:
+        return None
+    judged = selection.get("judged_in_3d")
+    rows, key = (judged["candidates"], "cv_rmse_mm") if judged else (selection["candidates"], "cv_rmse_px")
+    scored = [r for r in rows if r.get(key) is not None]
+    if not scored:
+        return None
+    best = min(scored, key=lambda r: r[key])["lens"]
+    return None if best == selection.get("chosen") else best
 
 
 def _with_jackknife(unc, cam: Camera, X: np.ndarray, uv: np.ndarray, groups: np.ndarray | None, fits: dict):

@@ -38,6 +38,8 @@ class IntrinsicsResult:
     warnings: list[str] = field(default_factory=list)
     lens: str = "standard"
     lens_selection: dict | None = None  # the cross-validation of the candidates (lens "auto")
+    # the candidate that did best on the left-out views where a simpler one was kept (lens "auto")
+    better_fitting: str | None = None
 
     def report(self) -> dict:
         return {
@@ -254,7 +256,7 @@ def calibrate_intrinsics(name: str, views: dict[int, BoardView], board: BoardSpe
     def fit(fr, lens: Lens, guess=None):
         return _calibrate([pts3d[usable[f].ids] for f in fr], [usable[f].corners for f in fr], size, lens, guess)
 
-    selection = None
+    selection, better_fitting = None, None
     try:
         base = LENSES["fisheye" if family == "fisheye" else "tangential"]
         rms, K, D, rv, tv = fit(frames, base)
@@ -320,6 +322,8 @@ def calibrate_intrinsics(name: str, views: dict[int, BoardView], board: BoardSpe
             cands, chosen = select_lens(frames, fit_views, score, n_folds=folds, check=check)
             selection = lens_report(cands, "board views", len(frames), folds, "left-out board views")
             lens, (rms, K, D, rv, tv) = chosen.fitted
+            best = min((c for c in cands if c.cv_rmse_px is not None), key=lambda c: c.cv_rmse_px)
+            better_fitting = None if best is chosen else best.lens
             k3 = "free" if "k3" in lens.terms else "fixed at 0 (cross-validation)"
         elif lens_name != base.name:
             lens = LENSES[lens_name]
@@ -341,7 +345,8 @@ def calibrate_intrinsics(name: str, views: dict[int, BoardView], board: BoardSpe
     _refuse_face_on(name, cov.get("tilt_deg"))
     return IntrinsicsResult(name=name, model=lens.family, size=size, K=K, dist=D, rmse_px=rms, frames=list(frames),
                             per_view_rmse=per_view, poses=poses, dropped=dropped, k3=k3, coverage=cov,
-                            warnings=warnings, lens=lens.name, lens_selection=selection)
+                            warnings=warnings, lens=lens.name, lens_selection=selection,
+                            better_fitting=better_fitting)
 
 
 def _poses(frames, rv, tv) -> dict[int, tuple[np.ndarray, np.ndarray]]:

@@ -21,6 +21,7 @@ from ..board import BoardSpec
 from ..camera import Calibration
 from ..errors import SandtrackError
 from .detect import BoardView, detect_in_sources, detection_stride, frame_pairing, open_source
+from .model_choice import spread_line
 from .points import calibration_points
 from .report import accuracy_report, camera_parameters
 from .rig import calibrate_rig, fit_frame_poses
@@ -202,6 +203,10 @@ def calibrate_videos(videos: dict[str, str | Path], board: BoardSpec, *, offsets
         r["reprojection_rmse_px"] = acc["per_camera_reprojection_rmse_px"].get(n)
         r["frames_with_board"] = len(views[n])
         r["mirrored_views"] = sum(v.mirrored for v in views[n].values())
+        spread = rig.bundle.get("lens_choice_spread", {}).get(n)
+        if spread and r.get("lens_selection"):
+            r["lens_selection"]["spread"] = spread_line(spread["kept"], spread["better_fitting"],
+                                                        spread["shift_of_better_fitting"])
         per_camera[n] = r
     report = {
         "reprojection_rmse_px": acc["reprojection_rmse_px"],

@@ -19,6 +19,8 @@ Two estimates, and in every direction of parameter space the larger of the two (
 
 from __future__ import annotations
 
+import dataclasses
+
 import cv2
 import numpy as np
 
@@ -49,7 +51,7 @@ def point_fit_uncertainty(cam: Camera, X: np.ndarray, uv: np.ndarray,
     if dof <= 0:
         return None
     r = (cam.project(X) - uv).ravel()
-    G = _jacobian(cam, names, X)
+    G = pixel_jacobian(cam, names, X)
     sigma2 = float(np.sum(r ** 2)) / dof
     try:
         Gi = np.linalg.inv(G.T @ G)
@@ -73,7 +75,7 @@ def jackknife_covariance(cam: Camera, X: np.ndarray, uv: np.ndarray, units: np.n
     if len(ids) < 3:
         return None
     names = parameter_names(cam)
-    G = _jacobian(cam, names, X)
+    G = pixel_jacobian(cam, names, X)
     base = cam.project(X)
     deltas = []
     for u in ids:
@@ -105,10 +107,10 @@ def into_rig(unc: CameraUncertainty, cam_world: Camera, world_from_rig: np.ndarr
         e = np.zeros(6)
         e[k] = h
         A[:6, k] = (rig_pose(v0 + e) - rig_pose(v0 - e)) / (2 * h)
-    return CameraUncertainty(unc.parameters, A @ unc.covariance @ A.T, unc.sigma_px, unc.noise_px)
+    return dataclasses.replace(unc, covariance=A @ unc.covariance @ A.T)
 
 
-def _jacobian(cam: Camera, names: list[str], X: np.ndarray) -> np.ndarray:
+def pixel_jacobian(cam: Camera, names: list[str], X: np.ndarray) -> np.ndarray:
     """(2N, P) d(pixel) / d(parameter), central differences."""
     return np.stack([(_moved(cam, p, +1, X) - _moved(cam, p, -1, X)).ravel() / (2 * _step(p)) for p in names],
                     axis=1)

@@ -25,6 +25,7 @@ from .bundle import (
 from .detect import BoardView
 from .geometry import from_T, inv_T, mean_rotation, rotation_angle_deg, to_T
 from .intrinsics import IntrinsicsResult, board_pose, calibrate_intrinsics
+from .model_choice import lens_choice_spread
 
 Views = dict[str, dict[int, BoardView]]
 
@@ -258,6 +259,13 @@ def calibrate_rig(views: Views, board: BoardSpec, sizes: dict[str, tuple[int, in
                                 "min": float(w.min()), "median": float(np.median(w)), "max": float(w.max())}
     if progress:
         progress("bundle", 2, 2)
+    labels, joint = parameter_covariance(state, obs, free_intr, weights=weights)
+    better = {ci: intr[n].better_fitting for ci, n in enumerate(names) if free_intr and intr[n].better_fitting}
+    if better:
+        spread = lens_choice_spread(state, obs, labels, joint, better, names, weights,
+                                    kept={ci: intr[names[ci]].lens for ci in better})
+        labels, joint, state = spread.labels, spread.covariance, spread.state
+        info["lens_choice_spread"] = spread.report
     res = residuals(state, obs)
     err = np.linalg.norm(res, axis=1)
     cameras = {}
@@ -269,8 +277,7 @@ def calibrate_rig(views: Views, board: BoardSpec, sizes: dict[str, tuple[int, in
                             rmse_px=float(np.sqrt(np.mean(err[m] ** 2))) if m.any() else None,
                             lens=intr[n].lens)
     warnings = [w for n in names for w in intr[n].warnings]
-    labels, joint = parameter_covariance(state, obs, free_intr, weights=weights)
-    uncertainty = {names[c]: CameraUncertainty(p, cov, info["rmse_px"])
+    uncertainty = {names[c]: CameraUncertainty(p, cov, info["rmse_px"], better_lens=better.get(c))
                    for c, (p, cov) in camera_covariances(labels, joint).items()}
     return RigResult(calibration=Calibration(cameras=cameras, uncertainty=uncertainty), intrinsics=intr, state=state,
                      frames=frames, obs=obs, joint_parameters=[f"{names[c]}/{p}" for c, p in labels],

@@ -190,6 +190,8 @@ def _selection_lines(sel: dict | None) -> list[str]:
         out.append(f"      {c['lens']:<15} {c['train_rmse_px']:.3f} / {c['cv_rmse_px']:.3f}       {versus}{mark}")
     if sel.get("why"):
         out.append(f"    chosen {sel['why']}")
+    if sel.get("spread"):
+        out.append(f"    {sel['spread']}")
     return out
 
 
