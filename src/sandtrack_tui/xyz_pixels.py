@@ -109,29 +109,26 @@ def xyz_from_pixels(df: pd.DataFrame, cams: dict[str, tuple[str, str]], calibrat
                      "(--calibration with two of the table's cameras)")
     for m in methods:
         xyz, res, sd = np.full((n, 3), np.nan), np.full(n, np.nan), np.full((n, 3), np.nan)
-        label = np.full(n, m, dtype=object)
-        check, bias = np.full(n, "", dtype=object), np.full((n, 3), np.nan)
+        bias = np.full((n, 3), np.nan)
         if m == "triangulation":
             used = {c: pix[c] for c in tri_cams}
             if n:
                 xyz, res, sd = triangulate_with_sd(calibration, used, {c: tsd[c] for c in used}, refine)
             tri = (xyz, sd)
+            # one label for every row: as categories, not a million strings (written alike)
+            label = pd.Categorical.from_codes(np.zeros(n, np.int8), [m])
+            check = pd.Categorical.from_codes(np.zeros(n, np.int8), [""])
         else:
+            label, check = np.full(n, m, dtype=object), np.full(n, "", dtype=object)
             network_rows(m, model, calibration, np.hstack([pix[c] for c in NETWORK_CAMERAS]), outside, xyz, res,
                          label, sd, np.repeat(np.stack([psd[c] for c in NETWORK_CAMERAS], axis=1), 2, axis=1))
             if m == "mlp":
                 check, bias = check_network_rows(calibration, {c: pix[c] for c in tri_cams}, tsd, refine, xyz, sd,
                                                  tri)
-        out = base.copy()
-        out["X_mm"], out["Y_mm"], out["Z_mm"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
-        for k, c in enumerate(SD_COLUMNS):
-            out[c] = sd[:, k]
-        out["method"] = label
-        out["residual_px"] = res
-        out["network_check"] = check
-        for k, c in enumerate(BIAS_COLUMNS):
-            out[c] = bias[:, k]
-        blocks.append(out)
+        added = {"X_mm": xyz[:, 0], "Y_mm": xyz[:, 1], "Z_mm": xyz[:, 2],
+                 **{c: sd[:, k] for k, c in enumerate(SD_COLUMNS)}, "method": label, "residual_px": res,
+                 "network_check": check, **{c: bias[:, k] for k, c in enumerate(BIAS_COLUMNS)}}
+        blocks.append(pd.concat([base.reset_index(drop=True), pd.DataFrame(added)], axis=1))
     if len(blocks) == 1:
         return blocks[0].reset_index(drop=True), notes
     table = pd.concat(blocks, ignore_index=True)
