@@ -7,11 +7,15 @@ nothing of that: a central board leaves a tangential term and the principal poin
 simpler model moves the principal point by many of its own sd (a rendered session: cx 58 sd off).
 
 The bundle adjustment is run a second time with the better-fitting model for those cameras, from the
-kept solution and with the same weights; δ = θ_better − θ_kept over every camera's parameters (the
-better model's extra terms join as parameters whose kept value is 0) estimates the kept model's bias,
-and δδᵀ joins the covariance: Σ_kept + δδᵀ, whose expectation for nested models is about the better
-model's own covariance plus the kept model's squared bias. Where the kept model is the best on the
-left-out views, nothing is added.
+kept solution and with the same weights. δ, the change of every camera's parameters (the better model's
+extra terms join as parameters whose kept value is 0) that moves the kept solution's pixels of every
+observation where the better one puts them, to first order (least squares through the Jacobian, the
+board poses free), estimates the kept model's bias, and δδᵀ joins the covariance: Σ_kept + δδᵀ, whose
+expectation for nested models is about the better model's own covariance plus the kept model's squared
+bias. The two solutions' own parameter difference is not used: two models can trade terms along
+directions that move no pixel (a tilted sensor against the principal point: on a real target 40 times
+the held-out error), which a first-order propagation would take for real. Where the kept model is the
+best on the left-out data, nothing is added.
 """
 
 from __future__ import annotations
