@@ -49,6 +49,7 @@ F(i-1, j-1))). Both are computed by anti-diagonals (vectorised).
 
 from __future__ import annotations
 
+import textwrap
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -600,8 +601,10 @@ def plot_comparison(cmp: Comparison, out_dir: str | Path, max_particles: int = 5
     for m in sorted(cmp.errors)[:max_particles]:
         e = cmp.errors[m]
         banded = "sd_X_mm" in e.columns
-        fig, grid = plt.subplots(2 if banded else 1, 3, figsize=(12, 7.5 if banded else 4), constrained_layout=True,
-                                 squeeze=False)
+        fig, grid = plt.subplots(2 if banded else 1, 3, figsize=(12, 7.5 if banded else 4), squeeze=False)
+        # a fixed layout: matplotlib's constrained layout took most of a figure's 0.8 s
+        fig.subplots_adjust(left=0.07, right=0.98, bottom=0.08 if banded else 0.14, top=0.92 if banded else 0.86,
+                            wspace=0.32, hspace=0.3)
         axes = grid[0]
         for ax, (a, b) in zip(axes, (("X", "Y"), ("X", "Z"), ("Y", "Z")), strict=True):
             ax.plot(e[f"exp_{a}_mm"], e[f"exp_{b}_mm"], "-", color="tab:blue", label="experiment")
@@ -624,8 +627,9 @@ def plot_comparison(cmp: Comparison, out_dir: str | Path, max_particles: int = 5
         plt.close(fig)
         files.append(p)
     banded = any("norm_dist" in e.columns for e in cmp.errors.values())
-    fig, axes = plt.subplots(2 if banded else 1, 1, figsize=(9, 8 if banded else 4.5), constrained_layout=True,
-                             squeeze=False)
+    fig, axes = plt.subplots(2 if banded else 1, 1, figsize=(9, 8 if banded else 4.5), squeeze=False)
+    fig.subplots_adjust(left=0.09, right=0.97, bottom=0.07 if banded else 0.12, top=0.95 if banded else 0.9,
+                        hspace=0.38)
     ax = axes[0, 0]
     for m, e in sorted(cmp.errors.items()):
         ax.plot(e["time_s"], e["err_3d_mm"], color="tab:red" if m in flagged else "0.5",
@@ -645,7 +649,7 @@ def plot_comparison(cmp: Comparison, out_dir: str | Path, max_particles: int = 5
         ax.axhline(np.sqrt(K.CHI2_95_3D), color="tab:green", lw=1.2, label="95 % band")
         ax.set_xlabel("experiment time (s)")
         ax.set_ylabel("distance in units of its uncertainty")
-        ax.set_title(cmp.summary.get("verdict", ""), fontsize=9)
+        ax.set_title(textwrap.fill(cmp.summary.get("verdict", ""), 110), fontsize=9)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     p = out / f"{_safe(cmp.name)}_error_over_time.png"
