@@ -131,3 +131,39 @@ def test_sd_holds_names_the_lens_choice_and_the_file_keeps_it(tmp_path):
     assert "lens choice's spread (front: rational against the kept standard)" in line, line
     cal.uncertainty["front"].better_lens = None
     assert "lens choice" not in sd_holds(cal, ["side", "front"])
+
+
+def test_a_spread_that_cannot_be_computed_leaves_the_kept_covariance_and_a_warning(monkeypatch):
+    """Known points and videos alike: the calibration goes on with the kept model's covariance, says why."""
+    import sandtrack_tui.calibration.rig as rig
+    from sandtrack_tui.calibration.rig import calibrate_rig
+    from test_lens_select import five_plane_target
+
+    def fails(*args, **kwargs):
+        raise ValueError("the better model's fit gave no finite change")
+
+    df = five_plane_target(np.array([-0.08, 0.0, 0.0, 0.002, 0.0]), 0)
+    cams = {n: (f"x_{n}", f"y_{n}") for n in ("c0", "c1")}
+    monkeypatch.setattr(from_points, "better_fitting", lambda selection: "full")
+    monkeypatch.setattr(from_points, "point_fit_spread", fails)
+    cal = from_points.calibrate_from_points(df[df.Z_mm.abs() < 45], cams, sizes=dict.fromkeys(cams, (1920, 1080)))
+    assert all(u.better_lens is None for u in cal.uncertainty.values()) and len(cal.uncertainty) == 2
+    assert sum("the lens choice's spread could not be computed" in w for w in cal.report["warnings"]) == 2
+
+    monkeypatch.setattr(rig, "lens_choice_spread", fails)
+    truth = stereo_rig()
+    board = BoardSpec()
+    pts = board.corner_points_mm()
+    views = {n: {f: BoardView(f, f, np.arange(len(pts)), cam.project(pts @ T[:3, :3].T + T[:3, 3]), 100.0)
+                 for f, T in enumerate(board_poses(12, board, seed=1))} for n, cam in truth.cameras.items()}
+    real = rig.calibrate_intrinsics
+
+    def told(*args, **kwargs):
+        r = real(*args, **kwargs)
+        r.better_fitting = "full"
+        return r
+
+    monkeypatch.setattr(rig, "calibrate_intrinsics", told)
+    res = calibrate_rig(views, board, {n: (c.width, c.height) for n, c in truth.cameras.items()})
+    assert all(u.better_lens is None for u in res.calibration.uncertainty.values())
+    assert any("the lens choice's spread could not be computed" in w for w in res.warnings)

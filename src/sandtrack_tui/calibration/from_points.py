@@ -209,7 +209,10 @@ def calibrate_from_points(df: pd.DataFrame, cams: dict[str, tuple[str, str]],
         if lens_b is not None and jackknife:
             uv = pixels[name]
             ok = np.isfinite(uv).all(1) & np.isfinite(X_all).all(1)
-            better[name] = fit_camera(name, X_all[ok], uv[ok], (sizes or {}).get(name), lens_b)[0]
+            try:
+                better[name] = fit_camera(name, X_all[ok], uv[ok], (sizes or {}).get(name), lens_b)[0]
+            except (SandtrackError, np.linalg.LinAlgError, ValueError) as exc:
+                warnings.append(f"camera {name}: the lens choice's spread could not be computed ({exc})")
     first = next(iter(cameras))
     T0w = to_T(cameras[first].rvec, cameras[first].tvec)
     world_from_rig = inv_T(T0w)
@@ -224,9 +227,13 @@ def calibrate_from_points(df: pd.DataFrame, cams: dict[str, tuple[str, str]],
         if unc is not None and jackknife:
             unc = _with_jackknife(unc, cam, X_all, uv, units, cv[name][1] if name in cv and units is groups else {})
             if name in better:
-                unc, moved = point_fit_spread(unc, cam, better[name], X_all)
-                sel = reports[name]["lens_selection"]
-                sel["spread"] = spread_line(sel.get("chosen"), better[name].lens, moved)
+                try:
+                    unc, moved = point_fit_spread(unc, cam, better[name], X_all)
+                except (np.linalg.LinAlgError, ValueError) as exc:
+                    warnings.append(f"camera {name}: the lens choice's spread could not be computed ({exc})")
+                else:
+                    sel = reports[name]["lens_selection"]
+                    sel["spread"] = spread_line(sel.get("chosen"), better[name].lens, moved)
             uncertainty[name] = into_rig(unc, cam, world_from_rig)
         if shared is not None:
             reports[name]["noise_px"] = shared["noise_px"][name]

@@ -60,6 +60,8 @@ def lens_choice_spread(state: BundleState, obs: Observations, labels: list[tuple
     change = first_order_change(union, obs, project_all(alt, obs), weights)
     all_labels = list(labels) + [p for p in change if p not in set(labels)]
     delta = np.array([change.get(p, 0.0) for p in all_labels])
+    if not np.isfinite(delta).all():
+        raise ValueError("the better model's fit gave no finite change")
     report = {}
     for c, name in better.items():
         mine = [i for i, (ci, _) in enumerate(all_labels) if ci == c]  # its kept parameters first
@@ -116,6 +118,8 @@ def point_fit_spread(unc: CameraUncertainty, cam: Camera, better: Camera,
     moved = (better.project(X) - cam.project(X)).ravel()
     ok = np.isfinite(moved)
     delta = np.linalg.lstsq(pixel_jacobian(cam, names, X)[ok], moved[ok], rcond=None)[0]
+    if not np.isfinite(delta).all():
+        raise ValueError("the better model's fit gave no finite change")
     spread = CameraUncertainty(names, with_spread(unc.covariance, delta), unc.sigma_px, unc.noise_px,
                                better_lens=better.lens)
     return spread, shifts(names, delta, np.diag(unc.covariance))

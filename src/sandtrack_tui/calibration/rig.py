@@ -261,11 +261,18 @@ def calibrate_rig(views: Views, board: BoardSpec, sizes: dict[str, tuple[int, in
         progress("bundle", 2, 2)
     labels, joint = parameter_covariance(state, obs, free_intr, weights=weights)
     better = {ci: intr[n].better_fitting for ci, n in enumerate(names) if free_intr and intr[n].better_fitting}
+    not_spread = []
     if better:
-        spread = lens_choice_spread(state, obs, labels, joint, better, names, weights,
-                                    kept={ci: intr[names[ci]].lens for ci in better})
-        labels, joint, state = spread.labels, spread.covariance, spread.state
-        info["lens_choice_spread"] = spread.report
+        try:
+            spread = lens_choice_spread(state, obs, labels, joint, better, names, weights,
+                                        kept={ci: intr[names[ci]].lens for ci in better})
+        except (np.linalg.LinAlgError, ValueError, FloatingPointError) as exc:
+            not_spread.append(f"the lens choice's spread could not be computed ({exc}): the sd holds the kept lens "
+                              "models' covariance alone")
+            better = {}
+        else:
+            labels, joint, state = spread.labels, spread.covariance, spread.state
+            info["lens_choice_spread"] = spread.report
     res = residuals(state, obs)
     err = np.linalg.norm(res, axis=1)
     cameras = {}
@@ -276,7 +283,7 @@ def calibrate_rig(views: Views, board: BoardSpec, sizes: dict[str, tuple[int, in
                             rvec=state.cam_rvec[ci], tvec=state.cam_tvec[ci], model=state.models[ci],
                             rmse_px=float(np.sqrt(np.mean(err[m] ** 2))) if m.any() else None,
                             lens=intr[n].lens)
-    warnings = [w for n in names for w in intr[n].warnings]
+    warnings = [w for n in names for w in intr[n].warnings] + not_spread
     uncertainty = {names[c]: CameraUncertainty(p, cov, info["rmse_px"], better_lens=better.get(c))
                    for c, (p, cov) in camera_covariances(labels, joint).items()}
     return RigResult(calibration=Calibration(cameras=cameras, uncertainty=uncertainty), intrinsics=intr, state=state,
