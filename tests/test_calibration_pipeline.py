@@ -313,3 +313,34 @@ def test_a_kept_simpler_lens_puts_its_spread_in_the_covariance_and_says_so(resul
                 in sd_holds(cal, [name]))
         assert result.report["per_camera"][name]["lens_selection"]["spread"].startswith(
             f"the XYZ sd holds the lens choice's spread: {s['better_fitting']} fitted the left-out data better")
+
+
+def test_cli_offsets_for_any_camera_and_bad_ones_are_one_line(tmp_path, monkeypatch, capsys):
+    """--offset-s: a bare value is the front camera's (every other camera's where there is no front),
+    CAMERA=S one camera's; a camera that is not after the first, or not a number, is refused in one line."""
+    import sandtrack_tui.calibration.pipeline as pipeline
+
+    seen = []
+
+    def stop(videos, board, *, offsets_s=None, **kwargs):
+        seen.append(offsets_s)
+        raise SandtrackError("stopped here")
+
+    monkeypatch.setattr(pipeline, "calibrate_videos", stop)
+    board = tmp_path / "board.toml"
+    BoardSpec().save(board)
+    for d in ("a", "b", "c"):
+        (tmp_path / d).mkdir()
+    cams = ["--board", str(board), "--camera", f"a={tmp_path / 'a'}", "--camera", f"b={tmp_path / 'b'}",
+            "--camera", f"c={tmp_path / 'c'}"]
+    for extra, expected in ((["--offset-s", "0"], {"b": 0.0, "c": 0.0}),
+                            (["--offset-s", "0", "--offset-s", "c=-1.5"], {"b": 0.0, "c": -1.5}),
+                            ([], None)):
+        assert main(["calibrate", *cams, "-o", str(tmp_path / "x.toml"), *extra]) == 1
+        assert seen[-1] == expected
+    capsys.readouterr()
+    for bad, msg in ((["--offset-s", "a=0.1"], "--offset-s a: not a camera after the first, a (one of b, c)"),
+                     (["--offset-s", "b=soon"], "--offset-s 'soon': give the offset in seconds")):
+        assert main(["calibrate", *cams, "-o", str(tmp_path / "x.toml"), *bad]) == 1
+        err = capsys.readouterr().err.strip().splitlines()
+        assert msg in err[-1] and len(err) == 1, err

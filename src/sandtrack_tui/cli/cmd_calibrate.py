@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 from pathlib import Path
 
@@ -32,9 +33,10 @@ def register(sub) -> None:
     p.add_argument("--reference", help="reference.toml with `frame` and `origin_mm` (instead of the two above)")
     p.add_argument("--known-points", help="CSV of known world points (X_mm, Y_mm, Z_mm + pixel columns) for the "
                    "world frame (Kabsch, >= 3 points)")
-    p.add_argument("--offset-s", type=float, default=None,
-                   help="how much later the front camera started recording than the side camera (s); "
-                   "default: measured from the audio (or the video) as `sandtrack sync` does")
+    p.add_argument("--offset-s", action="append", default=[], metavar="[CAMERA=]SECONDS",
+                   help="how much later a camera started recording than the first (side) camera (s): SECONDS for "
+                   "the front camera (for every other camera where there is no front), CAMERA=SECONDS for one "
+                   "(repeatable); default: measured from the audio (or the video) as `sandtrack sync` does")
     p.add_argument("--lens", action="append", default=[], metavar="[CAMERA=]MODEL",
                    help="lens model: auto (default: the simplest model whose cross-validated error is within "
                    f"noise of the best), or one of {', '.join(LENS_NAMES)}; CAMERA=MODEL for one camera (repeatable)")
@@ -234,6 +236,29 @@ def _lenses(args, names: list[str]) -> dict[str, str]:
     return {n: per.get(n, default or "auto") for n in names}
 
 
+def _offsets(args, names: list[str]) -> dict[str, float] | None:
+    """--offset-s: {camera: its start after the first camera's (s)}; None where none is given."""
+    default, per = _per_camera(args.offset_s, _seconds)
+    unknown = sorted(set(per) - set(names[1:]))
+    if unknown:
+        raise SandtrackError(f"--offset-s {', '.join(unknown)}: not a camera after the first, {names[0]} "
+                             f"(one of {', '.join(names[1:])})")
+    if default is not None:
+        for n in ["front"] if "front" in names else names[1:]:
+            per.setdefault(n, default)
+    return per or None
+
+
+def _seconds(value: str) -> float:
+    try:
+        s = float(value)
+    except ValueError:
+        s = math.nan
+    if not math.isfinite(s):
+        raise SandtrackError(f"--offset-s {value!r}: give the offset in seconds, e.g. 0.26 or -1.5")
+    return s
+
+
 def _videos(args) -> dict[str, str]:
     videos = _videos_given(args)
     if len(videos) < 2:
@@ -283,7 +308,7 @@ def _from_videos(args) -> dict:
         if not p.is_file():
             raise SandtrackError(f"known points file not found: {p}")
         known = pd.read_csv(p)
-    offsets = {"front": float(args.offset_s)} if ("front" in videos and args.offset_s is not None) else None
+    offsets = _offsets(args, names)
     models = _lenses(args, names)
     if not args.json:
         log(f"calibrating {', '.join(names)} with a {board.columns}x{board.rows} {board.type} board")
