@@ -12,8 +12,10 @@ H⁻¹ (Σ ω² Jᵀ Σp J) H⁻¹, where Σp is each camera's pixel covariance 
   calibration from known points: the residuals less the points' error that every camera shares), else its
   RMSE per axis);
 - the calibration's: G Σθ Gᵀ, with Σθ the covariance of the camera's parameters from its bundle
-  adjustment (`CameraUncertainty`, kept in calibration.toml) and G = d(pixel) / d(parameters) at the point
-  (analytic for the translation and the camera matrix, finite differences for the rotation and the lens).
+  adjustment (`CameraUncertainty`, kept in calibration.toml; with the lens choice's spread where a
+  simpler lens model was kept than the best on left-out data, calibration.model_choice) and
+  G = d(pixel) / d(parameters) at the point (analytic for the translation and the camera matrix, finite
+  differences for the rotation and the lens).
 
 Where the calibration keeps its parameters' joint covariance with the world frame (`RigUncertainty`: a
 calibration from videos), the calibration's part is propagated jointly instead: a parameter change δθ moves
