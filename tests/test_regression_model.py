@@ -383,3 +383,31 @@ def test_a_network_without_a_spread_gets_its_sd_from_the_triangulation(trained, 
     assert set(table["network_check"]) == {"unchecked"} and np.isfinite(sd).all()
     cov = coverage(table[["X_mm", "Y_mm", "Z_mm"]].to_numpy() - truth, sd)
     assert ((cov > 0.925) & (cov < 0.975)).all(), cov  # measured 0.945 / 0.937 / 0.951
+
+
+def test_the_residual_variants_sd_adds_the_calibrations_part(trained, rig):
+    """The correction learnt the calibration points' places, which carry the calibration's own error: with a
+    calibration that keeps a covariance, a residual row's sd is its spread and the calibration's part of the
+    triangulation's sd at the same pixels, in quadrature (on the sample's calibration points 87 -> 95 % in Y)."""
+    import copy
+
+    from sandtrack_tui.camera import CameraUncertainty
+    from sandtrack_tui.xyz import SD_COLUMNS, calibration_part_sd
+    from sandtrack_tui.xyz_pixels import xyz_from_pixels
+
+    model, _ = trained
+    fresh = calibration_points(rig, n_points=200, seed=45)
+    pixels = fresh[["xs", "ys", "xf", "yf"]].reset_index(drop=True)
+    cams = {"side": ("xs", "ys"), "front": ("xf", "yf")}
+    bare, _ = xyz_from_pixels(pixels, cams, rig, model, method="residual")
+    cal = copy.deepcopy(rig)
+    cal.uncertainty = {n: CameraUncertainty(["cx", "cy"], np.diag([4.0, 4.0])) for n in cal.cameras}
+    table, _ = xyz_from_pixels(pixels, cams, cal, model, method="residual")
+    xyz = table[["X_mm", "Y_mm", "Z_mm"]].to_numpy()
+    part = calibration_part_sd(cal, pixels.to_numpy(float), cal.to_rig(xyz))
+    sd, sd0 = table[list(SD_COLUMNS)].to_numpy(), bare[list(SD_COLUMNS)].to_numpy()
+    spread = np.isfinite(sd0).all(axis=1)  # rows without a spread (outside the training volume) stay without
+    assert spread.sum() > 150 and np.isnan(sd[~spread]).all()
+    assert np.allclose(sd[spread] ** 2, sd0[spread] ** 2 + part[spread] ** 2)
+    assert np.all(part[spread] > 0.1 * sd0[spread])
+    assert np.allclose(xyz, bare[["X_mm", "Y_mm", "Z_mm"]].to_numpy())  # the same XYZ

@@ -30,10 +30,11 @@ side/front project), marker and method, with the columns `xyz_columns(cameras)`:
   and the calibration's parameter covariance with the world frame's, propagated to first order
   (`triangulation_sd`). For "mlp"
   and "residual" rows the network's spread (`regression.spread`: its error on calibration points it never
-  saw, plus the pixels' noise above theirs); NaN outside the training volume and for a model file without
-  a spread. NaN where a pixel's sd is not known. With a calibration, an "mlp" row's sd is what its spread
-  and the triangulation of the same pixels say together about its error (`regression.check`; outside the
-  training volume the triangulation alone).
+  saw, plus the pixels' noise above theirs; a "residual" row's with the calibration's part of the
+  triangulation's sd, where the calibration keeps its covariance); NaN outside the training volume and
+  for a model file without a spread. NaN where a pixel's sd is not known. With a calibration, an "mlp"
+  row's sd is what its spread and the triangulation of the same pixels say together about its error
+  (`regression.check`; outside the training volume the triangulation alone).
 - ``xyz_source``: "interpolated" (every camera's pixels at the reference time: its own frame or the two
   around it), or "nearest_frame": a camera had a point in only one of the two frames around (a seed
   frame, a track's first or last frame; never next to a "lost" one), so its pixels are that frame's and
@@ -604,6 +605,11 @@ def network_rows(m: str, model, calibration, x: np.ndarray, outside: str, xyz: n
     xyz[ok], sd[ok] = predict_with_sd(model, x[ok], method=m, pixel_sd=psd)
     if cal is not None and {"side", "front"} <= set(cal.cameras):
         res[ok] = reprojection_residual(cal, {"side": x[ok, :2], "front": x[ok, 2:]}, cal.to_rig(xyz[ok]))
+        if m == "residual" and (cal.uncertainty or cal.rig_uncertainty is not None):
+            # the correction learnt the calibration points' places, which carry the calibration's own error
+            # (the world frame's above all) as the triangulation does: its spread, measured against those
+            # places, cannot show it
+            sd[ok] = np.hypot(sd[ok], calibration_part_sd(cal, x[ok], cal.to_rig(xyz[ok])))
     if m == "mlp" and outside != "keep":
         out = np.zeros(len(x), bool)
         out[ok] = outside_training(model, x[ok], xyz[ok])
@@ -611,6 +617,15 @@ def network_rows(m: str, model, calibration, x: np.ndarray, outside: str, xyz: n
             label[out] = "mlp_outside"
         else:
             xyz[out] = np.nan
+
+
+def calibration_part_sd(calibration, x: np.ndarray, points_rig: np.ndarray) -> np.ndarray:
+    """(N, 3) mm: the calibration's part of the triangulation sd of pixels x (N, 4: xs, ys, xf, yf) at
+    `points_rig` (the pixels' own noise left out)."""
+    from .triangulation_sd import triangulation_sd
+
+    pixels = {"side": x[:, :2], "front": x[:, 2:]}
+    return triangulation_sd(calibration, pixels, points_rig, {c: 0.0 for c in pixels})
 
 
 def _camera_pixel_sd(calibration) -> np.ndarray | None:
