@@ -404,15 +404,8 @@ def first_order_change(state: BundleState, obs: Observations, target_px: np.ndar
     return dict(zip(_labels(layout), dx[:layout.frame0].tolist(), strict=True))
 
 
-def parameter_values(state: BundleState, free_intrinsics: bool = True) -> dict[tuple[int, str], float]:
-    """The cameras' parameters of `parameter_covariance`, by (camera index, name), at `state`."""
-    layout = _Layout(state, free_intrinsics, True, False)
-    return dict(zip(_labels(layout), layout.pack(state)[:layout.n].tolist(), strict=True))
-
-
 def _labels(layout: _Layout) -> list[tuple[int, str]]:
-    n = layout.frame0 if layout.frame0 is not None else layout.n
-    labels: list[tuple[int, str]] = [(0, "")] * n
+    labels: list[tuple[int, str]] = [(0, "")] * layout.frame0
     for c, o in layout.cam_pose.items():
         for k, name in enumerate(("rx", "ry", "rz", "tx", "ty", "tz")):
             labels[o + k] = (c, name)

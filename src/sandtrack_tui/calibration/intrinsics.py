@@ -15,8 +15,8 @@ from ..errors import SandtrackError
 from ..lens import LENSES, Lens, get_lens, padded
 from .detect import BoardView
 from .geometry import distort_project, radial_is_monotonic
+from .lens_select import best_of, select_lens
 from .lens_select import report as lens_report
-from .lens_select import select_lens
 
 GRID = (8, 6)  # coverage cells across, down
 
@@ -322,7 +322,7 @@ def calibrate_intrinsics(name: str, views: dict[int, BoardView], board: BoardSpe
             cands, chosen = select_lens(frames, fit_views, score, n_folds=folds, check=check)
             selection = lens_report(cands, "board views", len(frames), folds, "left-out board views")
             lens, (rms, K, D, rv, tv) = chosen.fitted
-            best = min((c for c in cands if c.cv_rmse_px is not None), key=lambda c: c.cv_rmse_px)
+            best = best_of(cands)
             better_fitting = None if best is chosen else best.lens
             k3 = "free" if "k3" in lens.terms else "fixed at 0 (cross-validation)"
         elif lens_name != base.name:

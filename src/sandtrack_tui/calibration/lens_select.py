@@ -174,13 +174,18 @@ def choose(candidates: list[Candidate]) -> Candidate:
     if not scored:
         reasons = "; ".join(f"{c.lens}: {c.excluded}" for c in candidates)
         raise SandtrackError(f"no lens model could be fitted ({reasons})")
-    best = min(scored, key=lambda c: c.cv_rmse_px)
+    best = best_of(scored)
     for c in scored:
         c.versus_best = compare(c, best)
         c.within_noise = not c.versus_best.significant
     chosen = next(c for c in sorted(scored, key=lambda c: list(LENSES).index(c.lens)) if c.within_noise)
     chosen.chosen = True
     return chosen
+
+
+def best_of(candidates: list[Candidate]) -> Candidate:
+    """The candidate with the smallest left-out RMSE (of those scored)."""
+    return min((c for c in candidates if c.cv_rmse_px is not None), key=lambda c: c.cv_rmse_px)
 
 
 def compare(c: Candidate, best: Candidate) -> Comparison:
@@ -232,7 +237,7 @@ def report(candidates: list[Candidate], groups_kind: str, n_groups: int, n_folds
 def why(chosen: Candidate, candidates: list[Candidate]) -> str:
     """One sentence: against what the chosen model won."""
     order = list(LENSES)
-    best = min((c for c in candidates if c.cv_rmse_px is not None), key=lambda c: c.cv_rmse_px)
+    best = best_of(candidates)
     if chosen is best:
         simpler = [c for c in candidates
                    if c.versus_best is not None and order.index(c.lens) < order.index(chosen.lens)]
