@@ -105,7 +105,7 @@ def test_some_markers_are_hidden_for_a_while_and_reappear():
 
 @pytest.mark.parametrize("camera", ["side", "front"])
 def test_charuco_detected_in_most_calibration_frames(camera):
-    rate, errs = board_detection(SAMPLE, camera, step=7)
+    rate, errs = board_detection(SAMPLE, camera, step=14)
     assert rate >= 0.845, rate  # measured 89.7 % side, 100 % front
     # README's peer figure for corner pixels (OpenCV's own refinement, 0.19 px): measured 0.17 / 0.18 px
     assert within(np.median(errs), claimed("calibration_corners", "opencv")), np.median(errs)

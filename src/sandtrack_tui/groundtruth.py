@@ -304,7 +304,9 @@ def board_detection(sample_dir: str | Path, camera: str, step: int = 1) -> tuple
 
     root = Path(sample_dir)
     detector = cv2.aruco.CharucoDetector(load_board(root / "board.toml").cv_board())
-    truth = pd.read_csv(root / "ground_truth" / f"calibration_corners_{camera}.csv").set_index(["frame", "corner_id"])
+    truth = pd.read_csv(root / "ground_truth" / f"calibration_corners_{camera}.csv")
+    keys = zip(truth["frame"].to_numpy(int).tolist(), truth["corner_id"].to_numpy(int).tolist(), strict=True)
+    true_px = dict(zip(keys, truth[["x_px", "y_px"]].to_numpy(float), strict=True))
     n = found = 0
     errors = []
     with FrameSource(root / "calibration" / f"{camera}.mp4", cache_mb=16) as src:
@@ -314,7 +316,6 @@ def board_detection(sample_dir: str | Path, camera: str, step: int = 1) -> tuple
             if ids is None or len(ids) < 4:
                 continue
             found += 1
-            for cid, p in zip(ids.ravel(), corners.reshape(-1, 2), strict=True):
-                if (i, int(cid)) in truth.index:
-                    errors.append(float(np.hypot(*(p - truth.loc[(i, int(cid)), ["x_px", "y_px"]].to_numpy(float)))))
+            errors += [float(np.hypot(*(p - true_px[(i, int(cid))])))
+                       for cid, p in zip(ids.ravel(), corners.reshape(-1, 2), strict=True) if (i, int(cid)) in true_px]
     return found / max(n, 1), np.array(errors)
