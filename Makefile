@@ -13,12 +13,13 @@ $(BIN)/python:
 # torch is pinned (an unpinned torch pulls several GB of CUDA wheels); pyproject.toml pins it too.
 # pip byte-compiles the installed packages on one core: compileall does it on all of them (and on our own
 # sources, which an editable install leaves to each process), at the same time as the compiled kernels of
-# the tracker, the sixel encoder, the triangulation and its sd are built (cached on disk).
+# the tracker, the sixel encoder, the triangulation, its sd and the calibrated-region test are built (cached on disk).
 $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/pip install --disable-pip-version-check -q --no-compile "torch==2.13.0" -e ".[dev]"
 	$(BIN)/python -m compileall -q -j 0 $(VENV)/lib src >/dev/null & c=$$!; \
 		$(BIN)/python -m sandtrack_tui.tracking.warmup & k=$$!; $(BIN)/python -m sandtrack_tui.tui.sixel & s=$$!; \
-		$(BIN)/python -m sandtrack_tui.triangulation && $(BIN)/python -m sandtrack_tui.triangulation_sd; t=$$?; \
+		$(BIN)/python -m sandtrack_tui.triangulation && $(BIN)/python -m sandtrack_tui.triangulation_sd && \
+		$(BIN)/python -m sandtrack_tui.calibration.region; t=$$?; \
 		wait $$c; wait $$k && wait $$s && test $$t -eq 0
 	@touch $(STAMP)
 

@@ -239,6 +239,10 @@ def _scored(cal, test, cams, out: dict, key: str) -> tuple[list[float], list[flo
     point = np.asarray(cal.report.get("known_points_sd_mm", [0.0] * 3), float)
     out[f"{key}_pct"], out[f"{key}_en_pct"] = _pct(coverage(err, s)), _pct(coverage(err, np.hypot(s, point)))
     out[f"{key}_median_sd_mm"] = [round(float(v), 4) for v in np.nanmedian(s, axis=0)]
+    from sandtrack_tui.calibration.region import region_labels
+
+    outside = region_labels(cal, pix, len(test)) == "outside"
+    out[f"{key}_outside_region_pct"] = round(100.0 * float(outside.mean()), 1)
     out[f"{key}_rms_error_mm"] = [round(float(v), 4) for v in np.sqrt(np.nanmean(err ** 2, axis=0))]
     return out[f"{key}_pct"], out[f"{key}_en_pct"]
 

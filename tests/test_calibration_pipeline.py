@@ -48,6 +48,24 @@ def test_recovers_true_cameras(session, result):
     assert result.report["board_rmse_mm"] < 0.035
 
 
+def test_the_image_region_the_board_covered_is_kept(session, result, tmp_path):
+    """Each camera's region is the hull of its corners in the bundle adjustment: every calibration point lies
+    inside it, an image corner the board never reached outside."""
+    from sandtrack_tui.calibration.region import region_labels
+
+    cal = result.calibration
+    assert set(cal.regions) == {"side", "front"}
+    for n in ("side", "front"):
+        assert 10.0 < result.report["per_camera"][n]["calibrated_region_pct"] < 100.0
+    pts = result.points
+    pix = {"side": pts[["xs", "ys"]].to_numpy(float), "front": pts[["xf", "yf"]].to_numpy(float)}
+    assert set(region_labels(cal, pix, len(pts))) == {"inside"}
+    corner = {"side": np.array([[2.0, 2.0]]), "front": pix["front"][:1]}
+    assert list(region_labels(cal, corner, 1)) == ["outside"]
+    cal.save(tmp_path / "c.toml")
+    assert all(np.allclose(Calibration.load(tmp_path / "c.toml").regions[n], cal.regions[n]) for n in cal.regions)
+
+
 def test_world_frame_and_points_match_truth(session, result):
     truth = session["truth"]
     # the world frame from the flat board of frame 0: a point 300 mm away lands within 0.15 mm (measured 0.10)

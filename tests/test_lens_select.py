@@ -198,6 +198,7 @@ def test_real_target_with_the_outer_plane_held_out():
     target, not over the dot columns the lens choice leaves out (a refit without a whole column
     extrapolates it): X and Z within ±1.96 sqrt(sd² + σ_dot²) of the survey 94.8 / 99.0 % (cameras 1+2),
     90.5 / 94.9 % (1+2+3), where the columns gave 99.7 / 100 and 94.6 / 100 % (measured)."""
+    from sandtrack_tui.calibration.region import region_labels
     from sandtrack_tui.regression.spread import coverage
     from sandtrack_tui.triangulation_sd import camera_noise_px
     from sandtrack_tui.xyz import triangulate_with_sd
@@ -214,6 +215,11 @@ def test_real_target_with_the_outer_plane_held_out():
         errors[len(cams)] = np.nanmean(np.linalg.norm(err, axis=1))
         en = 100 * coverage(err, np.hypot(sd, cal.report["known_points_sd_mm"]))
         assert 90.0 <= en[0] <= 98.0 and 90.0 <= en[2] <= 99.5, (cams, en)
+        # the plane Z = 0 lies in another part of the images than the two fitted planes: its dots are marked
+        # as beyond the calibrated region (measured 92 %: the lens model extrapolates there; their 3D RMS
+        # 0.156 mm against 0.113 for the 22 inside it with cameras 1+2, 0.130 against 0.121 with 1+2+3)
+        region = region_labels(cal, pix, len(held))
+        assert 85.0 <= 100 * np.mean(region == "outside") <= 97.0
     assert errors[2] < 0.15
     assert errors[3] < errors[2]
 

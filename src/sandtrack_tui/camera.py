@@ -283,6 +283,9 @@ class Calibration:
     # all cameras' parameters together and the world frame's dependence on them (None: each camera alone,
     # the world frame taken as exact)
     rig_uncertainty: RigUncertainty | None = None
+    # per camera, the image region its calibration points covered (calibration/region.py: the convex hull's
+    # half-planes, px); a camera without one: not known
+    regions: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.world_from_rig = np.asarray(self.world_from_rig, dtype=np.float64).reshape(4, 4)
@@ -318,6 +321,9 @@ class Calibration:
             doc["uncertainty"] = {n: u.to_dict() for n, u in self.uncertainty.items() if n in self.cameras}
         if self.rig_uncertainty is not None:
             doc["rig_uncertainty"] = self.rig_uncertainty.to_dict()
+        if self.regions:
+            doc["calibrated_region"] = {n: {"halfplanes_px": np.asarray(r, float).tolist()}
+                                        for n, r in self.regions.items() if n in self.cameras}
         if self.report:
             doc["report"] = _plain(self.report)
         return tomli_w.dumps(doc)
@@ -349,7 +355,7 @@ class Calibration:
         rig_unc = doc.get("rig_uncertainty")
         rig_unc = RigUncertainty.from_dict(rig_unc, cameras) if isinstance(rig_unc, dict) else None
         return cls(cameras=cameras, world_from_rig=world, report=doc.get("report", {}), uncertainty=unc,
-                   rig_uncertainty=rig_unc)
+                   rig_uncertainty=rig_unc, regions=_regions(doc.get("calibrated_region"), cameras, source))
 
     @classmethod
     def load(cls, path: str | Path) -> Calibration:
@@ -361,6 +367,23 @@ class Calibration:
         except UnicodeDecodeError as exc:
             raise SandtrackError(f"{p}: not a valid TOML file ({exc})") from None
         return cls.from_toml(text, source=str(p))
+
+
+def _regions(doc, cameras, source: str) -> dict[str, np.ndarray]:
+    """[calibrated_region.CAMERA] halfplanes_px = [[nx, ny, d], ...] of the cameras in the file."""
+    out = {}
+    for name, d in (doc.items() if isinstance(doc, dict) else ()):
+        if name not in cameras or not isinstance(d, dict):
+            continue
+        try:
+            r = np.array(d.get("halfplanes_px", []), dtype=float).reshape(-1, 3)
+        except (ValueError, TypeError):
+            raise SandtrackError(f"{source}: calibrated_region.{name}: halfplanes_px must be rows of three "
+                                 "numbers") from None
+        if len(r) < 3 or not np.isfinite(r).all():
+            raise SandtrackError(f"{source}: calibrated_region.{name}: needs three or more finite half-planes")
+        out[name] = r
+    return out
 
 
 def _plain(obj):

@@ -6,9 +6,10 @@ Export
     each camera's pixels (``xs, ys`` side, ``xf, yf`` front, ``x_<camera>, y_<camera>`` any other),
     ``X_mm, Y_mm, Z_mm``, their 1-sigma ``sd_X_mm, sd_Y_mm, sd_Z_mm``, ``method, residual_px``,
     ``xyz_source`` ("interpolated", or "nearest_frame" where a camera had only one of the two frames
-    around the reference time), ``network_check`` (the MLP rows' check against triangulation: "ok",
-    "inconsistent", "unchecked") and ``bias_X_mm, bias_Y_mm, bias_Z_mm`` (a checked MLP row's error as the
-    triangulation measures it) (see `xyz.py`: the other cameras' tracks are
+    around the reference time), ``calibrated_region`` ("outside" where a camera's pixel lies beyond the
+    image region its calibration covered, "inside", "" not known), ``network_check`` (the MLP rows' check
+    against triangulation: "ok", "inconsistent", "unchecked") and ``bias_X_mm, bias_Y_mm, bias_Z_mm``
+    (a checked MLP row's error as the triangulation measures it) (see `xyz.py`: the other cameras' tracks are
     interpolated to the reference frame's time through the sync offset; pixels in the OpenCV
     convention, origin at the top-left pixel's centre, y down).
 
@@ -94,6 +95,8 @@ def check_tidy(df: pd.DataFrame) -> pd.DataFrame:
         df = df.assign(xyz_source="interpolated")
     if "network_check" not in df.columns:  # a table from before the network's check
         df = df.assign(network_check="")
+    if "calibrated_region" not in df.columns:  # a table from before regions were kept: not known
+        df = df.assign(calibrated_region="")
     absent_bias = [c for c in BIAS_COLUMNS if c not in df.columns]
     if absent_bias:  # a table from before the network's bias was kept
         df = df.assign(**{c: np.nan for c in absent_bias})

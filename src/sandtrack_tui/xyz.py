@@ -40,6 +40,10 @@ side/front project), marker and method, with the columns `xyz_columns(cameras)`:
   frame, a track's first or last frame; never next to a "lost" one), so its pixels are that frame's and
   their sd grows by the marker's motion over the time between (its speed from that frame and the next one
   beyond; NaN when the track has no such frame yet).
+- ``calibrated_region``: "outside" where a camera's pixel lies beyond the image region its calibration
+  points covered (`calibration.region`: there the lens model extrapolates, and the sd leaves out its
+  error), "inside" where every calibrated camera's pixel lies within it, "" where the calibration keeps
+  no region (imported, or written before regions were kept).
 - ``network_check``: for "mlp" rows, "ok" (the network agrees with the triangulation within their
   uncertainties), "inconsistent" (it does not, at the 99 % level; its sd then comes from the disagreement:
   `regression.check`) or "unchecked" (no triangulation: the spread alone; or no spread: the
@@ -94,7 +98,7 @@ def xyz_columns(cameras) -> list[str]:
     """Columns of the XYZ table of a project with these cameras (the first is the reference)."""
     return ["frame", "time_s", "marker", *(f"status_{c}" for c in cameras),
             *(col for c in cameras for col in pixel_columns(c)), "X_mm", "Y_mm", "Z_mm", *SD_COLUMNS, "method",
-            "residual_px", "xyz_source", "network_check", *BIAS_COLUMNS]
+            "residual_px", "xyz_source", "calibrated_region", "network_check", *BIAS_COLUMNS]
 
 
 XYZ_COLUMNS = xyz_columns(NETWORK_CAMERAS)
@@ -208,13 +212,17 @@ def project_calibration(project):
 
 
 def project_sd_holds(project, table: pd.DataFrame) -> str | None:
-    """One line: what the sd of a project table's triangulated rows holds (None without such rows)."""
+    """What the sd of a project table's triangulated rows holds, in one line, and a second where some of them
+    lie outside the calibrated image region (None without such rows)."""
+    from .calibration.region import outside_note
     from .triangulation_sd import sd_holds
 
     calibration = project_calibration(project)
     if calibration is None or not (table["method"] == "triangulation").any():
         return None
-    return sd_holds(calibration, project.cameras(), "each tracked point's sd (its match score)")
+    holds = sd_holds(calibration, project.cameras(), "each tracked point's sd (its match score)")
+    note = outside_note(table[table["method"] == "triangulation"])
+    return holds if note is None else f"{holds}\n{note}"
 
 
 # -- main entry points ----------------------------------------------------------------------------
@@ -430,6 +438,7 @@ def _interpolated(points: pd.DataFrame, marker: np.ndarray, u: np.ndarray) -> di
 # -- XYZ --------------------------------------------------------------------------------------------
 def _solve(obs: dict, cameras: list[str], methods: list[str], model, calibration, outside: str,
            refine: bool) -> pd.DataFrame:
+    from .calibration.region import region_labels
     from .triangulation_sd import pixel_sd_axes
 
     n = len(obs["frame"])
@@ -460,7 +469,7 @@ def _solve(obs: dict, cameras: list[str], methods: list[str], model, calibration
                 check, bias = check_network_rows(calibration, {c: pix[c] for c in tri_cams}, tsd, refine, xyz, sd,
                                                  tri)
         blocks.append((xyz, res, label, sd, check, bias))
-    return _table(obs, cameras, blocks)
+    return _table({**obs, "region": region_labels(calibration, pix, n)}, cameras, blocks)
 
 
 def pixel_sd(sd: np.ndarray, extra: np.ndarray, calibration, camera: str) -> np.ndarray:
@@ -535,6 +544,7 @@ def _triangulate_with_sd(calibration, pixels: dict, sd: dict, refine: bool):
 
 def _solve_scaled(project, obs: dict, camera: str, calibration) -> pd.DataFrame:
     """One camera: the pixels in mm through the camera's scale (method "scale"; no Z)."""
+    from .calibration.region import region_labels
     from .scale import project_scale, to_mm
 
     found = project_scale(project, camera, calibration)
@@ -545,8 +555,9 @@ def _solve_scaled(project, obs: dict, camera: str, calibration) -> pd.DataFrame:
     n = len(obs["frame"])
     xyz = np.full((n, 3), np.nan)
     xyz[:, :2] = to_mm(obs["pixels"][camera], found[0], cam)
-    return _table(obs, [camera], [(xyz, np.full(n, np.nan), np.full(n, "scale", dtype=object),
-                                   np.full((n, 3), np.nan), np.full(n, "", dtype=object), np.full((n, 3), np.nan))])
+    block = (xyz, np.full(n, np.nan), np.full(n, "scale", dtype=object), np.full((n, 3), np.nan),
+             np.full(n, "", dtype=object), np.full((n, 3), np.nan))
+    return _table({**obs, "region": region_labels(calibration, obs["pixels"], n)}, [camera], [block])
 
 
 def _table(obs: dict, cameras: list[str], blocks: list) -> pd.DataFrame:
@@ -570,6 +581,7 @@ def _table(obs: dict, cameras: list[str], blocks: list) -> pd.DataFrame:
         cols["residual_px"].append(res)
         cols["xyz_source"].append(np.where(obs.get("nearest", np.zeros(n, bool)), XYZ_SOURCES[1],
                                            XYZ_SOURCES[0]).astype(object))
+        cols["calibrated_region"].append(obs.get("region", np.full(n, "", dtype=object)))
         cols["network_check"].append(check)
         for k, c in enumerate(BIAS_COLUMNS):
             cols[c].append(bias[:, k])
@@ -579,7 +591,7 @@ def _table(obs: dict, cameras: list[str], blocks: list) -> pd.DataFrame:
     table = table.iloc[order].reset_index(drop=True)
     table["frame"] = table["frame"].astype(np.int64)
     table["marker"] = table["marker"].astype(np.int64)
-    for c in [*(f"status_{c}" for c in cameras), "method", "xyz_source", "network_check"]:
+    for c in [*(f"status_{c}" for c in cameras), "method", "xyz_source", "calibrated_region", "network_check"]:
         table[c] = table[c].astype(object)
     return table
 

@@ -4,7 +4,7 @@ A pixels table has one row per point and the pixels of each camera in two column
 (side) and ``xf, yf`` (front), or ``x_NAME, y_NAME`` for a camera NAME of the calibration, any number
 of cameras, NaN (an empty field) where a camera did not see the point. Every other column is passed
 through. The result adds ``X_mm, Y_mm, Z_mm, sd_X_mm, sd_Y_mm, sd_Z_mm, method, residual_px,
-network_check, bias_X_mm, bias_Y_mm, bias_Z_mm`` (see `xyz.py` for their meaning);
+calibrated_region, network_check, bias_X_mm, bias_Y_mm, bias_Z_mm`` (see `xyz.py` for their meaning);
 with several methods each input row appears once per method, in input order. Triangulation uses every
 camera that saw a point (two or more); the network and its residual variant read the side and front
 pixels, as they were trained.
@@ -33,7 +33,8 @@ from .xyz import (
     wanted_methods,
 )
 
-RESULT_COLUMNS = ["X_mm", "Y_mm", "Z_mm", *SD_COLUMNS, "method", "residual_px", "network_check", *BIAS_COLUMNS]
+RESULT_COLUMNS = ["X_mm", "Y_mm", "Z_mm", *SD_COLUMNS, "method", "residual_px", "calibrated_region", "network_check",
+                  *BIAS_COLUMNS]
 COMMAND_LINE_NEEDS = {
     "calibration": "triangulation needs --calibration CAL.toml",
     "model": "the {method} method needs --model MODEL.pt (sandtrack train)",
@@ -107,6 +108,9 @@ def xyz_from_pixels(df: pd.DataFrame, cams: dict[str, tuple[str, str]], calibrat
     if "mlp" in methods and len(tri_cams) < 2:
         notes.append("the MLP's sd is its spread alone: no triangulation to check it against "
                      "(--calibration with two of the table's cameras)")
+    from .calibration.region import LABELS, outside_note, region_codes
+
+    region = pd.Categorical.from_codes(region_codes(calibration, pix, n), LABELS)
     for m in methods:
         xyz, res, sd = np.full((n, 3), np.nan), np.full(n, np.nan), np.full((n, 3), np.nan)
         bias = np.full((n, 3), np.nan)
@@ -127,8 +131,11 @@ def xyz_from_pixels(df: pd.DataFrame, cams: dict[str, tuple[str, str]], calibrat
                                                  tri)
         added = {"X_mm": xyz[:, 0], "Y_mm": xyz[:, 1], "Z_mm": xyz[:, 2],
                  **{c: sd[:, k] for k, c in enumerate(SD_COLUMNS)}, "method": label, "residual_px": res,
-                 "network_check": check, **{c: bias[:, k] for k, c in enumerate(BIAS_COLUMNS)}}
+                 "calibrated_region": region, "network_check": check,
+                 **{c: bias[:, k] for k, c in enumerate(BIAS_COLUMNS)}}
         blocks.append(pd.concat([base.reset_index(drop=True), pd.DataFrame(added)], axis=1))
+    if (note := outside_note(blocks[0])) is not None:
+        notes.append(note)
     if len(blocks) == 1:
         return blocks[0].reset_index(drop=True), notes
     table = pd.concat(blocks, ignore_index=True)

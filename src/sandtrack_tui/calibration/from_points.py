@@ -27,6 +27,7 @@ from .known_point_errors import known_point_errors
 from .lens_select import Candidate, choose, report, select_lens, why
 from .model_choice import point_fit_spread, spread_line
 from .point_uncertainty import into_rig, jackknife_covariance, parameter_names, point_fit_uncertainty
+from .region import covered_pct, image_region
 from .report import camera_parameters
 
 MIN_POINTS = 12
@@ -240,7 +241,11 @@ def calibrate_from_points(df: pd.DataFrame, cams: dict[str, tuple[str, str]],
         r, t = from_T(to_T(cam.rvec, cam.tvec) @ world_from_rig)
         cam.rvec, cam.tvec = r, t
     rmse = float(np.sqrt(np.mean([r["rmse_px"] ** 2 for r in reports.values()])))
-    cal = Calibration(cameras=cameras, world_from_rig=world_from_rig, uncertainty=uncertainty)
+    fitted = {n: pixels[n][np.isfinite(pixels[n]).all(1) & np.isfinite(X_all).all(1)] for n in cameras}
+    regions = {n: r for n, px in fitted.items() if (r := image_region(px)) is not None}
+    for n, cam in cameras.items():
+        reports[n]["calibrated_region_pct"] = covered_pct(fitted[n], (cam.width, cam.height))
+    cal = Calibration(cameras=cameras, world_from_rig=world_from_rig, uncertainty=uncertainty, regions=regions)
     for name in reports:
         reports[name].update(camera_parameters(cal, name))
     # how well the fitted cameras give the known points back (triangulated from their own pixels)

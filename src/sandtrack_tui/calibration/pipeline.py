@@ -23,6 +23,7 @@ from ..errors import SandtrackError
 from .detect import BoardView, detect_in_sources, detection_stride, frame_pairing, open_source
 from .model_choice import spread_line
 from .points import calibration_points
+from .region import covered_pct, image_region
 from .report import accuracy_report, camera_parameters
 from .rig import calibrate_rig, fit_frame_poses
 from .world import describe, world_from_board_pose, world_from_known_points
@@ -92,6 +93,11 @@ class CalibrationResult:
 def _shared_count(views, names) -> int:
     frames = set().union(*[set(views[n]) for n in names])
     return sum(1 for f in frames if sum(f in views[n] for n in names) >= 2)
+
+
+def fitted_corners(views: dict[str, dict[int, BoardView]], frames: list[int]) -> dict[str, np.ndarray]:
+    """Per camera, the pixels of its corners in the bundle adjustment's frames (N, 2)."""
+    return {n: np.vstack([vs[f].corners for f in frames if f in vs] or [np.zeros((0, 2))]) for n, vs in views.items()}
 
 
 def calibrate_videos(videos: dict[str, str | Path], board: BoardSpec, *, offsets_s: dict[str, float] | None = None,
@@ -194,6 +200,7 @@ def calibrate_videos(videos: dict[str, str | Path], board: BoardSpec, *, offsets
     acc = accuracy_report(calibration, views, board, poses)
     points = calibration_points(calibration, views, board, poses, names[:2]) if with_points else None
     per_camera = {}
+    fitted = fitted_corners(views, rig.frames)
     for n in names:
         r = rig.intrinsics[n].report()
         # the single-camera fit (its RMSE: rmse_px) that started the bundle adjustment, apart from the
@@ -203,6 +210,7 @@ def calibrate_videos(videos: dict[str, str | Path], board: BoardSpec, *, offsets
         r["reprojection_rmse_px"] = acc["per_camera_reprojection_rmse_px"].get(n)
         r["frames_with_board"] = len(views[n])
         r["mirrored_views"] = sum(v.mirrored for v in views[n].values())
+        r["calibrated_region_pct"] = covered_pct(fitted[n], sizes[n])
         spread = rig.bundle.get("lens_choice_spread", {}).get(n)
         if spread and r.get("lens_selection"):
             r["lens_selection"]["spread"] = spread_line(spread["kept"], spread["better_fitting"],
@@ -231,6 +239,7 @@ def calibrate_videos(videos: dict[str, str | Path], board: BoardSpec, *, offsets
         "warnings": warnings,
     }
     calibration.report = report
+    calibration.regions = {n: r for n, px in fitted.items() if (r := image_region(px)) is not None}
     if report["reprojection_rmse_px"] > MAX_RMSE_PX:
         raise SandtrackError(
             f"the cameras disagree (reprojection RMSE {report['reprojection_rmse_px']:.1f} px): the videos are "

@@ -539,6 +539,7 @@ class SandtrackApp(TasksMixin, SeedingMixin, EditingMixin, MarkersMixin, App):
             val = (rec.X_mm, rec.Y_mm, rec.Z_mm)
             sd = (rec.sd_X_mm, rec.sd_Y_mm, rec.sd_Z_mm)
             r.nearest_frame = r.nearest_frame or getattr(rec, "xyz_source", "") == "nearest_frame"
+            r.outside_region = r.outside_region or getattr(rec, "calibrated_region", "") == "outside"
             if str(rec.method).lower().startswith("tri"):
                 r.xyz_tri, r.sd_tri = val, sd
                 r.residual_px = rec.residual_px

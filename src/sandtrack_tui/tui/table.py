@@ -2,7 +2,9 @@
 triangulation and by the network (a side and a front camera), XYZ by triangulation (other rigs
 of two or more cameras), or x, y in mm through the scale (one camera). An XYZ cell ends with
 "± sd": the largest of its three 1-sigma sd (mm; "±?" where not known), and "~" when a camera's
-pixels came from its nearest frame instead of the two around (a seed frame). A network XYZ that
+pixels came from its nearest frame instead of the two around (a seed frame), "^" after the sd when a camera's
+pixel lies beyond the image region its calibration covered (the sd leaves out the lens model's error
+there). A network XYZ that
 disagrees with the triangulation beyond both their sd (`network_check` "inconsistent"; its sd then
 comes from the disagreement) ends with "!"."""
 
@@ -33,6 +35,7 @@ class MarkerRow:
     sd_net: tuple[float, float, float] | None = None
     net_check: str = ""  # the network's XYZ against triangulation: "ok", "inconsistent", "unchecked"
     nearest_frame: bool = False
+    outside_region: bool = False  # a camera's pixel beyond the image region its calibration covered
     residual_px: float | None = None
     xy_mm: tuple[float, float] | None = None  # one camera: image position in mm
 
@@ -60,12 +63,14 @@ def columns(cameras: list[str]) -> list[tuple[str, int]]:
 XYZ_WIDTH = 28
 
 
-def format_xyz(v, sd, nearest: bool = False) -> str:
-    """"X, Y, Z ±sd" (mm; sd the largest axis's 1 sigma, "±?" unknown), "~" first for a nearest-frame row."""
+def format_xyz(v, sd, nearest: bool = False, outside: bool = False) -> str:
+    """"X, Y, Z ±sd" (mm; sd the largest axis's 1 sigma, "±?" unknown), "~" first for a nearest-frame row,
+    "^" after the sd for pixels beyond the calibrated image region."""
     if not _finite(v):
         return "—"
     text = f"{'~' if nearest else ''}{v[0]:.1f},{v[1]:.1f},{v[2]:.1f}"
-    return f"{text} ±{max(sd):.2f}" if _finite(sd) else f"{text} ±?"
+    text = f"{text} ±{max(sd):.2f}" if _finite(sd) else f"{text} ±?"
+    return text + "^" if outside else text
 
 
 def _finite(v) -> bool:
@@ -93,10 +98,10 @@ def format_row(row: MarkerRow, cameras: list[str]) -> list:
     cells += [px(row.px.get(cam)) for cam in cameras]
     if len(cameras) == 1:
         return [*cells, f"{row.xy_mm[0]:6.1f},{row.xy_mm[1]:6.1f}" if _finite(row.xy_mm) else "—"]
-    cells.append(format_xyz(row.xyz_tri, row.sd_tri, row.nearest_frame))
+    cells.append(format_xyz(row.xyz_tri, row.sd_tri, row.nearest_frame, row.outside_region))
     if cameras == ["side", "front"]:
         diff = row.difference_mm
-        net = format_xyz(row.xyz_net, row.sd_net, row.nearest_frame)
+        net = format_xyz(row.xyz_net, row.sd_net, row.nearest_frame, row.outside_region)
         net = Text(net + "!", style="yellow") if row.net_check == "inconsistent" and net != "—" else net
         cells += [net, f"{diff:.1f}" if diff is not None else "—"]
     cells.append(Text(f"{row.residual_px:.2f}", style="red" if row.residual_px > 2.0 else "")
