@@ -365,7 +365,10 @@ def test_real_target_where_a_simpler_lens_was_kept_the_sd_holds_the_spread(tmp_p
     text = capsys.readouterr().out
     assert "the XYZ sd holds the lens choice's spread: tilted fitted the left-out data better than the kept " \
            "tangential" in text, text
+    # each camera's calibrated region (the dots of the two planes) said and kept
+    assert text.count("the convex hull of its calibration points spans") == 2
     cal = Calibration.load(out)
+    assert set(cal.regions) == {"cam1", "cam2"}
     unc = cal.uncertainty["cam1"]
     assert cal.cameras["cam1"].lens == "tangential" and unc.better_lens == "tilted"
     assert {"d12", "d13"} <= set(unc.parameters)  # tau_x, tau_y at their kept value 0

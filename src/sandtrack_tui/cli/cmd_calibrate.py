@@ -149,8 +149,8 @@ def _text(r: dict) -> str:
             lines.append("    own pixel noise (the known points' error taken out) x {:.3f}, y {:.3f} px"
                          .format(*c["noise_px"]))
         if c.get("calibrated_region_pct") is not None:
-            lines.append(f"    calibration points cover {c['calibrated_region_pct']:.0f} % of the image (their hull; "
-                         "XYZ from pixels beyond it: calibrated_region = outside)")
+            lines.append(f"    the convex hull of its calibration points spans {c['calibrated_region_pct']:.0f} % of "
+                         "the image (XYZ from pixels beyond it: calibrated_region = outside)")
         lines += _selection_lines(c.get("lens_selection"))
     if r.get("known_points_sd_mm"):
         lines.append("known points' own error (sd per axis, X / Y / Z): {:.4f} / {:.4f} / {:.4f} mm, from {} "
