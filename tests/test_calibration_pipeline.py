@@ -305,6 +305,9 @@ def test_the_calibration_screen_shows_each_camera_term_with_its_sd(result):
     text = console.export_text()
     side = camera_parameters(result.calibration, "side")
     assert f"{side['fx']:.1f}" in text and f"±{side['fx_sd_px']:.1f}" in text and "± 1 sd" in text
+    hull = result.report["per_camera"]["side"]["calibrated_region_pct"]
+    row = next(line.split() for line in text.splitlines() if line.split()[:1] == ["side"])
+    assert "hull" in text and row[-1] == f"{hull:.0f}"  # the share of the image their hull spans
     world = result.calibration.rig_uncertainty.world_frame_sd()
     assert f"world frame ± {world['rotation_sd_mrad'][0]:.2f} / " in " ".join(text.split())
     assert "the calibration's parameter covariance, cameras together with the world frame's" in " ".join(text.split())
