@@ -111,7 +111,8 @@ def pixel_sd_axes(sd: np.ndarray, extra: np.ndarray, calibration: Calibration, n
     camera's (`camera_noise_px`), combined with `extra` (px; NaN: unknown, inf: no sd)."""
     sd = np.asarray(sd, float).reshape(-1, 1)
     base = np.where(np.isnan(sd), camera_noise_px(calibration, name)[None, :], sd)
-    return np.hypot(base, np.asarray(extra, float).reshape(-1, 1))
+    extra = np.asarray(extra, float).reshape(-1, 1)
+    return np.hypot(base, extra) if extra.any() else base  # a pixels table has no extra: 0.1 s a camera per 1 M
 
 
 def _camera_sigma(cam: Camera) -> float:

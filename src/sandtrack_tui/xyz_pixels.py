@@ -97,7 +97,8 @@ def xyz_from_pixels(df: pd.DataFrame, cams: dict[str, tuple[str, str]], calibrat
         notes.append(f"input columns {', '.join(clash)} are kept as {', '.join(c + '_input' for c in clash)}")
     pix = {n: df[list(xy)].to_numpy(float) for n, xy in cams.items()}
     n = len(df)
-    psd = {c: pixel_sd(given_sd(df, c), np.zeros(n), calibration, c) for c in cams}
+    psd = {c: pixel_sd(given_sd(df, c), np.zeros(n), calibration, c) for c in cams} \
+        if set(methods) - {"triangulation"} else {}
     blocks, tri = [], None
     tri_cams = [c for c in pix if calibration is not None and c in calibration.cameras]
     tsd = {c: pixel_sd_axes(given_sd(df, c), np.zeros(n), calibration, c) for c in tri_cams}
@@ -112,12 +113,13 @@ def xyz_from_pixels(df: pd.DataFrame, cams: dict[str, tuple[str, str]], calibrat
 
     region = pd.Categorical.from_codes(region_codes(calibration, pix, n), LABELS)
     for m in methods:
-        xyz, res, sd = np.full((n, 3), np.nan), np.full(n, np.nan), np.full((n, 3), np.nan)
         bias = np.full((n, 3), np.nan)
-        if m == "triangulation":
+        if m == "triangulation" and n:
             used = {c: pix[c] for c in tri_cams}
-            if n:
-                xyz, res, sd = triangulate_with_sd(calibration, used, {c: tsd[c] for c in used}, refine)
+            xyz, res, sd = triangulate_with_sd(calibration, used, {c: tsd[c] for c in used}, refine)
+        else:
+            xyz, res, sd = np.full((n, 3), np.nan), np.full(n, np.nan), np.full((n, 3), np.nan)
+        if m == "triangulation":
             tri = (xyz, sd)
             # one label for every row: as categories, not a million strings (written alike)
             label = pd.Categorical.from_codes(np.zeros(n, np.int8), [m])
