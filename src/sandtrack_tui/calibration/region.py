@@ -18,9 +18,9 @@ TOLERANCE = 0.01  # of the image diagonal: a pixel this close to the hull still 
 LABELS = ("", "inside", "outside")
 
 
-def image_region(pixels: np.ndarray) -> np.ndarray | None:
-    """(F, 3) half-planes (unit normal, offset; px) of the convex hull of `pixels` (N, 2), NaN rows ignored;
-    None for fewer than three points or points on a line."""
+def _hull(pixels: np.ndarray):
+    """scipy's ConvexHull of `pixels` (N, 2), NaN rows ignored; None for fewer than three points or points
+    on a line."""
     from scipy.spatial import ConvexHull, QhullError  # 0.7 s to import: only where a calibration is made
 
     p = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
@@ -28,29 +28,21 @@ def image_region(pixels: np.ndarray) -> np.ndarray | None:
     if len(p) < 3:
         return None
     try:
-        return ConvexHull(p).equations
+        return ConvexHull(p)
     except (QhullError, ValueError):
         return None
+
+
+def image_region(pixels: np.ndarray) -> np.ndarray | None:
+    """(F, 3) half-planes (unit normal, offset; px) of the convex hull of `pixels` (N, 2); None without one."""
+    hull = _hull(pixels)
+    return None if hull is None else hull.equations
 
 
 def covered_pct(pixels: np.ndarray, size: tuple[int, int]) -> float | None:
     """The hull of `pixels` as a share of the image (%); None without a hull or an image size."""
-    from scipy.spatial import ConvexHull, QhullError
-
-    p = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
-    p = p[np.isfinite(p).all(axis=1)]
-    if len(p) < 3 or min(size) <= 0:
-        return None
-    try:
-        return 100.0 * float(ConvexHull(p).volume) / (size[0] * size[1])  # a 2-D hull's volume is its area
-    except (QhullError, ValueError):
-        return None
-
-
-def outside_distance(region: np.ndarray, pixels: np.ndarray) -> np.ndarray:
-    """Signed distance (px) of each pixel from the region's hull: > 0 outside; NaN for a NaN pixel."""
-    p = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
-    return (p @ region[:, :2].T + region[:, 2]).max(axis=1) if len(p) else np.zeros(0)
+    hull = _hull(pixels) if min(size) > 0 else None
+    return None if hull is None else 100.0 * float(hull.volume) / (size[0] * size[1])  # a 2-D hull's volume: area
 
 
 @jit(nogil=True)
