@@ -264,3 +264,18 @@ def test_f6_screen_gives_the_verdict_and_the_band(tmp_path):
         project.close()
     assert v["exact"].startswith("exact: consistent with the experiment")
     assert v["off"].startswith("off: NOT consistent") and "95 % band edge" in v["off_plot"]
+
+
+def test_samples_beyond_the_calibrated_region_are_counted_in_the_verdict():
+    """An export's `calibrated_region` column: the run's verdict says how many of the compared samples lie
+    where the lens model extrapolated; the χ² itself is unchanged."""
+    exp, dem = make_case(shift_s=0.137, seed=0)
+    exp = with_sd(exp)
+    plain = C.compare(exp, dem, fps=FPS).summary
+    outside = exp["marker"] == exp["marker"].iloc[0]
+    marked = C.compare(exp.assign(calibrated_region=np.where(outside, "outside", "inside")), dem, fps=FPS).summary
+    assert marked["samples_outside_calibrated_region"] == int(outside.sum()) > 0
+    assert marked["verdict"].startswith(plain["verdict"])
+    assert f"; {int(outside.sum())} of the experiment's samples lie beyond the calibrated image region" in \
+        marked["verdict"]
+    assert marked["chi2_reduced"] == plain["chi2_reduced"] and "samples_outside_calibrated_region" not in plain

@@ -197,6 +197,8 @@ def experiment_table(df: pd.DataFrame, method: str | None = None, source: str = 
         if any(c in extra for c in group) and not all(c in extra for c in group):
             raise SandtrackError(f"{source}: give all of {', '.join(group)} or none")
     out = df[need + extra].apply(pd.to_numeric, errors="coerce")
+    if "calibrated_region" in df.columns:  # where the lens model extrapolated (xyz.py)
+        out["outside_region"] = (df["calibrated_region"] == "outside").to_numpy()
     out = out[np.isfinite(out[need].to_numpy()).all(axis=1) & measured_rows(df)]
     if out.empty:
         raise SandtrackError(f"{source}: no rows with a finite time and a 3D position from observed pixels")
@@ -496,6 +498,12 @@ def _run_consistency(per: pd.DataFrame, parts: list[K.Chi2], exp: pd.DataFrame, 
     out["verdict"] = (f"{word} with the experiment at the {100 * alpha:g} % level: χ²/dof {run.reduced:.2f}, "
                       f"p = {run.p_value:.2g} ({run.samples} samples, as {run.dof_eff / 3:.1f} independent ones); "
                       f"{100 * run.within / run.samples:.1f} % within the 95 % band")
+    if "outside_region" in exp.columns:
+        outside = int(exp.loc[exp["marker"].isin(per["marker"]), "outside_region"].sum())
+        out["samples_outside_calibrated_region"] = outside
+        if outside:
+            out["verdict"] += (f"; {outside} of the experiment's samples lie beyond the calibrated image region "
+                               "(their sd leaves out the lens model's error there)")
     return out
 
 
