@@ -65,6 +65,16 @@ def pct_within(measured_pct: float, claim_pct: float, factor: float = 1.5) -> bo
     return 100.0 - measured_pct <= factor * (100.0 - claim_pct) + 1e-9
 
 
+def ellipsoid_coverage(err: np.ndarray, sd_cov: np.ndarray) -> float:
+    """Share of 3-D errors (N, 3) inside their 95 % ellipsoid, from (N, 6) sd X, Y, Z and covariances XY,
+    XZ, YZ (`triangulation_sd(..., covariance=True)`): eᵀ C⁻¹ e <= χ²₃(0.95)."""
+    sx, sy, sz, cxy, cxz, cyz = np.asarray(sd_cov, float).T
+    C = np.stack([np.stack([sx * sx, cxy, cxz], -1), np.stack([cxy, sy * sy, cyz], -1),
+                  np.stack([cxz, cyz, sz * sz], -1)], -2)
+    e = np.asarray(err, float)
+    return float(np.mean(np.einsum("ni,ni->n", e, np.linalg.solve(C, e[..., None])[..., 0]) <= 7.814727903251178))
+
+
 def numbered_frame(i: int, width: int = 320, height: int = 240) -> np.ndarray:
     """A BGR frame whose index can be read back after lossy compression (see frame_number)."""
     img = np.full((height, width, 3), 40, np.uint8)

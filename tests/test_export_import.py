@@ -83,7 +83,7 @@ def test_dltdv_tables_layout_and_flip():
 def test_export_cli_with_fake_xyz(project, tmp_path, monkeypatch, capsys):
     import sandtrack_tui.xyz as xyz
 
-    monkeypatch.setattr(xyz, "compute_xyz", lambda proj, method="both": fake_xyz(
+    monkeypatch.setattr(xyz, "compute_xyz", lambda proj, method="both", covariance=False: fake_xyz(
         methods=("triangulation", "mlp") if method == "both" else (method,)))
     project.close()
     assert main(["export", str(project.path), "-o", str(tmp_path / "out.csv"), "--json"]) == 0

@@ -15,7 +15,7 @@ from sandtrack_tui.errors import SandtrackError
 from sandtrack_tui.regression import TrainConfig, train
 from sandtrack_tui.regression.synthetic import calibration_points, study_rig
 from sandtrack_tui.store import Project
-from sandtrack_tui.xyz import XYZ_COLUMNS, compute_xyz, project_calibration, xyz_at_frame
+from sandtrack_tui.xyz import XYZ_COLUMNS, compute_xyz, project_calibration, xyz_at_frame, xyz_columns
 
 FPS = 50.0
 N_FRAMES = 40
@@ -167,6 +167,16 @@ def test_cli_xyz_frame_and_csv(project, model_file, tmp_path, capsys):
     csv = pd.read_csv(tmp_path / "xyz.csv")
     assert list(csv.columns) == XYZ_COLUMNS and len(csv) == out["rows"] == len(START) * N_FRAMES
     assert out["sd_holds"].startswith("triangulation sd: each tracked point's sd (its match score)")
+    # --covariance: the covariances between the axes after the sd, in mm² to 1e-6; the rest as before
+    assert main(["xyz", path, "-o", str(tmp_path / "cov.csv"), "--method", "triangulation", "--covariance"]) == 0
+    capsys.readouterr()
+    cov = pd.read_csv(tmp_path / "cov.csv")
+    assert list(cov.columns) == xyz_columns(["side", "front"], covariance=True)
+    assert cov.drop(columns=["cov_XY_mm2", "cov_XZ_mm2", "cov_YZ_mm2"]).equals(csv)
+    assert cov["cov_XY_mm2"].notna().equals(cov["sd_X_mm"].notna())  # (this rig keeps no noise: no sd)
+    assert main(["export", path, "-o", str(tmp_path / "t.csv"), "--covariance"]) == 0
+    capsys.readouterr()
+    assert {"cov_XY_mm2", "cov_XZ_mm2", "cov_YZ_mm2"} <= set(pd.read_csv(tmp_path / "t.csv").columns)
     assert main(["xyz", path, "--frame", "12"]) == 0
     printed = capsys.readouterr().out
     assert "triangulation" in printed and out["sd_holds"] in printed

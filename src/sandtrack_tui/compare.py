@@ -59,10 +59,9 @@ import pandas as pd
 from . import consistency as K
 from .errors import SandtrackError
 from .interval import gaussian_sd
-from .xyz import BIAS_COLUMNS, SD_COLUMNS
+from .xyz import BIAS_COLUMNS, COV_COLUMNS, SD_COLUMNS
 
 AXES = ("X_mm", "Y_mm", "Z_mm")
-COV_COLUMNS = ("cov_XY_mm2", "cov_XZ_mm2", "cov_YZ_mm2")
 CHI2_KEYS = ("chi2_reduced", "p_value", "within_95_pct", "samples_eff")
 UNOBSERVED = ("occluded", "lost")  # point statuses whose pixel is a prediction, not a measurement
 METRICS = ["rmse_3d_mm", "rmse_x_mm", "rmse_y_mm", "rmse_z_mm", "final_error_mm", "frechet_mm", "dtw_norm_mm",

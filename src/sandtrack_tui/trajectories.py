@@ -47,7 +47,7 @@ import numpy as np
 import pandas as pd
 
 from .errors import SandtrackError
-from .xyz import BIAS_COLUMNS, SD_COLUMNS, XYZ_COLUMNS, NoXYZ, pixel_columns, xyz_columns
+from .xyz import BIAS_COLUMNS, COV_COLUMNS, SD_COLUMNS, XYZ_COLUMNS, NoXYZ, pixel_columns, xyz_columns
 
 TIDY_COLUMNS = XYZ_COLUMNS  # a side/front project's; others: xyz.xyz_columns(cameras)
 FORMATS = ("csv", "parquet", "dltdv")
@@ -56,21 +56,22 @@ MAX_ROWS = 50_000_000
 
 
 # -- export ---------------------------------------------------------------------------------------
-def trajectory_table(project, method: str = "both") -> pd.DataFrame:
-    """The project's tidy XYZ table (see module docstring), via `xyz.compute_xyz`."""
+def trajectory_table(project, method: str = "both", covariance: bool = False) -> pd.DataFrame:
+    """The project's tidy XYZ table (see module docstring), via `xyz.compute_xyz`; `covariance`: with the
+    triangulation's covariances between the axes (``cov_XY_mm2, cov_XZ_mm2, cov_YZ_mm2`` after the sd)."""
     try:
         from .xyz import compute_xyz
     except ImportError:
         raise SandtrackError("3D positions are not available in this version yet (no xyz module)") from None
-    df = compute_xyz(project, method=method)
+    df = compute_xyz(project, method=method, covariance=covariance)
     return check_tidy(df)
 
 
-def export_table(project, method: str = "both") -> tuple[pd.DataFrame, str | None]:
+def export_table(project, method: str = "both", covariance: bool = False) -> tuple[pd.DataFrame, str | None]:
     """The table to export, and None, or, when no method can give millimetres and `method` is "both" or
     "all", the pixel trajectories (method "pixels", X_mm, Y_mm, Z_mm empty) and one line saying why."""
     try:
-        return trajectory_table(project, method), None
+        return trajectory_table(project, method, covariance), None
     except NoXYZ as exc:
         if method not in ("both", "all"):
             raise
@@ -87,7 +88,7 @@ def table_cameras(df: pd.DataFrame) -> list[str]:
 
 def check_tidy(df: pd.DataFrame) -> pd.DataFrame:
     cameras = table_cameras(df)
-    columns = xyz_columns(cameras)
+    columns = xyz_columns(cameras, covariance=all(c in df.columns for c in COV_COLUMNS))
     absent_sd = [c for c in SD_COLUMNS if c not in df.columns]
     if absent_sd:  # a table made without uncertainties: unknown, not zero
         df = df.assign(**{c: np.nan for c in absent_sd})

@@ -48,17 +48,20 @@ _CHUNK = 65536  # rows per pass of the joint propagation (its (rows, 3, paramete
 
 
 def triangulation_sd(calibration: Calibration, pixels: dict[str, np.ndarray], points_rig: np.ndarray,
-                     pixel_sd: dict[str, np.ndarray] | None = None, with_calibration: bool = True) -> np.ndarray:
+                     pixel_sd: dict[str, np.ndarray] | None = None, with_calibration: bool = True,
+                     covariance: bool = False) -> np.ndarray:
     """(N, 3) sd per world axis (mm) of points (rig frame) triangulated from `pixels` ((N, 2) per camera,
-    NaN where unseen). pixel_sd: per camera, a scalar, (N,) or (N, 2) px (per image axis; default: the
-    camera's `camera_noise_px`, else 1 px). NaN where fewer than two cameras saw the point or a needed sd
-    is unknown."""
+    NaN where unseen); with `covariance`, (N, 6): the sd and the covariances XY, XZ, YZ (mm²). pixel_sd: per
+    camera, a scalar, (N,) or (N, 2) px (per image axis; default: the camera's `camera_noise_px`, else 1 px).
+    NaN where fewer than two cameras saw the point or a needed sd is unknown."""
     joint = calibration.rig_uncertainty if with_calibration else None
-    if joint is None:
-        H, M, _, count = _accumulated(calibration, pixels, points_rig, pixel_sd, with_calibration)
-        return _world_sd(H, M, count, calibration.world_from_rig[:3, :3].copy())
     X = np.asarray(points_rig, dtype=np.float64).reshape(-1, 3)
     n = len(X)
+    cov = np.full((n, 3), np.nan)
+    if joint is None:
+        H, M, _, count = _accumulated(calibration, pixels, points_rig, pixel_sd, with_calibration)
+        out = _world_sd(H, M, count, calibration.world_from_rig[:3, :3].copy(), cov)
+        return np.hstack([out, cov]) if covariance else out
     pixels = {k: np.asarray(v, float).reshape(-1, 2) for k, v in pixels.items()}
     if pixel_sd is not None:
         pixel_sd = {k: _per_axis(v, n) for k, v in pixel_sd.items()}
@@ -70,9 +73,11 @@ def triangulation_sd(calibration: Calibration, pixels: dict[str, np.ndarray], po
                                       None if pixel_sd is None else {k: v[sl] for k, v in pixel_sd.items()}, True,
                                       joint)
         Xw = X[sl] @ W[:3, :3].T + W[:3, 3]
+        part = np.full((len(Xw), 3), np.nan)
         out[sl] = _world_sd_joint(H, M, B, count, W[:3, :3].copy(), np.ascontiguousarray(Xw), joint.covariance,
-                                  joint.world_jacobian, joint.world_covariance)
-    return out
+                                  joint.world_jacobian, joint.world_covariance, part)
+        cov[sl] = part
+    return np.hstack([out, cov]) if covariance else out
 
 
 def sd_holds(calibration: Calibration, cameras, pixel_sd: str = "each camera's pixel noise (its calibration)") -> str:
@@ -340,8 +345,9 @@ def _sandwich_world(Hi, Mi, Rw, C):
 
 
 @jit(nogil=True)
-def _world_sd(H, M, count, Rw):
-    """sd per world axis of the sandwich H⁻¹ M H⁻¹ rotated into the world frame; NaN below two cameras."""
+def _world_sd(H, M, count, Rw, cov_out):
+    """sd per world axis of the sandwich H⁻¹ M H⁻¹ rotated into the world frame, and (into `cov_out`, (n, 3))
+    its covariances XY, XZ, YZ; NaN below two cameras."""
     n = len(H)
     out = np.full((n, 3), np.nan)
     Hi = np.empty((3, 3))
@@ -350,16 +356,24 @@ def _world_sd(H, M, count, Rw):
         if count[i] < 2 or not _inv3(H[i], Hi):
             continue
         _sandwich_world(Hi, M[i], Rw, C)
-        for ax in range(3):
-            var = C[ax, ax]
-            out[i, ax] = np.sqrt(max(var, 0.0)) if np.isfinite(var) else np.nan
+        _store(C, out, cov_out, i)
     return out
 
 
+@jit
+def _store(C, out, cov_out, i):
+    """sd (√ of the diagonal, NaN if not finite) and the off-diagonal XY, XZ, YZ of C into row i."""
+    for ax in range(3):
+        var = C[ax, ax]
+        out[i, ax] = np.sqrt(max(var, 0.0)) if np.isfinite(var) else np.nan
+    cov_out[i, 0], cov_out[i, 1], cov_out[i, 2] = C[0, 1], C[0, 2], C[1, 2]
+
+
 @jit(nogil=True)
-def _world_sd_joint(H, M, B, count, Rw, Xw, cov, Psi, Spsi):
+def _world_sd_joint(H, M, B, count, Rw, Xw, cov, Psi, Spsi, cov_out):
     """sd per world axis of the pixels' sandwich plus the joint calibration part M Σθ Mᵀ, M = Rw (-H⁻¹ B) +
-    A(X) Ψ, plus the world frame's own A Σψ Aᵀ (A(X) ψ = ω × X + τ); NaN below two cameras."""
+    A(X) Ψ, plus the world frame's own A Σψ Aᵀ (A(X) ψ = ω × X + τ), and (into `cov_out`) the covariances
+    XY, XZ, YZ of that sum; NaN below two cameras."""
     n = len(H)
     n_par = cov.shape[0]
     out = np.full((n, 3), np.nan)
@@ -368,6 +382,7 @@ def _world_sd_joint(H, M, B, count, Rw, Xw, cov, Psi, Spsi):
     A = np.zeros((3, 6))
     L = np.empty((3, n_par))
     Mw = np.empty((3, n_par))
+    T = np.empty((n_par, 3))
     for i in range(n):
         if count[i] < 2 or not _inv3(H[i], Hi):
             continue
@@ -387,21 +402,29 @@ def _world_sd_joint(H, M, B, count, Rw, Xw, cov, Psi, Spsi):
                 for k in range(6):
                     acc += A[u, k] * Psi[k, p]
                 Mw[u, p] = acc
-        for ax in range(3):
-            var = C[ax, ax]
-            for p in range(n_par):
-                mp = Mw[ax, p]
-                if mp != 0.0:
-                    acc = 0.0
-                    for m in range(n_par):
-                        acc += cov[p, m] * Mw[ax, m]
-                    var += mp * acc
-            for k in range(6):
+        # T = Σθ Mwᵀ once, then every entry of Mw Σθ Mwᵀ is a dot product (the covariances cost no more)
+        for p in range(n_par):
+            t0 = t1 = t2 = 0.0
+            for m in range(n_par):
+                c = cov[p, m]
+                t0 += c * Mw[0, m]
+                t1 += c * Mw[1, m]
+                t2 += c * Mw[2, m]
+            T[p, 0], T[p, 1], T[p, 2] = t0, t1, t2
+        for a in range(3):
+            for b in range(a, 3):
                 acc = 0.0
-                for m in range(6):
-                    acc += Spsi[k, m] * A[ax, m]
-                var += A[ax, k] * acc
-            out[i, ax] = np.sqrt(max(var, 0.0)) if np.isfinite(var) else np.nan
+                for p in range(n_par):
+                    acc += Mw[a, p] * T[p, b]
+                for k in range(6):
+                    inner = 0.0
+                    for m in range(6):
+                        inner += Spsi[k, m] * A[b, m]
+                    acc += A[a, k] * inner
+                C[a, b] += acc
+                if b != a:
+                    C[b, a] = C[a, b]
+        _store(C, out, cov_out, i)
     return out
 
 

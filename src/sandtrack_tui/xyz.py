@@ -76,6 +76,7 @@ OUTSIDE_POLICIES = ("flag", "nan", "keep")
 NETWORK_CAMERAS = ("side", "front")  # the network's inputs: xs, ys, xf, yf
 SD_COLUMNS = ("sd_X_mm", "sd_Y_mm", "sd_Z_mm")
 BIAS_COLUMNS = ("bias_X_mm", "bias_Y_mm", "bias_Z_mm")
+COV_COLUMNS = ("cov_XY_mm2", "cov_XZ_mm2", "cov_YZ_mm2")  # with covariance=True: the triangulation's, mm²
 PARALLEL_ROWS = 100_000  # rows per thread at least: on fewer, the split costs more than the second core saves
 _PIXEL_ALIASES = {"side": ("xs", "ys"), "front": ("xf", "yf")}
 # Worse statuses win when two observations of a camera are combined.
@@ -94,11 +95,13 @@ def pixel_columns(camera: str) -> tuple[str, str]:
     return _PIXEL_ALIASES.get(camera, (f"x_{camera}", f"y_{camera}"))
 
 
-def xyz_columns(cameras) -> list[str]:
-    """Columns of the XYZ table of a project with these cameras (the first is the reference)."""
+def xyz_columns(cameras, covariance: bool = False) -> list[str]:
+    """Columns of the XYZ table of a project with these cameras (the first is the reference); with
+    `covariance`, the covariances between the axes after the sd."""
     return ["frame", "time_s", "marker", *(f"status_{c}" for c in cameras),
-            *(col for c in cameras for col in pixel_columns(c)), "X_mm", "Y_mm", "Z_mm", *SD_COLUMNS, "method",
-            "residual_px", "xyz_source", "calibrated_region", "network_check", *BIAS_COLUMNS]
+            *(col for c in cameras for col in pixel_columns(c)), "X_mm", "Y_mm", "Z_mm", *SD_COLUMNS,
+            *(COV_COLUMNS if covariance else ()), "method", "residual_px", "xyz_source", "calibrated_region",
+            "network_check", *BIAS_COLUMNS]
 
 
 XYZ_COLUMNS = xyz_columns(NETWORK_CAMERAS)
@@ -227,9 +230,11 @@ def project_sd_holds(project, table: pd.DataFrame) -> str | None:
 
 # -- main entry points ----------------------------------------------------------------------------
 def compute_xyz(project, method: str = "both", frames=None, model=None, calibration=None,
-                times: dict | None = None, outside: str = "flag", refine: bool = True) -> pd.DataFrame:
+                times: dict | None = None, outside: str = "flag", refine: bool = True,
+                covariance: bool = False) -> pd.DataFrame:
     """XYZ of every marker at every reference frame (or only `frames`: an iterable of reference frame
     indices). method: "triangulation", "mlp", "residual", "both" (triangulation + mlp) or "all".
+    covariance: also the triangulated rows' covariances between the axes (COV_COLUMNS; NaN elsewhere).
     An explicitly asked method that cannot run (no calibration, no model, too few cameras) raises
     SandtrackError; "both"/"all" give what is available and raise only if nothing is."""
     check_choices(method, outside)
@@ -245,7 +250,7 @@ def compute_xyz(project, method: str = "both", frames=None, model=None, calibrat
         if path is not None and (method in METHODS or path.exists()):
             model = load_cached_model(path)
     methods = resolve_methods(method, calibration, model, timeline.cameras, PROJECT_NEEDS)
-    return _solve(obs, timeline.cameras, methods, model, calibration, outside, refine)
+    return _solve(obs, timeline.cameras, methods, model, calibration, outside, refine, covariance)
 
 
 def compute_pixels(project, frames=None, times: dict | None = None) -> pd.DataFrame:
@@ -437,7 +442,7 @@ def _interpolated(points: pd.DataFrame, marker: np.ndarray, u: np.ndarray) -> di
 
 # -- XYZ --------------------------------------------------------------------------------------------
 def _solve(obs: dict, cameras: list[str], methods: list[str], model, calibration, outside: str,
-           refine: bool) -> pd.DataFrame:
+           refine: bool, covariance: bool = False) -> pd.DataFrame:
     from .calibration.region import region_labels
     from .triangulation_sd import pixel_sd_axes
 
@@ -450,15 +455,16 @@ def _solve(obs: dict, cameras: list[str], methods: list[str], model, calibration
     tsd = {c: pixel_sd_axes(obs["sd"][c], obs["extra"][c], calibration, c) for c in tri_cams}
     blocks, tri = [], None
     for m in methods:
-        xyz, sd = np.full((n, 3), np.nan), np.full((n, 3), np.nan)
+        xyz, sd, cov = np.full((n, 3), np.nan), np.full((n, 3), np.nan), np.full((n, 3), np.nan)
         res = np.full(n, np.nan)
         label = np.full(n, m, dtype=object)
         check, bias = np.full(n, "", dtype=object), np.full((n, 3), np.nan)
         if m == "triangulation":
             if ok.any():
                 used = {c: pix[c][ok] for c in tri_cams}
-                xyz[ok], res[ok], sd[ok] = triangulate_with_sd(calibration, used, {c: tsd[c][ok] for c in tri_cams},
-                                                               refine)
+                xyz[ok], res[ok], both = triangulate_with_sd(calibration, used, {c: tsd[c][ok] for c in tri_cams},
+                                                             refine, covariance=True)
+                sd[ok], cov[ok] = both[:, :3], both[:, 3:]
             tri = (xyz, sd)
         elif n:
             network_rows(m, model, calibration, np.hstack([pix[c] for c in NETWORK_CAMERAS]), outside, xyz, res,
@@ -468,8 +474,8 @@ def _solve(obs: dict, cameras: list[str], methods: list[str], model, calibration
             if m == "mlp":
                 check, bias = check_network_rows(calibration, {c: pix[c] for c in tri_cams}, tsd, refine, xyz, sd,
                                                  tri)
-        blocks.append((xyz, res, label, sd, check, bias))
-    return _table({**obs, "region": region_labels(calibration, pix, n)}, cameras, blocks)
+        blocks.append((xyz, res, label, sd, check, bias, cov))
+    return _table({**obs, "region": region_labels(calibration, pix, n)}, cameras, blocks, covariance)
 
 
 def pixel_sd(sd: np.ndarray, extra: np.ndarray, calibration, camera: str) -> np.ndarray:
@@ -510,22 +516,24 @@ def check_network_rows(calibration, pixels: dict, pixel_sd: dict, refine: bool, 
     return verdict, bias
 
 
-def triangulate_with_sd(calibration, pixels: dict, sd: dict, refine: bool):
+def triangulate_with_sd(calibration, pixels: dict, sd: dict, refine: bool, covariance: bool = False):
     """XYZ (world, mm), residual (px) and sd per world axis (mm) of `triangulation.triangulate`, the sd by
-    `triangulation_sd` (pixel noise and the calibration's parameter covariance). Many rows are split in
-    contiguous parts, one per core, computed on threads at once (the kernels and numpy release the GIL)."""
+    `triangulation_sd` (pixel noise and the calibration's parameter covariance; with `covariance`, (N, 6):
+    the sd and the covariances XY, XZ, YZ in mm²). Many rows are split in contiguous parts, one per core,
+    computed on threads at once (the kernels and numpy release the GIL)."""
     from .cores import usable_cores
 
     n = len(next(iter(pixels.values()))) if pixels else 0
     threads = min(usable_cores(), n // PARALLEL_ROWS)
     if threads < 2:
-        return _triangulate_with_sd(calibration, pixels, sd, refine)
+        return _triangulate_with_sd(calibration, pixels, sd, refine, covariance)
     edges = np.linspace(0, n, threads + 1).astype(int)
 
     def part(k: int):
         rows = slice(edges[k], edges[k + 1])
         return _triangulate_with_sd(calibration, {c: p[rows] for c, p in pixels.items()},
-                                    {c: v[rows] if np.ndim(v) and len(v) == n else v for c, v in sd.items()}, refine)
+                                    {c: v[rows] if np.ndim(v) and len(v) == n else v for c, v in sd.items()}, refine,
+                                    covariance)
 
     from concurrent.futures import ThreadPoolExecutor
 
@@ -534,12 +542,12 @@ def triangulate_with_sd(calibration, pixels: dict, sd: dict, refine: bool):
     return tuple(np.concatenate([d[k] for d in done]) for k in range(3))
 
 
-def _triangulate_with_sd(calibration, pixels: dict, sd: dict, refine: bool):
+def _triangulate_with_sd(calibration, pixels: dict, sd: dict, refine: bool, covariance: bool = False):
     from .triangulation import triangulate
     from .triangulation_sd import triangulation_sd
 
     xyz, res = triangulate(calibration, pixels, refine=refine, world=False)
-    return calibration.to_world(xyz), res, triangulation_sd(calibration, pixels, xyz, sd)
+    return calibration.to_world(xyz), res, triangulation_sd(calibration, pixels, xyz, sd, covariance=covariance)
 
 
 def _solve_scaled(project, obs: dict, camera: str, calibration) -> pd.DataFrame:
@@ -560,12 +568,17 @@ def _solve_scaled(project, obs: dict, camera: str, calibration) -> pd.DataFrame:
     return _table({**obs, "region": region_labels(calibration, obs["pixels"], n)}, [camera], [block])
 
 
-def _table(obs: dict, cameras: list[str], blocks: list) -> pd.DataFrame:
-    """The rows of every method's block, ordered by frame, marker and method."""
+def _table(obs: dict, cameras: list[str], blocks: list, covariance: bool = False) -> pd.DataFrame:
+    """The rows of every method's block (xyz, res, label, sd, check, bias[, cov]), ordered by frame, marker
+    and method; with `covariance`, each block's cov (NaN where it has none) in COV_COLUMNS."""
     n = len(obs["frame"])
-    columns = xyz_columns(cameras)
+    columns = xyz_columns(cameras, covariance)
     cols: dict[str, list] = {c: [] for c in columns}
-    for xyz, res, label, sd, check, bias in blocks:
+    for xyz, res, label, sd, check, bias, *rest in blocks:
+        if covariance:
+            cov = rest[0] if rest else np.full((n, 3), np.nan)
+            for k, c in enumerate(COV_COLUMNS):
+                cols[c].append(cov[:, k])
         for c in ("frame", "time_s", "marker"):
             cols[c].append(obs[c])
         for c in cameras:

@@ -23,6 +23,7 @@ import pandas as pd
 from .errors import SandtrackError
 from .xyz import (
     BIAS_COLUMNS,
+    COV_COLUMNS,
     NETWORK_CAMERAS,
     SD_COLUMNS,
     check_choices,
@@ -76,8 +77,10 @@ def read_pixels(path: str | Path) -> tuple[pd.DataFrame, dict[str, tuple[str, st
 
 
 def xyz_from_pixels(df: pd.DataFrame, cams: dict[str, tuple[str, str]], calibration=None, model=None,
-                    method: str = "both", outside: str = "flag", refine: bool = True) -> tuple[pd.DataFrame, list[str]]:
-    """The table with XYZ by each method, and notes for the user (renamed columns)."""
+                    method: str = "both", outside: str = "flag", refine: bool = True,
+                    covariance: bool = False) -> tuple[pd.DataFrame, list[str]]:
+    """The table with XYZ by each method, and notes for the user (renamed columns); `covariance`: the
+    triangulated rows' covariances between the axes after the sd (COV_COLUMNS; NaN on the other rows)."""
     check_choices(method, outside)
     from .triangulation_sd import pixel_sd_axes, sd_holds
     from .xyz import check_network_rows, triangulate_with_sd
@@ -90,7 +93,7 @@ def xyz_from_pixels(df: pd.DataFrame, cams: dict[str, tuple[str, str]], calibrat
                 f"({', '.join(calibration.names)}); name the columns x_NAME, y_NAME after its cameras")
     methods = resolve_methods(method, calibration, model, cams, COMMAND_LINE_NEEDS)
     notes = []
-    clash = [c for c in RESULT_COLUMNS if c in df.columns]
+    clash = [c for c in (*RESULT_COLUMNS, *(COV_COLUMNS if covariance else ())) if c in df.columns]
     base = df
     if clash:
         base = df.rename(columns={c: f"{c}_input" for c in clash})
@@ -113,10 +116,12 @@ def xyz_from_pixels(df: pd.DataFrame, cams: dict[str, tuple[str, str]], calibrat
 
     region = pd.Categorical.from_codes(region_codes(calibration, pix, n), LABELS)
     for m in methods:
-        bias = np.full((n, 3), np.nan)
+        bias, cov = np.full((n, 3), np.nan), None
         if m == "triangulation" and n:
             used = {c: pix[c] for c in tri_cams}
-            xyz, res, sd = triangulate_with_sd(calibration, used, {c: tsd[c] for c in used}, refine)
+            xyz, res, sd = triangulate_with_sd(calibration, used, {c: tsd[c] for c in used}, refine, covariance)
+            if covariance:
+                sd, cov = sd[:, :3], sd[:, 3:]
         else:
             xyz, res, sd = np.full((n, 3), np.nan), np.full(n, np.nan), np.full((n, 3), np.nan)
         if m == "triangulation":
@@ -131,8 +136,12 @@ def xyz_from_pixels(df: pd.DataFrame, cams: dict[str, tuple[str, str]], calibrat
             if m == "mlp":
                 check, bias = check_network_rows(calibration, {c: pix[c] for c in tri_cams}, tsd, refine, xyz, sd,
                                                  tri)
+        if covariance and cov is None:
+            cov = np.full((n, 3), np.nan)
         added = {"X_mm": xyz[:, 0], "Y_mm": xyz[:, 1], "Z_mm": xyz[:, 2],
-                 **{c: sd[:, k] for k, c in enumerate(SD_COLUMNS)}, "method": label, "residual_px": res,
+                 **{c: sd[:, k] for k, c in enumerate(SD_COLUMNS)},
+                 **({c: cov[:, k] for k, c in enumerate(COV_COLUMNS)} if covariance else {}),
+                 "method": label, "residual_px": res,
                  "calibrated_region": region, "network_check": check,
                  **{c: bias[:, k] for k, c in enumerate(BIAS_COLUMNS)}}
         blocks.append(pd.concat([base.reset_index(drop=True), pd.DataFrame(added)], axis=1))
@@ -166,6 +175,7 @@ def write_table(table: pd.DataFrame, path: str | Path | None) -> None:
     import pyarrow.csv as pacsv
 
     out = table.assign(**{c: table[c].round(4) for c in ("X_mm", "Y_mm", "Z_mm", *SD_COLUMNS, "residual_px")})
+    out = out.assign(**{c: table[c].round(6) for c in COV_COLUMNS if c in table.columns})  # mm²: to 1e-6
     for c in out.columns:
         if out[c].dtype == object:  # mixed text columns: as text
             out[c] = out[c].astype("string")

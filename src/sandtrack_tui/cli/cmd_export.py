@@ -15,6 +15,9 @@ def register(sub) -> None:
                    help="output file (.csv, .parquet), or the file prefix for --format dltdv")
     p.add_argument("--format", choices=["csv", "parquet", "dltdv"], default=None,
                    help="default: from the output's suffix")
+    p.add_argument("--covariance", action="store_true",
+                   help="tidy table: also the triangulated rows' covariances between the axes (cov_XY_mm2, "
+                        "cov_XZ_mm2, cov_YZ_mm2, after the sd)")
     p.add_argument("--method", choices=["both", "all", "triangulation", "mlp", "residual"], default="both",
                    help="3D method(s) to export (dltdv takes one: triangulation unless mlp is given)")
     add_json_flag(p)
@@ -32,7 +35,7 @@ def run(args) -> int:
             raise SandtrackError(f"{args.project}: the project has no videos")
         heights = {c: float(v.height) for c, v in vids.items()}
         log(f"export: computing 3D positions ({args.method})")
-        df, pixels_only = export_table(proj, method=args.method)
+        df, pixels_only = export_table(proj, method=args.method, covariance=args.covariance)
         holds = None if pixels_only else project_sd_holds(proj, df)
     if pixels_only:
         log(f"export: {pixels_only}")

@@ -30,6 +30,9 @@ def register(sub) -> None:
     p.add_argument("--outside", choices=OUTSIDE_POLICIES, default="flag",
                    help="MLP rows outside the training volume: flag as method mlp_outside (default), "
                         "nan (no XYZ) or keep")
+    p.add_argument("--covariance", action="store_true",
+                   help="also the triangulated rows' covariances between the axes (cov_XY_mm2, cov_XZ_mm2, "
+                        "cov_YZ_mm2, after the sd): the errors of X, Y and Z are correlated")
     p.add_argument("-o", "--output", help="write all frames to this CSV")
     add_json_flag(p)
     p.set_defaults(func=run)
@@ -74,7 +77,8 @@ def run_pixels(args) -> int:
         model = load_cached_model(args.model)
     df, cams = read_pixels(args.project)
     t_read = time.perf_counter() - t0
-    table, notes = xyz_from_pixels(df, cams, calibration, model, method=args.method, outside=args.outside)
+    table, notes = xyz_from_pixels(df, cams, calibration, model, method=args.method, outside=args.outside,
+                                   covariance=args.covariance)
     t_xyz = time.perf_counter() - t0 - t_read
     if args.output:
         out = Path(args.output)
@@ -103,8 +107,10 @@ def run_pixels(args) -> int:
 
 
 def run_project(args) -> int:
+    import numpy as np
+
     from ..store import Project
-    from ..xyz import compute_xyz, project_sd_holds
+    from ..xyz import COV_COLUMNS, compute_xyz, project_sd_holds
 
     t0 = time.perf_counter()
     if args.frame is None and not args.output:
@@ -113,14 +119,18 @@ def run_project(args) -> int:
         raise SandtrackError("--frame must be 0 or more")
     with Project.open(args.project) as project:
         frames = None if args.frame is None else [args.frame]
-        table = compute_xyz(project, method=args.method, frames=frames, outside=args.outside)
+        table = compute_xyz(project, method=args.method, frames=frames, outside=args.outside,
+                            covariance=args.covariance)
         holds = project_sd_holds(project, table)
     if args.output:
         out = Path(args.output)
         if not out.parent.exists():
             raise SandtrackError(f"folder does not exist: {out.parent}")
         try:
-            table.to_csv(out, index=False, float_format="%.4f")
+            # the covariances in mm² to 1e-6 (0.0001 mm² would round a 0.03 mm sd's away), the rest to 1e-4
+            cov = {c: np.where(np.isfinite(v := table[c].to_numpy(float)), np.char.mod("%.6f", v), "")
+                   for c in COV_COLUMNS if c in table.columns}
+            table.assign(**cov).to_csv(out, index=False, float_format="%.4f")
         except OSError as exc:
             raise SandtrackError(f"cannot write {out}: {exc.strerror}") from None
         log(f"wrote {len(table)} rows to {out}")
