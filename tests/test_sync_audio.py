@@ -177,6 +177,14 @@ def test_cli_sync_json_and_project(av_pair, tmp_path, capsys):
     with Project.open(proj) as p:
         assert p.sync_offset_s == pytest.approx(out["offset_s"])
         assert p.get("sync_result")["method"] == "audio"
+        assert "sound_path_bound_ms" not in out  # no calibration: the cameras' distance is not known
+        from sandtrack_tui.calibration.synthetic import stereo_rig
+
+        p.set_calibration(stereo_rig())  # the front camera 434 mm from the side one
+    assert main(["sync", str(proj)]) == 0
+    text = capsys.readouterr().out
+    bound = np.linalg.norm([420.0, -60.0, 90.0]) / 343.0  # ms
+    assert f"the clap's sound path may shift it by up to ±{bound:.2f} ms (the cameras are 0.43 m apart)" in text
 
 
 def test_cli_sync_bad_input(tmp_path, capsys):

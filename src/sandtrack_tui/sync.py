@@ -603,5 +603,18 @@ def estimate_offset(side_path: str | Path, front_path: str | Path, method: str =
     return res
 
 
+SPEED_OF_SOUND_M_S = 343.0  # dry air at 20 °C
+
+
+def sound_path_bound_s(calibration, a: str = "side", b: str = "front") -> float | None:
+    """How far (s) the sound's path can shift an audio offset between cameras `a` and `b`: a clap reaches
+    them up to their distance apart / the speed of sound apart (zero for a clap as far from both); None
+    without both cameras in the calibration."""
+    if calibration is None or a not in calibration.cameras or b not in calibration.cameras:
+        return None
+    d_mm = float(np.linalg.norm(calibration.cameras[a].center_mm - calibration.cameras[b].center_mm))
+    return d_mm / 1000.0 / SPEED_OF_SOUND_M_S
+
+
 def _short(exc: BaseException) -> str:
     return str(exc).splitlines()[0][:200] if str(exc) else type(exc).__name__

@@ -38,7 +38,7 @@ def _is_project(path: str) -> bool:
 
 def run(args) -> int:
     from ..store import Project
-    from ..sync import MIN_CONFIDENCE, estimate_offset
+    from ..sync import MIN_CONFIDENCE, SPEED_OF_SOUND_M_S, estimate_offset
 
     project_path = args.project
     if len(args.inputs) == 1:
@@ -66,9 +66,24 @@ def run(args) -> int:
             proj.set("sync_result", {k: v for k, v in out.items() if k != "details"}, "sync details")
         out["project"] = str(project_path)
     text = res.summary()
+    bound = _sound_path_bound(project_path) if res.method == "audio" and project_path else None
+    if bound is not None:
+        out["sound_path_bound_ms"] = 1000.0 * bound
+        text += (f"\nthe clap's sound path may shift it by up to ±{1000 * bound:.2f} ms (the cameras are "
+                 f"{bound * SPEED_OF_SOUND_M_S:.2f} m apart): clap about as far from both")
     if "warning" in res.details:
         log(f"warning: {res.details['warning']}")
     if project_path:
         text += f"\nstored in {project_path}"
     emit(out, args.json, text)
     return 0
+
+
+def _sound_path_bound(project_path) -> float | None:
+    """The sound path's bound (s) between a calibrated project's side and front cameras, else None."""
+    from ..store import Project
+    from ..sync import sound_path_bound_s
+    from ..xyz import project_calibration
+
+    with Project.open(project_path) as proj:
+        return sound_path_bound_s(project_calibration(proj))
