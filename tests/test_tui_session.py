@@ -74,6 +74,30 @@ async def test_tracking_unsynced_cameras_asks_first(tmp_path, frames, monkeypatc
 
 
 @aio
+async def test_the_sync_screen_says_how_far_the_sound_path_can_shift_an_audio_offset(tmp_path, frames, monkeypatch):
+    """F2 with a calibrated project: the audio offset comes with the bound of the clap's sound path between the
+    two cameras (250 mm apart here: ±0.73 ms)."""
+    from textual.widgets import Static
+
+    import sandtrack_tui.sync as sync
+    from sandtrack_tui.tui.screens.sync import SyncScreen
+
+    project = new_project(tmp_path, frames, synced=False, calibrated=True)
+    measured = SimpleNamespace(offset_s=0.0123, method="audio", summary=lambda: "offset +12.30 ms (test)")
+    monkeypatch.setattr(sync, "estimate_offset", lambda a, b, method="auto": measured)
+    app = SandtrackApp(project)
+    async with app.run_test(size=SIZE) as pilot:
+        await settle(pilot, app)
+        await pilot.press("f2")
+        await settle(pilot, app, lambda: isinstance(app.screen, SyncScreen))
+        await pilot.press("ctrl+r")
+        await until_idle(pilot, app)
+        await settle(pilot, app, lambda: "±" in str(app.screen.query_one("#result", Static).render()))
+        text = str(app.screen.query_one("#result", Static).render())
+        assert "offset +12.30 ms (test)" in text and "sound path may shift it by up to ±0.73 ms" in text
+
+
+@aio
 async def test_track_anyway_is_asked_once_per_session(tmp_path, frames):
     project = new_project(tmp_path, frames, synced=False)
     app = SandtrackApp(project)
