@@ -398,16 +398,13 @@ def _write_dem(out: Path, seed: int) -> None:
     script = MarkerScript(seed, tl)
     surf = SurfaceGrid(seed)
     t_dem = np.arange(0.0, TOOL_TRAVEL / TOOL_SPEED + 0.5 + 1e-9, 1.0 / DEM_RATE_HZ)
-    rows = []
-    for td in t_dem:
-        tau = tl.tool_start_s + td - DEM_TIME_SHIFT_S
-        pos = script.positions(tau, surf)
-        for mid in MARKER_IDS:
-            p = pos[mid].copy()
-            if mid in DEM_DRIFT_MM_PER_S:
-                p += np.array(DEM_DRIFT_MM_PER_S[mid]) * td
-            rows.append((mid, round(float(td), 6), *p))
-    df = pd.DataFrame(rows, columns=["particle_id", "time_s", "x", "y", "z"]).sort_values(["particle_id", "time_s"])
+    pos = script.positions_over(tl.tool_start_s + t_dem - DEM_TIME_SHIFT_S, surf)
+    parts = []
+    for mid in MARKER_IDS:
+        p = pos[mid] + np.outer(t_dem, DEM_DRIFT_MM_PER_S.get(mid, (0.0, 0.0, 0.0)))
+        parts.append(pd.DataFrame({"particle_id": mid, "time_s": np.round(t_dem, 6), "x": p[:, 0], "y": p[:, 1],
+                                   "z": p[:, 2]}))
+    df = pd.concat(parts, ignore_index=True).sort_values(["particle_id", "time_s"])
     df.to_csv(out / "dem" / "particles.csv", index=False, float_format="%.4f")
     diff = {
         "time_shift_s": DEM_TIME_SHIFT_S,

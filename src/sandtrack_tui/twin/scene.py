@@ -127,18 +127,25 @@ class SurfaceGrid:
     def height_at(self, X: float, Z: float, zt: float) -> float:
         """Height at one point for tool position zt, from the four grid nodes around it (same values
         as the grid would hold), without touching the grid."""
-        gx = float(np.clip(X / GRID_MM, 0, NX - 1.000001))
-        gz = float(np.clip(Z / GRID_MM, 0, NZ - 1.000001))
-        i, j = int(np.floor(gx)), int(np.floor(gz))
-        xs = np.array([i, i + 1]) * GRID_MM - TOOL_X
-        zs = np.array([j, j + 1], float)[:, None] * GRID_MM
-        cols_ok = np.abs(xs) <= X_HALF + 2  # outside the deformable band the grid holds flat sand
-        h, _ = deformation(xs[None, :], zs, zt, self.rough[j : j + 2, i : i + 2])
-        node = (SAND_Y + np.where(cols_ok[None, :], h, 0.0)).astype(np.float32).astype(np.float64)
+        return float(self.heights_at(np.array([X], float), np.array([Z], float), np.array([zt], float))[0])
+
+    def heights_at(self, X: np.ndarray, Z: np.ndarray, zt: np.ndarray) -> np.ndarray:
+        """`height_at` of many points at once (arrays of one length), each with its own tool position;
+        outside the deformable band the grid holds flat sand."""
+        gx = np.clip(np.asarray(X, float) / GRID_MM, 0, NX - 1.000001)
+        gz = np.clip(np.asarray(Z, float) / GRID_MM, 0, NZ - 1.000001)
+        i, j = np.floor(gx).astype(np.intp), np.floor(gz).astype(np.intp)
+        two = np.arange(2)
+        xs = (i[:, None] + two) * GRID_MM - TOOL_X  # (n, 2) along X
+        zs = ((j[:, None] + two) * GRID_MM).astype(float)  # (n, 2) along Z
+        rough = self.rough[j[:, None, None] + two[None, :, None], i[:, None, None] + two[None, None, :]]
+        h, _ = deformation(xs[:, None, :], zs[:, :, None], np.asarray(zt, float)[:, None, None], rough)
+        cols_ok = np.abs(xs) <= X_HALF + 2
+        node = (SAND_Y + np.where(cols_ok[:, None, :], h, 0.0)).astype(np.float32).astype(np.float64)
         fx, fz = gx - i, gz - j
-        top = node[0, 0] * (1 - fx) + node[0, 1] * fx
-        bottom = node[1, 0] * (1 - fx) + node[1, 1] * fx
-        return float(top * (1 - fz) + bottom * fz)
+        top = node[:, 0, 0] * (1 - fx) + node[:, 0, 1] * fx
+        bottom = node[:, 1, 0] * (1 - fx) + node[:, 1, 1] * fx
+        return top * (1 - fz) + bottom * fz
 
 
 def bilinear(grid: np.ndarray, gx, gz):
@@ -236,21 +243,26 @@ class MarkerScript:
         s = np.clip(np.asarray(self.timeline.tool_z(t), float) - self.p0[mid][2], s0, s1)
         return fx(s), fz(s), fy(s)
 
-    def positions(self, t: float, surface: SurfaceGrid) -> dict[int, np.ndarray]:
-        """Marker centres (mm, world) at scene time t (the surface's grid state is not used)."""
+    def positions_over(self, t: np.ndarray, surface: SurfaceGrid) -> dict[int, np.ndarray]:
+        """Marker centres (mm, world) at scene times t: marker id -> (n, 3); in the shank's lane the shank
+        front pushes a marker ahead of it (smoothly)."""
+        t = np.asarray(t, float)
+        zt = np.asarray(self.timeline.tool_z(t), float)
         out = {}
-        zt = float(self.timeline.tool_z(t))
         for mid in MARKER_IDS:
-            dx, dz, dy = (float(v) for v in self.offsets(mid, t))
+            dx, dz, dy = (np.asarray(v, float) for v in self.offsets(mid, t))
             x = self.p0[mid][0] + dx
             z = self.p0[mid][2] + dz
-            # in the shank's lane the shank front pushes the marker: keep it ahead (smoothly)
-            w = float(_smoothstep(SHANK_HALF_X + 5.0, SHANK_HALF_X + 3.0, abs(x - TOOL_X)))
-            if w > 0 and z > zt - SHANK_CHORD:
-                z += w * 0.7 * float(np.logaddexp(0.0, (zt + self.push_gap - z) / 0.7))
-            y = surface.height_at(x, z, zt) + self.radius + dy
-            out[mid] = np.array([x, y, z])
+            w = _smoothstep(SHANK_HALF_X + 5.0, SHANK_HALF_X + 3.0, np.abs(x - TOOL_X))
+            pushed = (w > 0) & (z > zt - SHANK_CHORD)
+            z = np.where(pushed, z + w * 0.7 * np.logaddexp(0.0, (zt + self.push_gap - z) / 0.7), z)
+            y = surface.heights_at(x, z, zt) + self.radius + dy
+            out[mid] = np.stack([x, y, z], axis=1)
         return out
+
+    def positions(self, t: float, surface: SurfaceGrid) -> dict[int, np.ndarray]:
+        """Marker centres (mm, world) at scene time t (the surface's grid state is not used)."""
+        return {mid: p[0] for mid, p in self.positions_over(np.array([t], float), surface).items()}
 
 
 # -- visibility ------------------------------------------------------------------------------------
