@@ -616,5 +616,11 @@ def sound_path_bound_s(calibration, a: str = "side", b: str = "front") -> float 
     return d_mm / 1000.0 / SPEED_OF_SOUND_M_S
 
 
+def sound_path_line(bound_s: float) -> str:
+    """What `sound_path_bound_s` means for the user, in one line."""
+    return (f"the clap's sound path may shift it by up to ±{1000 * bound_s:.2f} ms (the cameras are "
+            f"{bound_s * SPEED_OF_SOUND_M_S:.2f} m apart): clap about as far from both")
+
+
 def _short(exc: BaseException) -> str:
     return str(exc).splitlines()[0][:200] if str(exc) else type(exc).__name__

@@ -116,7 +116,7 @@ def xyz_from_pixels(df: pd.DataFrame, cams: dict[str, tuple[str, str]], calibrat
 
     region = pd.Categorical.from_codes(region_codes(calibration, pix, n), LABELS)
     for m in methods:
-        bias, cov = np.full((n, 3), np.nan), None
+        bias, cov = np.full((n, 3), np.nan), np.full((n, 3), np.nan) if covariance else None
         if m == "triangulation" and n:
             used = {c: pix[c] for c in tri_cams}
             xyz, res, sd = triangulate_with_sd(calibration, used, {c: tsd[c] for c in used}, refine, covariance)
@@ -136,8 +136,6 @@ def xyz_from_pixels(df: pd.DataFrame, cams: dict[str, tuple[str, str]], calibrat
             if m == "mlp":
                 check, bias = check_network_rows(calibration, {c: pix[c] for c in tri_cams}, tsd, refine, xyz, sd,
                                                  tri)
-        if covariance and cov is None:
-            cov = np.full((n, 3), np.nan)
         added = {"X_mm": xyz[:, 0], "Y_mm": xyz[:, 1], "Z_mm": xyz[:, 2],
                  **{c: sd[:, k] for k, c in enumerate(SD_COLUMNS)},
                  **({c: cov[:, k] for k, c in enumerate(COV_COLUMNS)} if covariance else {}),

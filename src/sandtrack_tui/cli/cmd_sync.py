@@ -38,7 +38,8 @@ def _is_project(path: str) -> bool:
 
 def run(args) -> int:
     from ..store import Project
-    from ..sync import MIN_CONFIDENCE, SPEED_OF_SOUND_M_S, estimate_offset
+    from ..sync import MIN_CONFIDENCE, estimate_offset, sound_path_bound_s, sound_path_line
+    from ..xyz import project_calibration
 
     project_path = args.project
     if len(args.inputs) == 1:
@@ -60,17 +61,18 @@ def run(args) -> int:
     res = estimate_offset(side, front, method=args.method, max_offset_s=args.max_offset,
                           min_confidence=MIN_CONFIDENCE if args.min_confidence is None else args.min_confidence)
     out = {"side": str(side), "front": str(front), **res.to_dict()}
+    bound = None
     if project_path:
         with Project.open(project_path) as proj:
             proj.set("sync_offset_s", res.offset_s, f"sync offset {res.offset_s * 1000:+.2f} ms ({res.method})")
             proj.set("sync_result", {k: v for k, v in out.items() if k != "details"}, "sync details")
+            if res.method == "audio":
+                bound = sound_path_bound_s(project_calibration(proj))
         out["project"] = str(project_path)
     text = res.summary()
-    bound = _sound_path_bound(project_path) if res.method == "audio" and project_path else None
     if bound is not None:
         out["sound_path_bound_ms"] = 1000.0 * bound
-        text += (f"\nthe clap's sound path may shift it by up to ±{1000 * bound:.2f} ms (the cameras are "
-                 f"{bound * SPEED_OF_SOUND_M_S:.2f} m apart): clap about as far from both")
+        text += "\n" + sound_path_line(bound)
     if "warning" in res.details:
         log(f"warning: {res.details['warning']}")
     if project_path:
@@ -78,12 +80,3 @@ def run(args) -> int:
     emit(out, args.json, text)
     return 0
 
-
-def _sound_path_bound(project_path) -> float | None:
-    """The sound path's bound (s) between a calibrated project's side and front cameras, else None."""
-    from ..store import Project
-    from ..sync import sound_path_bound_s
-    from ..xyz import project_calibration
-
-    with Project.open(project_path) as proj:
-        return sound_path_bound_s(project_calibration(proj))

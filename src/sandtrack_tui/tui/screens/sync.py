@@ -70,10 +70,11 @@ class SyncScreen(TaskScreen):
         self.result = res
         text = res.summary() if hasattr(res, "summary") else str(res)
         camera = synced_camera(self.main.cameras)
-        bound = core("sync", "sound_path_bound_s").sound_path_bound_s(self.main._calibration, self.main.ref, camera) \
+        sync = core("sync", "sound_path_bound_s", "sound_path_line")
+        bound = sync.sound_path_bound_s(self.main._calibration, self.main.ref, camera) \
             if getattr(res, "method", "") == "audio" and camera is not None else None
         if bound is not None:
-            text += f"\nthe clap's sound path may shift it by up to ±{1000 * bound:.2f} ms: clap about as far from both"
+            text += "\n" + sync.sound_path_line(bound)
         self.query_one("#result", Static).update(f"[green]{text}[/]\nPress Apply to use it.")
         self.query_one("#offset", Input).value = f"{res.offset_s * 1000:.3f}"
         self.query_one("#apply", Button).focus()
