@@ -1,7 +1,8 @@
 """The calibration's part of an XYZ sd, propagated jointly with the world frame it moves: cameras drawn from
 a joint covariance (correlated across cameras), the world frame refitted each time to a board lying in a
-reference frame with noisy detections: the joint sd covers the true errors; each camera alone with the world
-frame taken as exact does not. The joint block survives the calibration file."""
+reference frame with noisy detections (with a shift shared by each camera's view): the joint sd covers the
+true errors; each camera alone with the world frame taken as exact does not. The joint block survives the
+calibration file."""
 
 from __future__ import annotations
 
@@ -14,7 +15,13 @@ from sandtrack_tui.calibration.detect import BoardView
 from sandtrack_tui.calibration.geometry import inv_T, kabsch
 from sandtrack_tui.calibration.rig import fit_frame_poses
 from sandtrack_tui.calibration.world import WORLD_FROM_BOARD_AXES, world_from_board_pose
-from sandtrack_tui.calibration.world_uncertainty import board_reference, known_points_reference, perturbed, psi
+from sandtrack_tui.calibration.world_uncertainty import (
+    SHARED_VIEW_ERROR,
+    board_reference,
+    known_points_reference,
+    perturbed,
+    psi,
+)
 from sandtrack_tui.camera import Calibration, CameraUncertainty
 from sandtrack_tui.errors import SandtrackError
 from sandtrack_tui.regression.spread import coverage
@@ -50,8 +57,9 @@ def _reference(rig, board, rng):
     pts = board.corner_points_mm()
     rig_pts = pts @ T_rig_board[:3, :3].T + T_rig_board[:3, 3]
     ids = np.arange(len(pts))
-    views = {c: BoardView(0, 0, ids, rig.cameras[c].project(rig_pts) + rng.normal(0, NOISE_PX, (len(pts), 2)))
-             for c in rig.cameras}
+    # each camera's detections: independent noise per corner plus one shift shared by the view, as stated
+    views = {c: BoardView(0, 0, ids, rig.cameras[c].project(rig_pts) + rng.normal(0, NOISE_PX, (len(pts), 2))
+                          + rng.normal(0, SHARED_VIEW_ERROR * NOISE_PX, 2)) for c in rig.cameras}
     return views, T_rig_board
 
 
@@ -89,9 +97,10 @@ def test_the_world_frame_moves_with_the_cameras_and_the_joint_sd_covers_the_erro
         alone_sd.append(s_alone)
     e, sj, sa = np.concatenate(errs), np.concatenate(joint_sd), np.concatenate(alone_sd)
     cj, ca = coverage(e, sj), coverage(e, sa)
-    assert np.all(np.abs(cj - 0.95) < 0.025), cj  # measured 0.94-0.96
+    # measured 0.934-0.943 (without the shared shift in the world frame's term: 0.921-0.937)
+    assert np.all(np.abs(cj - 0.95) < 0.025), cj
     # and the joint covariance between the axes: its 95 % ellipsoid holds 95 % of the 3-D errors (measured
-    # 0.931; 150 draws of the cameras and the reference: sd about 0.018)
+    # 0.926, 0.905 without the shared shift; 150 draws of the cameras and the reference: sd about 0.018)
     assert abs(ellipsoid_coverage(e, np.concatenate(fulls)) - 0.95) < 0.04
     # each camera alone, the world frame exact: the camera errors the refit cancels are counted in full
     assert np.any(ca > 0.985), ca

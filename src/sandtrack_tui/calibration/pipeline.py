@@ -21,6 +21,7 @@ from ..board import BoardSpec
 from ..camera import Calibration
 from ..errors import SandtrackError
 from .detect import BoardView, detect_in_sources, detection_stride, frame_pairing, open_source
+from .misdetections import screen_corners
 from .model_choice import spread_line
 from .points import calibration_points
 from .region import covered_pct, image_region
@@ -161,6 +162,11 @@ def calibrate_videos(videos: dict[str, str | Path], board: BoardSpec, *, offsets
     all_frames = sorted(set().union(*[set(views[n]) for n in names]))
     initial = {f: rig.frame_pose(f) for f in rig.frames}
     poses = fit_frame_poses(calibration, views, board, all_frames, initial)
+    screen = screen_corners(calibration, views, board, poses)
+    kept, poses = screen.kept, screen.poses
+    for n, unc in calibration.uncertainty.items():
+        if np.isfinite(screen.noise_px[n]).all():
+            unc.noise_px = [float(v) for v in screen.noise_px[n]]
     # world frame
     world: dict = {"method": "rig frame (no reference given)"}
     warnings += rig.warnings
@@ -188,7 +194,7 @@ def calibrate_videos(videos: dict[str, str | Path], board: BoardSpec, *, offsets
         calibration.world_from_rig = world_from_board_pose(poses[reference_frame], origin_mm)
         if joint is not None:
             calibration.rig_uncertainty = board_reference(
-                calibration, {n: views[n][reference_frame] for n in names if reference_frame in views[n]}, board,
+                calibration, {n: kept[n][reference_frame] for n in names if reference_frame in kept[n]}, board,
                 poses[reference_frame], origin_mm, *joint)
         world = {"method": "board lying flat in a reference frame", "frame": int(reference_frame),
                  "origin_mm": [float(v) for v in origin_mm]}
@@ -198,7 +204,7 @@ def calibrate_videos(videos: dict[str, str | Path], board: BoardSpec, *, offsets
     if calibration.rig_uncertainty is not None:
         world.update(calibration.rig_uncertainty.world_frame_sd() or {})
     acc = accuracy_report(calibration, views, board, poses)
-    points = calibration_points(calibration, views, board, poses, names[:2]) if with_points else None
+    points = calibration_points(calibration, kept, board, poses, names[:2]) if with_points else None
     per_camera = {}
     fitted = fitted_corners(views, rig.frames)
     for n in names:
@@ -208,6 +214,7 @@ def calibrate_videos(videos: dict[str, str | Path], board: BoardSpec, *, offsets
         r["single_camera_fit"] = {k: r.pop(k) for k in ("fx", "fy", "cx", "cy", "distortion")}
         r.update(camera_parameters(calibration, n))
         r["reprojection_rmse_px"] = acc["per_camera_reprojection_rmse_px"].get(n)
+        r.update(screen.summary(n))
         r["frames_with_board"] = len(views[n])
         r["mirrored_views"] = sum(v.mirrored for v in views[n].values())
         r["calibrated_region_pct"] = covered_pct(fitted[n], sizes[n])

@@ -145,7 +145,12 @@ def _text(r: dict) -> str:
         sd = f" ± {c['fx_sd_px']:.2f} px (1 sd of the fit)" if c.get("fx_sd_px") is not None else " px"
         lines.append(f"  {n}: fx {fx:.2f}{sd}, RMSE {rm:.3f} px{lens}" if fx is not None and rm is not None
                      else f"  {n}")
-        if c.get("noise_px"):
+        if c.get("misdetected_corners") is not None:
+            x, y = c["noise_px"]
+            lines.append(f"    {c['misdetected_corners']} of {c['corners_screened']} corners misdetected (beyond "
+                         f"{c['misdetection_limit_sd']:g} robust sd: not in the calibration points); the others' pixel "
+                         f"noise x {x:.3f}, y {y:.3f} px")
+        elif c.get("noise_px"):
             lines.append("    own pixel noise (the known points' error taken out) x {:.3f}, y {:.3f} px"
                          .format(*c["noise_px"]))
         if c.get("calibrated_region_pct") is not None:
