@@ -66,6 +66,9 @@ def real_footage() -> dict:
         "corners_detected": r["corners_detected"],
         "views_used": r["views_used"],
         "per_camera_rmse_px": {n: c["reprojection_rmse_px"] for n, c in r["per_camera"].items()},
+        "per_camera_misdetected_corners": {n: [c["misdetected_corners"], c["corners_screened"]]
+                                           for n, c in r["per_camera"].items()},
+        "per_camera_noise_px": {n: c["noise_px"] for n, c in r["per_camera"].items()},
         "seconds_wall": wall,
         "seconds_cpu": cpu,
         "reference_figures": REFERENCE,
@@ -82,6 +85,32 @@ def real_footage() -> dict:
     out.update(lens_choice_on_the_rig(res, board))
     out["parameter_sd_split_halves"] = split_half_parameters(res, board)
     out["corners_from_the_rigid_board"] = corners_from_the_rigid_board(res, board)
+    out["shared_view_error"] = shared_view_error(res, board)
+    return out
+
+
+def shared_view_error(res, board, min_cameras: int = 3) -> dict:
+    """Per camera, an error shared by all corners of one view: in frames seen by `min_cameras` or more, where
+    the board's pose cannot absorb every camera's shift, the variance of each view's mean residual beyond what
+    its corners' own scatter explains (px per image axis; the part no pose absorbed, so a lower bound)."""
+    from sandtrack_tui.calibration.misdetections import corner_residuals
+
+    residuals = corner_residuals(res.calibration, res.views, board, res.poses)
+    seen: dict[int, int] = {}
+    for per_frame in residuals.values():
+        for f in per_frame:
+            seen[f] = seen.get(f, 0) + 1
+    out = {}
+    for n, per_frame in residuals.items():
+        parts = [r for f, r in per_frame.items() if len(r) >= 8 and seen[f] >= min_cameras]
+        if not parts:
+            continue
+        counts = np.array([len(r) for r in parts], float)
+        means = np.array([r.mean(axis=0) for r in parts])
+        within = sum(((r - r.mean(axis=0)) ** 2).sum(axis=0) for r in parts) / np.sum(counts - 1)
+        excess = np.mean(means ** 2, axis=0) - np.mean(within[None, :] / counts[:, None], axis=0)
+        out[n] = {"views": len(parts), "within_view_sd_px": [round(float(v), 3) for v in np.sqrt(within)],
+                  "shared_sd_px": [round(float(v), 3) for v in np.sqrt(np.clip(excess, 0, None))]}
     return out
 
 

@@ -163,6 +163,9 @@ def calibrate_videos(videos: dict[str, str | Path], board: BoardSpec, *, offsets
     initial = {f: rig.frame_pose(f) for f in rig.frames}
     poses = fit_frame_poses(calibration, views, board, all_frames, initial)
     screen = screen_corners(calibration, views, board, poses)
+    # the report's figures keep their usual meaning (every corner, each pose fitted to all of its corners);
+    # the points and the world frame take the poses fitted without the misdetected corners
+    poses_all = poses
     kept, poses = screen.kept, screen.poses
     for n, unc in calibration.uncertainty.items():
         if np.isfinite(screen.noise_px[n]).all():
@@ -203,7 +206,7 @@ def calibrate_videos(videos: dict[str, str | Path], board: BoardSpec, *, offsets
     world.update(describe(calibration.world_from_rig))
     if calibration.rig_uncertainty is not None:
         world.update(calibration.rig_uncertainty.world_frame_sd() or {})
-    acc = accuracy_report(calibration, views, board, poses)
+    acc = accuracy_report(calibration, views, board, poses_all)
     points = calibration_points(calibration, kept, board, poses, names[:2]) if with_points else None
     per_camera = {}
     fitted = fitted_corners(views, rig.frames)
