@@ -62,7 +62,7 @@ sample-model: $(STAMP)
 		--front sample_data/calibration/front.mp4 --reference sample_data/calibration/reference.toml \
 		--points sample_data/calibration/points.csv -o sample_data/calibration.toml
 	$(BIN)/sandtrack train sample_data/calibration/points.csv -o sample_data/model.pt \
-		--calibration sample_data/calibration.toml --seed 0 --threads 1
+		--calibration sample_data/calibration.toml --seed 0 --threads 1 --epochs 60
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache

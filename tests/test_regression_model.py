@@ -411,3 +411,13 @@ def test_the_residual_variants_sd_adds_the_calibrations_part(trained, rig):
     assert np.allclose(sd[spread] ** 2, sd0[spread] ** 2 + part[spread] ** 2)
     assert np.all(part[spread] > 0.1 * sd0[spread])
     assert np.allclose(xyz, bare[["X_mm", "Y_mm", "Z_mm"]].to_numpy())  # the same XYZ
+
+
+def test_early_stopping_waits_for_the_learning_rate_to_decay():
+    """A high rate makes the validation error wander: stale epochs count only once the cosine decay has
+    brought the rate to half (over 12 epochs: from epoch 7), so a patience of 1 cannot end the run sooner."""
+    pts = calibration_points(study_rig(), n_points=800, seed=3)
+    cfg = TrainConfig(hidden=(32, 32), dropout=0.0, epochs=12, batch_size=64, lr=5e-2, residual=False,
+                      patience=1, seed=1)
+    m = train(pts, cfg).metrics
+    assert m["epochs_run"] >= 7 and m["best_epoch"] >= 1

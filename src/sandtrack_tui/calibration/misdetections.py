@@ -110,13 +110,19 @@ def _flagged(calibration, views, board, poses, limit_sd):
 def _noise(residuals: dict[str, dict[int, np.ndarray]]) -> dict[str, np.ndarray]:
     """Per camera (2,): RMS residual per image axis over its degrees of freedom (a frame's pose takes 3 per
     axis, shared by the cameras that see it); NaN without residuals."""
-    cameras_of: dict[int, int] = {}
-    for per_frame in residuals.values():
-        for f in per_frame:
-            cameras_of[f] = cameras_of.get(f, 0) + 1
+    cameras_of = cameras_per_frame(residuals)
     out = {}
     for n, per_frame in residuals.items():
         ss = sum((np.sum(r ** 2, axis=0) for r in per_frame.values()), np.zeros(2))
         dof = sum(len(r) - 3.0 / cameras_of[f] for f, r in per_frame.items())
         out[n] = np.sqrt(ss / dof) if dof >= 1 else np.full(2, np.nan)
+    return out
+
+
+def cameras_per_frame(residuals: dict[str, dict[int, np.ndarray]]) -> dict[int, int]:
+    """{frame: how many cameras have residuals there}."""
+    out: dict[int, int] = {}
+    for per_frame in residuals.values():
+        for f in per_frame:
+            out[f] = out.get(f, 0) + 1
     return out

@@ -2,9 +2,9 @@
 
 Recipe: inputs (xs, ys, xf, yf) and outputs (X, Y, Z) standardised with the training set's mean
 and SD; MLP 4-512-1024-256-3 with ReLU and dropout; Adam on the mean squared error with a cosine
-learning-rate decay; early stopping on the validation set's mean error (mm), keeping the best
-weights. Train / validation / test sets are split by frame (whole board poses), so neighbouring
-corners of one pose never leak from training into the test figures.
+learning-rate decay; early stopping on the validation set's mean error (mm) once the rate has decayed
+to half, keeping the best weights. Train / validation / test sets are split by frame (whole board poses),
+so neighbouring corners of one pose never leak from training into the test figures.
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ class TrainConfig:
     lr: float = 2e-3
     lr_final_frac: float = 0.01  # cosine decay from lr to lr * lr_final_frac
     weight_decay: float = 0.0
-    patience: int = 10  # epochs without a better validation error before stopping
+    patience: int = 10  # epochs without a better validation error before stopping (once the rate is at half)
     val_frac: float = 0.15
     test_frac: float = 0.15
     seed: int = 0
@@ -190,7 +190,8 @@ def _config_dict(cfg: TrainConfig) -> dict:
 
 def _fit(x_tr, y_tr, x_va, y_va_mm, out_mean, out_std, cfg: TrainConfig, epochs: int, device,
          progress, should_stop, epoch0: int, hidden=None):
-    """Adam + cosine decay + early stopping on the validation mean error (mm). Returns the best net."""
+    """Adam + cosine decay + early stopping on the validation mean error (mm), counted once the rate has
+    decayed to half. Returns the best net."""
     net = MLP(hidden=hidden or cfg.hidden, dropout=cfg.dropout).to(device)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(epochs, 1), eta_min=cfg.lr * cfg.lr_final_frac)
@@ -221,7 +222,9 @@ def _fit(x_tr, y_tr, x_va, y_va_mm, out_mean, out_std, cfg: TrainConfig, epochs:
         val_err = _val_error(net, x_va, y_va_mm, out_mean, out_std) if len(x_va) else total / n
         if val_err < best_err:
             best_err, best_state, best_epoch, stale = val_err, copy.deepcopy(net.state_dict()), epoch, 0
-        else:
+        elif opt.param_groups[0]["lr"] <= 0.5 * cfg.lr:
+            # while the rate is high the validation error wanders; the decay that follows is where a
+            # longer run gains, so only its second half counts towards stopping
             stale += 1
         if progress is not None:
             progress(epoch0 + epoch, total / n, float(val_err))
