@@ -113,6 +113,12 @@ def test_cli_json_writes_files_and_project(session, tmp_path, capsys):
         assert c["fx"] == pytest.approx(cal.cameras[n].matrix[0, 0], abs=1e-9) and 0 < c["fx_sd_px"] < 1.0
         assert abs(c["fx"] - session["truth"].cameras[n].matrix[0, 0]) < 6 * c["fx_sd_px"]
         assert set(c["single_camera_fit"]) == {"fx", "fy", "cx", "cy", "distortion"}
+        # the corners screened, the misdetected ones counted, the rest's noise the file's (a clean render: 0.01 px)
+        assert 0 <= c["misdetected_corners"] < 0.1 * c["corners_screened"]
+        assert c["noise_px"] == pytest.approx(cal.uncertainty[n].noise_px) and max(c["noise_px"]) < 0.02
+    from sandtrack_tui.cli.cmd_calibrate import _text
+
+    assert _text(r).count("corners misdetected (beyond 5 robust sd: not in the calibration points)") == 2
     # the world frame's sd (the cameras' part included) against its rotation's true error: measured 4.2 / 0.04 /
     # 0.9 sd about X / Y / Z, the bundle adjustment's covariance being a lower bound (README: it under-states the
     # sample's true camera errors about twice in sd)
