@@ -311,7 +311,7 @@ def test_the_calibration_screen_shows_each_camera_term_with_its_sd(result):
     from sandtrack_tui.calibration.report import camera_parameters
     from sandtrack_tui.tui.screens.calibration import summary_table
 
-    console = Console(width=100, record=True)
+    console = Console(width=160, record=True)
     console.print(summary_table(result.calibration))
     text = console.export_text()
     side = camera_parameters(result.calibration, "side")
@@ -319,6 +319,9 @@ def test_the_calibration_screen_shows_each_camera_term_with_its_sd(result):
     hull = result.report["per_camera"]["side"]["calibrated_region_pct"]
     row = next(line.split() for line in text.splitlines() if line.split()[:1] == ["side"])
     assert "hull" in text and row[-1] == f"{hull:.0f}"  # the share of the image their hull spans
+    noise = result.calibration.uncertainty["side"].noise_px  # the pixel noise without the misdetected corners
+    assert row[-2] == f"{noise[0]:.3f}/{noise[1]:.3f}"
+    assert f"{result.report['per_camera']['side']['misdetected_corners']} misdetected" in text
     world = result.calibration.rig_uncertainty.world_frame_sd()
     assert f"world frame ± {world['rotation_sd_mrad'][0]:.2f} / " in " ".join(text.split())
     assert "the calibration's parameter covariance, cameras together with the world frame's" in " ".join(text.split())

@@ -23,17 +23,23 @@ def summary_table(cal: Calibration | None):
     if cal is None:
         return "No calibration yet: calibrate from the board videos below, or load a calibration.toml."
     t = Table(box=box.SIMPLE_HEAD, title="Cameras (rig frame = first camera, mm; ± 1 sd)", title_justify="left")
-    for c in ("camera", "lens", "size", "fx", "fy", "cx", "cy", "centre mm", "angles °", "rmse px", "points' hull %"):
+    for c in ("camera", "lens", "size", "fx", "fy", "cx", "cy", "centre mm", "angles °", "rmse px", "noise x/y px",
+              "points' hull %"):
         t.add_column(c, justify="right")
     per_camera = (cal.report or {}).get("per_camera") or {}
     for name, c in cal.cameras.items():
         par = camera_parameters(cal, name)
-        hull = (per_camera.get(name) or {}).get("calibrated_region_pct")
+        rep = per_camera.get(name) or {}
+        hull = rep.get("calibrated_region_pct")
+        unc = cal.uncertainty.get(name)
+        noise = "—" if unc is None or unc.noise_px is None else "/".join(f"{v:.3f}" for v in unc.noise_px)
+        if rep.get("misdetected_corners") is not None:
+            noise += f"\n{rep['misdetected_corners']} misdetected"  # corners left out of the points
         matrix = [f"{par[p]:.1f}" + (f"\n±{par[p + '_sd_px']:.1f}" if p + "_sd_px" in par else "")
                   for p in ("fx", "fy", "cx", "cy")]
         t.add_row(name, c.lens, f"{c.width}×{c.height}", *matrix, ", ".join(f"{v:.0f}" for v in c.center_mm),
                   ", ".join(f"{v:.1f}" for v in euler_angles_deg(c.R)),
-                  "—" if c.rmse_px is None else f"{c.rmse_px:.3f}",
+                  "—" if c.rmse_px is None else f"{c.rmse_px:.3f}", noise,
                   "—" if hull is None else f"{hull:.0f}")
     names = list(cal.cameras)
     if len(names) >= 2:
