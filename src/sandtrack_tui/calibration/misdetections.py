@@ -1,18 +1,19 @@
 """Board corners the detector misplaced, found from their residuals against the fitted board poses.
 
 A corner's reprojection residual (detected pixel minus the fitted board pose's corner through the calibrated
-camera) is mostly detection noise of a few hundredths of a pixel, with rare misplaced corners (a marker edge
-taken for a square's, a blurred crossing) of one or more pixels: a heavy tail that a pooled RMS turns into a
-noise level too large for the bulk and too small for the tail. A corner is misdetected when its residual,
-each image axis in units of the camera's robust sd (1.4826 x the median absolute deviation), lies farther
-than `LIMIT_SD` from zero (a Gaussian corner does so once in some 270,000). The camera's pixel noise is
+camera) is mostly detection noise of a few hundredths of a pixel, with rare corners misplaced by tenths of a
+pixel to a few pixels (a marker edge taken for a square's, a blurred crossing): a heavy tail that a pooled RMS
+turns into a noise level too large for the bulk and too small for the tail. A corner is misdetected when its
+residual, each image axis in units of the camera's robust sd (1.4826 x the median absolute deviation), lies
+farther than `LIMIT_SD` from zero (a Gaussian corner does so once in some 270,000). The camera's pixel noise is
 then the other corners' residual RMS per image axis over the residuals' degrees of freedom (each frame's board
 pose, fitted to them, takes 3 per image axis, shared by the cameras that see the frame), and the misdetected
 corners stay out of the calibration points, whose known board position would otherwise be paired with a wrong
 pixel.
 
 Left out, because no residual can show it: an error shared by all corners of one view (a detection bias of an
-oblique or blurred board, a camera's timing), which the view's board pose absorbs.
+oblique or blurred board, a camera's timing), which the view's board pose absorbs; the world frame's term allows
+for it at its reference view (world_uncertainty.SHARED_VIEW_ERROR).
 """
 
 from __future__ import annotations
