@@ -93,7 +93,8 @@ def shared_view_error(res, board, min_cameras: int = 3) -> dict:
     """Per camera, an error shared by all corners of one view: in frames seen by `min_cameras` or more, where
     the board's pose cannot absorb every camera's shift, the variance of each view's mean residual beyond what
     its corners' own scatter explains (px per image axis; the part no pose absorbed, so a lower bound)."""
-    from sandtrack_tui.calibration.misdetections import cameras_per_frame, corner_residuals
+    from sandtrack_tui.calibration.misdetections import cameras_per_frame
+    from sandtrack_tui.calibration.report import corner_residuals
 
     residuals = corner_residuals(res.calibration, res.views, board, res.poses)
     seen = cameras_per_frame(residuals)

@@ -260,9 +260,7 @@ def compute_pixels(project, frames=None, times: dict | None = None) -> pd.DataFr
         raise SandtrackError("the project has no videos")
     obs = _observations(project, timeline, frames)
     n = len(obs["frame"])
-    return _table(obs, timeline.cameras, [(np.full((n, 3), np.nan), np.full(n, np.nan),
-                                           np.full(n, "pixels", dtype=object), np.full((n, 3), np.nan),
-                                           np.full(n, "", dtype=object), np.full((n, 3), np.nan))])
+    return _table(obs, timeline.cameras, [_unmeasured_block(n, "pixels")])
 
 
 def xyz_at_frame(project, frame: int, method: str = "both", **kw) -> pd.DataFrame:
@@ -561,22 +559,25 @@ def _solve_scaled(project, obs: dict, camera: str, calibration) -> pd.DataFrame:
                     "calibration of the camera), then its pixels give x, y in mm")
     cam = calibration.cameras.get(camera) if calibration is not None else None
     n = len(obs["frame"])
-    xyz = np.full((n, 3), np.nan)
-    xyz[:, :2] = to_mm(obs["pixels"][camera], found[0], cam)
-    block = (xyz, np.full(n, np.nan), np.full(n, "scale", dtype=object), np.full((n, 3), np.nan),
-             np.full(n, "", dtype=object), np.full((n, 3), np.nan))
+    block = _unmeasured_block(n, "scale")
+    block[0][:, :2] = to_mm(obs["pixels"][camera], found[0], cam)
     return _table({**obs, "region": region_labels(calibration, obs["pixels"], n)}, [camera], [block])
 
 
+def _unmeasured_block(n: int, method: str) -> tuple:
+    """A `_table` block of n rows of `method` with every figure NaN (xyz, res, label, sd, check, bias, cov)."""
+    return (np.full((n, 3), np.nan), np.full(n, np.nan), np.full(n, method, dtype=object), np.full((n, 3), np.nan),
+            np.full(n, "", dtype=object), np.full((n, 3), np.nan), np.full((n, 3), np.nan))
+
+
 def _table(obs: dict, cameras: list[str], blocks: list, covariance: bool = False) -> pd.DataFrame:
-    """The rows of every method's block (xyz, res, label, sd, check, bias[, cov]), ordered by frame, marker
-    and method; with `covariance`, each block's cov (NaN where it has none) in COV_COLUMNS."""
+    """The rows of every method's block (xyz, res, label, sd, check, bias, cov), ordered by frame, marker
+    and method; with `covariance`, each block's cov in COV_COLUMNS."""
     n = len(obs["frame"])
     columns = xyz_columns(cameras, covariance)
     cols: dict[str, list] = {c: [] for c in columns}
-    for xyz, res, label, sd, check, bias, *rest in blocks:
+    for xyz, res, label, sd, check, bias, cov in blocks:
         if covariance:
-            cov = rest[0] if rest else np.full((n, 3), np.nan)
             for k, c in enumerate(COV_COLUMNS):
                 cols[c].append(cov[:, k])
         for c in ("frame", "time_s", "marker"):

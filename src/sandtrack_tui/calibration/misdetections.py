@@ -25,6 +25,7 @@ import numpy as np
 from ..board import BoardSpec
 from ..camera import Calibration
 from .detect import BoardView
+from .report import corner_residuals
 from .rig import fit_frame_poses
 
 Views = dict[str, dict[int, BoardView]]
@@ -51,20 +52,6 @@ class CornerScreen:
                 "misdetection_limit_sd": self.limit_sd,
                 "robust_sd_px": [float(v) for v in self.robust_sd_px[name]],
                 "noise_px": [float(v) for v in self.noise_px[name]]}
-
-
-def corner_residuals(calibration: Calibration, views: Views, board: BoardSpec,
-                     poses: dict[int, np.ndarray]) -> dict[str, dict[int, np.ndarray]]:
-    """{camera: {frame: (n, 2) detected minus projected pixel}} for the frames with a pose."""
-    pts = board.corner_points_mm()
-    out: dict[str, dict[int, np.ndarray]] = {}
-    for n, cam in calibration.cameras.items():
-        out[n] = {}
-        for f, v in views.get(n, {}).items():
-            T = poses.get(f)
-            if T is not None and len(v):
-                out[n][f] = v.corners - cam.project(pts[v.ids] @ T[:3, :3].T + T[:3, 3])
-    return out
 
 
 def screen_corners(calibration: Calibration, views: Views, board: BoardSpec, poses: dict[int, np.ndarray],

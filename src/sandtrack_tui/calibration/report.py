@@ -38,21 +38,25 @@ def camera_parameters(calibration: Calibration, name: str) -> dict:
     return out
 
 
+def corner_residuals(calibration: Calibration, views: Views, board: BoardSpec,
+                     poses: dict[int, np.ndarray]) -> dict[str, dict[int, np.ndarray]]:
+    """{camera: {frame: (n, 2) detected minus projected pixel}} for the frames with a pose."""
+    pts = board.corner_points_mm()
+    out: dict[str, dict[int, np.ndarray]] = {}
+    for n, cam in calibration.cameras.items():
+        out[n] = {}
+        for f, v in views.get(n, {}).items():
+            T = poses.get(f)
+            if T is not None and len(v):
+                out[n][f] = v.corners - cam.project(pts[v.ids] @ T[:3, :3].T + T[:3, 3])
+    return out
+
+
 def reprojection_errors(calibration: Calibration, views: Views, board: BoardSpec,
                         poses: dict[int, np.ndarray]) -> dict[str, np.ndarray]:
     """Per camera, the pixel error of every detected corner in the frames that have a pose."""
-    pts = board.corner_points_mm()
-    out = {}
-    for n, cam in calibration.cameras.items():
-        errs = []
-        for f, v in views.get(n, {}).items():
-            T = poses.get(f)
-            if T is None:
-                continue
-            X = pts[v.ids] @ T[:3, :3].T + T[:3, 3]
-            errs.append(np.linalg.norm(cam.project(X) - v.corners, axis=1))
-        out[n] = np.concatenate(errs) if errs else np.zeros(0)
-    return out
+    return {n: np.concatenate([np.linalg.norm(r, axis=1) for r in per_frame.values()]) if per_frame
+            else np.zeros(0) for n, per_frame in corner_residuals(calibration, views, board, poses).items()}
 
 
 def triangulated_corners(calibration: Calibration, views: Views, board: BoardSpec, frames,
