@@ -62,8 +62,10 @@ def _cx_z(kept: str, better: str, seed: int) -> tuple[float, float]:
 
 def test_the_spread_covers_the_kept_models_bias_that_its_own_covariance_misses():
     z = np.array([_cx_z("radial1", "tangential", s) for s in SEEDS])
-    assert np.all(np.abs(z[:, 0]) > 5), z  # measured 9.7-13.6 sd off in 10 sessions
-    assert np.sum(np.abs(z[:, 1]) < 2) >= 3, z  # measured 9 of 10 within 2 sd (0.5-2.6)
+    # measured 2.8-7.1 sd off (the misfit that varies from view to view already counts as each view's own
+    # pose error, view_pose_error; 9.7-13.6 without it)
+    assert np.all(np.abs(z[:, 0]) > 2.5), z
+    assert np.sum(np.abs(z[:, 1]) < 2) >= 3, z  # measured 4 of 4 within 2 sd (0.5-1.5)
 
 
 def test_a_camera_whose_kept_model_is_right_gains_little():

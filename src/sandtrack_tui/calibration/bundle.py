@@ -15,6 +15,7 @@ import numpy as np
 from scipy.sparse import csc_matrix, csr_matrix, lil_matrix
 
 from .geometry import distort_project, larger, rodrigues
+from .view_pose_error import view_motion_summary, view_pose_error
 
 # frames (views) needed to estimate the per-view sandwich covariance (and at least two per parameter: with
 # fewer clusters than parameters it is singular)
@@ -356,16 +357,18 @@ def bundle_adjust(state: BundleState, obs: Observations, free_intrinsics: bool =
 
 
 def parameter_covariance(state: BundleState, obs: Observations, free_intrinsics: bool = True, loss: str = "soft_l1",
-                         f_scale: float = 2.0, weights: np.ndarray | None = None) -> tuple[list[tuple[int, str]],
-                                                                                         np.ndarray]:
+                         f_scale: float = 2.0, weights: np.ndarray | None = None,
+                         details: dict | None = None) -> tuple[list[tuple[int, str]], np.ndarray]:
     """Joint covariance of every camera's parameters at a bundle adjustment's solution: (JᵀWJ)⁻¹ σ², the
     board poses marginalised (Schur complement), W the robust loss's weights, σ² the weighted residuals' sum
-    of squares over the degrees of freedom; raised, direction by direction, to the sandwich that takes each
-    view (frame) as one cluster of errors (A⁻¹ Σ_f s_f s_fᵀ A⁻¹, s_f the frame's score JᵀWr), where there
-    are MIN_CLUSTERS frames or more and two per parameter: a view's corners share errors (a blur, a detection
-    offset) that the independent-residual formula cannot see. Returns ([(camera index, name)], (P, P)); the
+    of squares over the degrees of freedom once each view has its own board pose, plus the error of each
+    view's own pose (the board moved between the cameras' exposures, a view's detections shifted together:
+    view_pose_error, measured from the views of one frame); raised, direction by direction, to the sandwich
+    that takes each frame as one cluster of errors (A⁻¹ Σ_f s_f s_fᵀ A⁻¹, s_f the frame's score JᵀWr), where
+    there are MIN_CLUSTERS frames or more and two per parameter. Returns ([(camera index, name)], (P, P)); the
     first camera's pose defines the rig frame and has none. Names: rx ry rz tx ty tz (pose, rig -> camera), fx
-    fy cx cy, dK (the K-th distortion coefficient)."""
+    fy cx cy, dK (the K-th distortion coefficient). details, when given, gets "view_motion": the measured
+    motion of a view's board pose (`view_motion_summary`)."""
     layout = _Layout(state, free_intrinsics, True, True)
     x = layout.pack(state)
     fun, _ = _weighted_residuals(layout, state, obs, weights)
@@ -376,10 +379,11 @@ def parameter_covariance(state: BundleState, obs: Observations, free_intrinsics:
     _, w = _robust(np.nan_to_num(np.linalg.norm(r.reshape(-1, 2), axis=1), nan=1e6), loss, f_scale)
     wr = np.repeat(w, 2)
     A = (J.T.multiply(wr[None, :]).tocsr() @ J).tocsc()
-    dof = max(len(r) - layout.n, 1)
-    sigma2 = float(np.sum(wr * r * r)) / dof
     Sinv, W, Vinv = _schur_parts(A, layout.frame0, layout.F)
-    cov = Sinv * sigma2
+    shared = view_pose_error(J, r, wr, obs.cam, obs.frame, layout.frame0, layout.n, Sinv, W, Vinv)
+    cov = Sinv * shared["sigma2"] + shared["covariance"]
+    if details is not None:
+        details["view_motion"] = view_motion_summary(shared)
     n_clusters = layout.F
     if n_clusters >= max(MIN_CLUSTERS, 2 * layout.frame0):
         with contextlib.suppress(np.linalg.LinAlgError):  # a covariance not positive definite stays as it is

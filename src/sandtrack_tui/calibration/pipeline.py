@@ -239,6 +239,7 @@ def calibrate_videos(videos: dict[str, str | Path], board: BoardSpec, *, offsets
         "near_duplicates_skipped": rig.skipped_duplicates,
         "blurred_views_skipped": rig.skipped_blurred,
         "bundle": rig.bundle,
+        "view_motion": rig.bundle.get("view_motion"),
         "board": board.to_json_dict(),
         "sync": sync_info,
         "world": world,

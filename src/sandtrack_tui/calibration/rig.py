@@ -259,7 +259,7 @@ def calibrate_rig(views: Views, board: BoardSpec, sizes: dict[str, tuple[int, in
                                 "min": float(w.min()), "median": float(np.median(w)), "max": float(w.max())}
     if progress:
         progress("bundle", 2, 2)
-    labels, joint = parameter_covariance(state, obs, free_intr, weights=weights)
+    labels, joint = parameter_covariance(state, obs, free_intr, weights=weights, details=info)
     better = {ci: intr[n].better_fitting for ci, n in enumerate(names) if free_intr and intr[n].better_fitting}
     not_spread = []
     if better:

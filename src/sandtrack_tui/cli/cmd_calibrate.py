@@ -125,7 +125,7 @@ def _summary(report: dict) -> dict:
             "points", "seconds",
             "seconds_detect", "seconds_calibrate", "frames_detected", "corners_detected", "world", "warnings",
             "sync", "output", "points_csv", "caliscope_export", "project", "method", "source",
-            "known_points_sd_mm", "known_points_in_two_cameras"]
+            "known_points_sd_mm", "known_points_in_two_cameras", "view_motion"]
     out = {k: report[k] for k in keys if k in report}
     out.setdefault("points", 0)
     out.setdefault("board_rmse_mm", None)  # only a board calibration measures the board
@@ -166,6 +166,12 @@ def _text(r: dict) -> str:
         lines.append("world frame ({}): rotation ± {:.3f} / {:.3f} / {:.3f} mrad about X / Y / Z, origin ± {:.3f} / "
                      "{:.3f} / {:.3f} mm (1 sd, the cameras' part included)"
                      .format(world.get("method", ""), *world["rotation_sd_mrad"], *world["origin_sd_mm"]))
+    motion = r.get("view_motion") or {}
+    if motion.get("views"):
+        lines.append("one frame's views disagree as if the board moved between the cameras' exposures: sd {:.3f} / "
+                     "{:.3f} / {:.3f} deg, {:.3f} / {:.3f} / {:.3f} mm about / along the rig's x / y / z ({} views; "
+                     "in the parameters' sd)".format(*motion["rotation_sd_deg"], *motion["translation_sd_mm"],
+                                                     motion["views"]))
     if "views_used" in r:
         lines.append(f"views used {r['views_used']}, points {r.get('points', 0)}, {r.get('seconds', 0):.1f} s")
     for w in r.get("warnings", []) or []:
