@@ -119,6 +119,11 @@ def test_cli_json_writes_files_and_project(session, tmp_path, capsys):
     from sandtrack_tui.cli.cmd_calibrate import _text
 
     assert _text(r).count("corners misdetected (beyond 5 robust sd: not in the calibration points)") == 2
+    # each view's own board pose error, measured from the frames both cameras saw (a still board per frame: only
+    # the render's detection biases, measured 0.055 / 0.031 / 0.005 mm; test_bundle_covariance checks a motion)
+    motion = r["view_motion"]
+    assert motion["views"] > 10 and max(motion["translation_sd_mm"]) < 0.1 and max(motion["rotation_sd_deg"]) < 0.1
+    assert "as if the board moved between the cameras' exposures" in _text(r)
     # the world frame's sd (the cameras' part included) against its rotation's true error: measured 4.2 / 0.04 /
     # 0.9 sd about X / Y / Z, the bundle adjustment's covariance being a lower bound (README: it under-states the
     # sample's true camera errors about twice in sd)
@@ -324,6 +329,9 @@ def test_the_calibration_screen_shows_each_camera_term_with_its_sd(result):
     assert f"{result.report['per_camera']['side']['misdetected_corners']} misdetected" in text
     world = result.calibration.rig_uncertainty.world_frame_sd()
     assert f"world frame ± {world['rotation_sd_mrad'][0]:.2f} / " in " ".join(text.split())
+    motion = result.report["view_motion"]
+    assert f"exposures ± {max(motion['rotation_sd_deg']):.3f}°, {max(motion['translation_sd_mm']):.3f} mm" in " ".join(
+        text.split())
     assert "the calibration's parameter covariance, cameras together with the world frame's" in " ".join(text.split())
     result.calibration.rig_uncertainty, kept = None, result.calibration.rig_uncertainty
     result.calibration.uncertainty, cameras = {}, result.calibration.uncertainty

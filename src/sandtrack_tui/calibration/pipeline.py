@@ -226,6 +226,7 @@ def calibrate_videos(videos: dict[str, str | Path], board: BoardSpec, *, offsets
             r["lens_selection"]["spread"] = spread_line(spread["kept"], spread["better_fitting"],
                                                         spread["shift_of_better_fitting"])
         per_camera[n] = r
+    view_motion = rig.bundle.pop("view_motion", None)
     report = {
         "reprojection_rmse_px": acc["reprojection_rmse_px"],
         "board_rmse_mm": acc["board_rmse_mm"],
@@ -239,7 +240,7 @@ def calibrate_videos(videos: dict[str, str | Path], board: BoardSpec, *, offsets
         "near_duplicates_skipped": rig.skipped_duplicates,
         "blurred_views_skipped": rig.skipped_blurred,
         "bundle": rig.bundle,
-        "view_motion": rig.bundle.get("view_motion"),
+        "view_motion": view_motion,
         "board": board.to_json_dict(),
         "sync": sync_info,
         "world": world,

@@ -49,6 +49,11 @@ def summary_table(cal: Calibration | None):
     if w is not None:
         t.caption = ((t.caption + "; ") if t.caption else "") + "world frame ± {} mrad, origin ± {} mm".format(
             " / ".join(f"{v:.2f}" for v in w["rotation_sd_mrad"]), " / ".join(f"{v:.3f}" for v in w["origin_sd_mm"]))
+    motion = (cal.report or {}).get("view_motion") or {}
+    if motion.get("views"):
+        t.caption = ((t.caption + "; ") if t.caption else "") + (
+            "board moved between the cameras' exposures ± {:.3f}°, {:.3f} mm (largest axis)".format(
+                max(motion["rotation_sd_deg"]), max(motion["translation_sd_mm"])))
     if len(names) >= 2:
         from ...triangulation_sd import sd_holds  # numba's import only when a calibration is shown
 
