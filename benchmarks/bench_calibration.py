@@ -69,6 +69,7 @@ def real_footage() -> dict:
         "per_camera_misdetected_corners": {n: [c["misdetected_corners"], c["corners_screened"]]
                                            for n, c in r["per_camera"].items()},
         "per_camera_noise_px": {n: c["noise_px"] for n, c in r["per_camera"].items()},
+        "view_motion": r.get("view_motion"),
         "seconds_wall": wall,
         "seconds_cpu": cpu,
         "reference_figures": REFERENCE,
@@ -355,6 +356,7 @@ def sample_data_figures(folder: Path = SAMPLE, with_points: bool = True) -> dict
     out.update(_corners_vs_truth(res, folder))
     out.update(half_sample_precision(res, board, truth))
     out["parameter_sd_against_truth"] = parameters_against_truth(res, truth)
+    out["view_motion"] = res.report.get("view_motion")
     return out
 
 

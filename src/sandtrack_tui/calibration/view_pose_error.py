@@ -58,15 +58,16 @@ def view_pose_error(J: csr_matrix, r: np.ndarray, w: np.ndarray, cam: np.ndarray
             found.append((info, G.T @ (w[rows] * r[rows]), Jv[:, :n_head].T @ (w[rows, None] * G)))
         try:
             total_inv = np.linalg.inv(sum(i for i, _, _ in found))
-            own = [np.linalg.solve(i, g) for i, g, _ in found]
+            own = [np.linalg.solve(i, g) for i, g, _ in found]  # each view's own pose change
         except np.linalg.LinAlgError:
             continue
+        # the change the frame's pose would take from them (0 at a converged solution)
+        common = total_inv @ sum(i @ o for (i, _, _), o in zip(found, own, strict=True))
         for v, (info, _, x_head) in enumerate(found):
-            d = own[v]
-            own_ss += float(d @ info @ d)
-            delta = d - total_inv @ sum(i @ o for (i, _, _), o in zip(found, own, strict=True))
+            own_ss += float(own[v] @ info @ own[v])
             B = [(np.eye(POSE) if u == v else 0.0) - total_inv @ i for u, (i, _, _) in enumerate(found)]
-            moments.append((delta, np.linalg.inv(info) - total_inv, sum(np.kron(b, b) for b in B)))
+            # vec(B Σ Bᵀ) = (B ⊗ B) vec(Σ), row-major
+            moments.append((own[v] - common, np.linalg.inv(info) - total_inv, sum(np.kron(b, b) for b in B)))
             parts.append((f, x_head, info))
     extra_dof = POSE * (len(parts) - len(per_frame))
     sigma2 = (total_ss - own_ss) / max(len(r) - n_parameters - extra_dof, 1)
