@@ -51,7 +51,7 @@ def summary_table(cal: Calibration | None):
             " / ".join(f"{v:.2f}" for v in w["rotation_sd_mrad"]), " / ".join(f"{v:.3f}" for v in w["origin_sd_mm"]))
     motion = (cal.report or {}).get("view_motion") or {}
     if motion.get("views"):
-        t.caption = ((t.caption + "; ") if t.caption else "") + (
+        t.caption = ((t.caption + "\n") if t.caption else "") + (
             "board moved between the cameras' exposures ± {:.3f}°, {:.3f} mm (largest axis)".format(
                 max(motion["rotation_sd_deg"]), max(motion["translation_sd_mm"])))
     if len(names) >= 2:
