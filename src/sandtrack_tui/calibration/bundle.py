@@ -15,7 +15,7 @@ import numpy as np
 from scipy.sparse import csc_matrix, csr_matrix, lil_matrix
 
 from .geometry import distort_project, larger, rodrigues
-from .view_pose_error import view_motion_summary, view_pose_error
+from .view_pose_error import view_groups, view_motion_summary, view_pose_error
 
 # frames (views) needed to estimate the per-view sandwich covariance (and at least two per parameter: with
 # fewer clusters than parameters it is singular)
@@ -171,18 +171,14 @@ def view_weights(res: np.ndarray, obs: Observations, clip_sigmas: float = 3.0) -
     e2 = np.sum(np.asarray(res, dtype=float) ** 2, axis=1)
     if len(e2) == 0:
         return np.ones(0)
-    n_frames = int(obs.frame.max()) + 1
-    view = obs.cam.astype(np.int64) * n_frames + obs.frame
-    keys, inv = np.unique(view, return_inverse=True)
-    order = np.argsort(inv, kind="stable")
-    starts = np.searchsorted(inv[order], np.arange(len(keys)))
-    median_e2 = np.array([np.median(part) for part in np.split(e2[order], starts[1:])])
+    views = view_groups(obs.cam, obs.frame)
+    inv = views.index
+    median_e2 = np.array([np.median(part) for part in np.split(e2[views.order], views.bounds[1:-1])])
     # |r|^2 ~ 2 sigma^2 chi2(2)/2: its median is 2 ln2 sigma^2
     e2 = np.minimum(e2, (clip_sigmas ** 2) * 2 * median_e2[inv] / (2 * np.log(2)))
     ss = np.bincount(inv, weights=e2)
     n = np.bincount(inv).astype(float)
-    cams_per_frame = np.bincount(np.unique(np.stack([obs.frame, obs.cam], 1), axis=0)[:, 0], minlength=n_frames)
-    dof = np.maximum(2 * n - 6.0 / cams_per_frame[keys % n_frames], 1.0)
+    dof = np.maximum(2 * n - 6.0 / views.cameras_in_frame[views.frame], 1.0)
     log_var = np.log(np.maximum(ss / dof, 1e-300))
     sampling = 2.0 / dof
     centre = float(np.median(log_var))

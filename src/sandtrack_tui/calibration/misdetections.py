@@ -11,9 +11,10 @@ pose, fitted to them, takes 3 per image axis, shared by the cameras that see the
 corners stay out of the calibration points, whose known board position would otherwise be paired with a wrong
 pixel.
 
-Left out, because no residual can show it: an error shared by all corners of one view (a detection bias of an
-oblique or blurred board, a camera's timing), which the view's board pose absorbs; the world frame's term allows
-for it at its reference view (world_uncertainty.SHARED_VIEW_ERROR).
+Left out, because no residual against the view's own pose can show it: an error shared by all corners of one
+view (a detection bias of an oblique or blurred board, a camera's timing), which that pose absorbs; the
+calibration's covariance measures it from the views of one frame (view_pose_error), and the world frame's term
+allows for it at its reference view (world_uncertainty.SHARED_VIEW_ERROR).
 """
 
 from __future__ import annotations

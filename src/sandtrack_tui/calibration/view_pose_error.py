@@ -22,10 +22,31 @@ the cameras' parameters only through the other views of its frame; in a frame on
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from scipy.sparse import csr_matrix
 
 POSE = 6
+
+
+class ViewGroups(NamedTuple):
+    """The views (one camera in one frame) of flat observations."""
+
+    index: np.ndarray  # (M,) each observation's view
+    frame: np.ndarray  # (V,) each view's frame
+    cameras_in_frame: np.ndarray  # (F,) how many views each frame has
+    order: np.ndarray  # (M,) the observations sorted by view
+    bounds: np.ndarray  # (V + 1,) view v's observations: order[bounds[v]:bounds[v + 1]]
+
+
+def view_groups(cam: np.ndarray, frame: np.ndarray) -> ViewGroups:
+    n_frames = int(frame.max()) + 1
+    keys, index = np.unique(cam.astype(np.int64) * n_frames + frame, return_inverse=True)
+    view_frame = keys % n_frames
+    order = np.argsort(index, kind="stable")
+    return ViewGroups(index, view_frame, np.bincount(view_frame, minlength=n_frames), order,
+                      np.searchsorted(index[order], np.arange(len(keys) + 1)))
 
 
 def view_pose_error(J: csr_matrix, r: np.ndarray, w: np.ndarray, cam: np.ndarray, frame: np.ndarray,
@@ -37,16 +58,11 @@ def view_pose_error(J: csr_matrix, r: np.ndarray, w: np.ndarray, cam: np.ndarray
     w: the robust loss's weight per residual (2M,); cam, frame: (M,) per observation; Sinv, W, Vinv:
     `bundle._schur_parts`."""
     J = csr_matrix(J)
-    view = cam.astype(np.int64) * (int(frame.max()) + 1) + frame
-    keys, first, inverse = np.unique(view, return_index=True, return_inverse=True)
-    cams_seeing = np.bincount(frame[first], minlength=int(frame.max()) + 1)
-    order = np.argsort(inverse, kind="stable")
-    bounds = np.searchsorted(inverse[order], np.arange(len(keys) + 1))
+    views = view_groups(cam, frame)
     per_frame: dict[int, list] = {}
-    for k in range(len(keys)):
-        obs_rows = order[bounds[k]:bounds[k + 1]]
-        f = int(frame[obs_rows[0]])
-        if cams_seeing[f] >= 2:
+    for k, f in enumerate(views.frame.tolist()):
+        obs_rows = views.order[views.bounds[k]:views.bounds[k + 1]]
+        if views.cameras_in_frame[f] >= 2:
             per_frame.setdefault(f, []).append(np.stack([2 * obs_rows, 2 * obs_rows + 1], axis=1).ravel())
     total_ss, own_ss, parts, moments = float(np.sum(w * r * r)), 0.0, [], []
     for f, views in per_frame.items():
