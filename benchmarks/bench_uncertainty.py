@@ -22,8 +22,10 @@ honest), for triangulation and the network.
    calibration videos, the board resting at another place each (up to 40 mm across, 60 mm along the box) so
    that its reference detections, and the world frame fitted to them, are a new draw; each calibrated as the
    sample is, its corners scored as 1a, then pooled: the coverage over repeated calibrations, which one
-   calibration's corners (one draw of the world frame and of the cameras) cannot judge. A session whose
-   calibration fails is reported with its message.
+   calibration's corners (one draw of the world frame and of the cameras) cannot judge. Each session's
+   error is also split through the twin's true cameras (`against_true_cameras`): the pixel part's coverage,
+   the calibration part in units of its own sd (rms z, pooled over the sessions), the world frame's χ². A
+   session whose calibration fails is reported with its message.
 4. `sandtrack xyz PIXELS.csv` on 1 M rows with that calibration (its covariance kept, so every row gets
    its sd): wall time of the whole command, best of `repeats`.
 
@@ -201,6 +203,7 @@ def _session(seed: int) -> dict:
     sd = triangulation_sd(res.calibration, pixels, rig)
     ok = np.isfinite(err).all(axis=1) & np.isfinite(sd).all(axis=1)
     moving = ok & (pts["frame"].to_numpy() >= 80)  # the board lies at rest for the first 1.6 s
+    out.update(against_true_cameras(res.calibration, pixels, rig, X.to_numpy(float)))
     return {**out, "corners": int(ok.sum()), "pct": _pct(coverage(err[ok], sd[ok])),
             "reprojection_rmse_px": round(float(res.report["reprojection_rmse_px"]), 3),
             "lens": {n: c.lens for n, c in res.calibration.cameras.items()},
@@ -209,6 +212,39 @@ def _session(seed: int) -> dict:
             "moving_rms_error_mm": [round(float(v), 3) for v in np.sqrt((err[moving] ** 2).mean(axis=0))],
             "moving_median_sd_mm": [round(float(v), 3) for v in np.median(sd[moving], axis=0)],
             "_err": err[ok], "_sd": sd[ok]}
+
+
+def against_true_cameras(calibration, pixels: dict, rig: np.ndarray, truth_mm: np.ndarray) -> dict:
+    """One session's corner errors split in two through the twin's true cameras (ground_truth/cameras.toml,
+    the same world axes; origins matched by the median): the pixel part (the same pixels triangulated
+    through the true cameras, against the truth) scored against the sd without the calibration's part, and
+    the calibration part (our XYZ against that) in units of the calibration's part of the sd: its rms z per
+    axis is 1 when that part is honest (one draw per session: pool sessions). And the world frame's error
+    (the first camera's pose in the world, ψ = rotation mrad, shift mm) against its stated covariance: χ²
+    with 6 degrees of freedom."""
+    from sandtrack_tui.calibration.world_uncertainty import psi
+    from sandtrack_tui.camera import Calibration
+    from sandtrack_tui.regression.spread import coverage
+    from sandtrack_tui.triangulation import triangulate
+    from sandtrack_tui.triangulation_sd import triangulation_sd
+
+    true = Calibration.load(SAMPLE / "ground_truth" / "cameras.toml")
+    through_true = true.to_world(triangulate(true, pixels, refine=True, world=False)[0])
+    ours = calibration.to_world(rig)
+    ok = np.isfinite(ours).all(axis=1) & np.isfinite(through_true).all(axis=1) & np.isfinite(truth_mm).all(axis=1)
+    through_true = through_true + np.median(truth_mm[ok] - through_true[ok], axis=0)
+    pixel_sd = triangulation_sd(calibration, pixels, rig, with_calibration=False)
+    calibration_sd = triangulation_sd(calibration, pixels, rig, pixel_sd={n: np.zeros(len(rig)) for n in pixels})
+    ok &= np.isfinite(pixel_sd).all(axis=1) & np.isfinite(calibration_sd).all(axis=1)
+    z = (ours - through_true)[ok] / calibration_sd[ok]
+    out = {"pixel_part_pct": _pct(coverage((through_true - truth_mm)[ok], pixel_sd[ok])),
+           "calibration_part_rms_z": [round(float(v), 2) for v in np.sqrt(np.mean(z ** 2, axis=0))], "_z": z}
+    joint = calibration.rig_uncertainty
+    if joint is not None:
+        d = psi(calibration.world_from_rig, true.world_from_rig)
+        C = joint.world_jacobian @ joint.covariance @ joint.world_jacobian.T + joint.world_covariance
+        out["world_frame_chi2"] = round(float(d @ np.linalg.solve(C, d)), 2)
+    return out
 
 
 def calibration_sessions(seeds=range(2, 8)) -> dict:
@@ -222,6 +258,11 @@ def calibration_sessions(seeds=range(2, 8)) -> dict:
         err, sd = np.vstack([s["_err"] for s in done]), np.vstack([s["_sd"] for s in done])
         out["pooled_pct"] = _pct(coverage(err, sd))
         out["per_session_mean_pct"] = [round(float(v), 1) for v in np.mean([s["pct"] for s in done], axis=0)]
+        z = np.vstack([s["_z"] for s in done])
+        out["calibration_part_rms_z"] = [round(float(v), 2) for v in np.sqrt(np.mean(z ** 2, axis=0))]
+        chi2 = [s["world_frame_chi2"] for s in done if "world_frame_chi2" in s]
+        if chi2:
+            out["world_frame_chi2_per_dof"] = round(sum(chi2) / (6 * len(chi2)), 2)
     return out
 
 
