@@ -15,10 +15,12 @@ from sandtrack_tui.board import BoardSpec
 from sandtrack_tui.calibration.pipeline import calibrate_videos
 from sandtrack_tui.calibration.report import relative_pose_errors
 from sandtrack_tui.calibration.synthetic import write_session
+from sandtrack_tui.calibration.world_uncertainty import SHARED_VIEW_ERROR
 from sandtrack_tui.camera import Calibration
 from sandtrack_tui.cli import main
 from sandtrack_tui.errors import SandtrackError
 from sandtrack_tui.triangulation import triangulate
+from sandtrack_tui.triangulation_sd import camera_noise_px
 
 # synthetic.stereo_rig's lenses, for the tests whose subject is not the lens choice
 TRUE_LENSES = {"side": "tangential", "front": "tangential"}
@@ -116,6 +118,10 @@ def test_cli_json_writes_files_and_project(session, tmp_path, capsys):
         # the corners screened, the misdetected ones counted, the rest's noise the file's (a clean render: 0.01 px)
         assert 0 <= c["misdetected_corners"] < 0.1 * c["corners_screened"]
         assert c["noise_px"] == pytest.approx(cal.uncertainty[n].noise_px) and max(c["noise_px"]) < 0.02
+        # and a view's shared shift, which its pose absorbed, allowed for in a corner's pixel sd (kept in the file)
+        unc = cal.uncertainty[n]
+        assert unc.view_shared_px == pytest.approx([SHARED_VIEW_ERROR * v for v in unc.noise_px])
+        assert camera_noise_px(cal, n) == pytest.approx(np.hypot(unc.noise_px, unc.view_shared_px))
     from sandtrack_tui.cli.cmd_calibrate import _text
 
     assert _text(r).count("corners misdetected (beyond 5 robust sd: not in the calibration points)") == 2

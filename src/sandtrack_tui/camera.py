@@ -180,11 +180,16 @@ class CameraUncertainty:
     # the lens model that fitted the left-out views better where a simpler one was kept: the covariance
     # holds the spread between the two (calibration.model_choice)
     better_lens: str | None = None
+    # an error all corners of one view share (the board's pose in that view off the frame's), its sd in pixels
+    # per image axis (calibration.view_pose_error); None where not measured
+    view_shared_px: list[float] | None = None
 
     def __post_init__(self) -> None:
         self.parameters = [str(p) for p in self.parameters]
         if self.noise_px is not None:
             self.noise_px = [float(v) for v in np.asarray(self.noise_px, float).reshape(2)]
+        if self.view_shared_px is not None:
+            self.view_shared_px = [float(v) for v in np.asarray(self.view_shared_px, float).reshape(2)]
         self.covariance = np.asarray(self.covariance, dtype=np.float64).reshape(len(self.parameters),
                                                                                len(self.parameters))
 
@@ -196,6 +201,8 @@ class CameraUncertainty:
             d["noise_px"] = list(self.noise_px)
         if self.better_lens is not None:
             d["better_lens"] = self.better_lens
+        if self.view_shared_px is not None:
+            d["view_shared_px"] = list(self.view_shared_px)
         return d
 
     @classmethod
@@ -203,13 +210,16 @@ class CameraUncertainty:
         try:
             unc = cls(list(d["parameters"]), np.array(d["covariance"], dtype=float),
                       None if d.get("sigma_px") is None else float(d["sigma_px"]), d.get("noise_px"),
-                      None if d.get("better_lens") is None else str(d["better_lens"]))
+                      None if d.get("better_lens") is None else str(d["better_lens"]), d.get("view_shared_px"))
         except (KeyError, TypeError, ValueError) as exc:
             raise SandtrackError(f"uncertainty of camera {name}: malformed entry ({exc})") from None
         if not np.isfinite(unc.covariance).all():
             raise SandtrackError(f"uncertainty of camera {name}: a covariance value is not a finite number")
         if unc.noise_px is not None and not (np.isfinite(unc.noise_px).all() and min(unc.noise_px) >= 0):
             raise SandtrackError(f"uncertainty of camera {name}: noise_px must be two finite numbers ≥ 0")
+        if unc.view_shared_px is not None and not (np.isfinite(unc.view_shared_px).all()
+                                                   and min(unc.view_shared_px) >= 0):
+            raise SandtrackError(f"uncertainty of camera {name}: view_shared_px must be two finite numbers ≥ 0")
         return unc
 
 

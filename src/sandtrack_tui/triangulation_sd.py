@@ -104,7 +104,19 @@ def sd_holds(calibration: Calibration, cameras, pixel_sd: str = "each camera's p
 
 def camera_noise_px(calibration: Calibration, name: str) -> np.ndarray:
     """(2,) a camera's pixel noise per image axis (px): its own noise from the calibration (`noise_px`),
-    else its RMSE (a 2-D distance) over √2 on both axes; NaN when neither is known."""
+    else its RMSE (a 2-D distance) over √2 on both axes; with the error a view's corners share where the
+    calibration allows for it (`view_shared_px`: a pixel without its own sd is taken as one board corner's,
+    whose error holds its view's); NaN when neither is known."""
+    unc = calibration.uncertainty.get(name)
+    own = corner_noise_px(calibration, name)
+    if unc is not None and unc.view_shared_px is not None:
+        return np.hypot(own, np.asarray(unc.view_shared_px, float))
+    return own
+
+
+def corner_noise_px(calibration: Calibration, name: str) -> np.ndarray:
+    """(2,) a camera's corners' own noise per image axis (px), without the error a view's corners share:
+    `noise_px`, else the RMSE over √2; NaN when neither is known."""
     unc = calibration.uncertainty.get(name)
     if unc is not None and unc.noise_px is not None:
         return np.asarray(unc.noise_px, float)

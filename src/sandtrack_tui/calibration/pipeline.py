@@ -28,7 +28,7 @@ from .region import covered_pct, image_region
 from .report import accuracy_report, camera_parameters
 from .rig import calibrate_rig, fit_frame_poses
 from .world import describe, world_from_board_pose, world_from_known_points
-from .world_uncertainty import board_reference, known_points_reference, rig_frame
+from .world_uncertainty import SHARED_VIEW_ERROR, board_reference, known_points_reference, rig_frame
 
 ProgressFn = Callable[[str, int, int], None]
 MIN_SHARED_VIEWS = 12
@@ -170,6 +170,8 @@ def calibrate_videos(videos: dict[str, str | Path], board: BoardSpec, *, offsets
     for n, unc in calibration.uncertainty.items():
         if np.isfinite(screen.noise_px[n]).all():
             unc.noise_px = [float(v) for v in screen.noise_px[n]]
+            # each view's pose absorbed what its corners share, so no residual shows it: a Type B allowance
+            unc.view_shared_px = [SHARED_VIEW_ERROR * float(v) for v in screen.noise_px[n]]
     # world frame
     world: dict = {"method": "rig frame (no reference given)"}
     warnings += rig.warnings

@@ -9,8 +9,9 @@ through the same error). The world frame's motion is written ψ = (ω, τ), a wo
 - board in a reference frame: the board's pose is refitted to its detections with the cameras held fixed
   (rig.fit_frame_poses), so to first order dpose/dθ = -(JpᵀJp)⁻¹ Jpᵀ Jθ (Jp, Jθ: the weighted
   reprojection residuals' derivatives by the pose and by the parameters), and the pose's own covariance
-  is (JpᵀJp)⁻¹, the detections' noise being each camera's pixel noise, plus a shift shared by each camera's
-  reference detections (SHARED_VIEW_ERROR);
+  is (JpᵀJp)⁻¹ σ², σ² the reference detections' own noise (their residuals at the fit, less the share the
+  cameras' stated error puts in them; whitened by each camera's corner noise), plus a shift shared by each
+  camera's reference detections (SHARED_VIEW_ERROR);
 - known points (Kabsch): ψ by central differences of the refit through perturbed cameras; its own
   covariance from the fit's residual, isotropic per point (the rigid fit's textbook covariance);
 - no reference (world = rig): nothing moves it.
@@ -30,11 +31,14 @@ from .geometry import from_T, kabsch, to_T
 from .world import world_from_board_pose
 
 _POSE_STEP = np.array([1e-6, 1e-6, 1e-6, 1e-4, 1e-4, 1e-4])
-# A reference view's corners share an error (a detection bias of that view's obliquity, blur and light) that
-# no residual shows, the board's pose absorbing it: allowed for as one shift of all of a camera's reference
-# detections, per image axis this many times one corner's noise (a Type B estimate: the twin's resting board,
-# against its exact corners, shows 0.1-0.5 of it; benchmarks/README.md).
+# A view's corners share an error (a detection bias of that view's obliquity, blur and light) that no residual
+# shows, the board's pose absorbing it: allowed for as one shift of all of a camera's corners in a view, per
+# image axis this many times one corner's noise (a Type B estimate: the twin's resting board, against its
+# exact corners, shows 0.1-0.5 of it; benchmarks/README.md), in the reference view's detections here and in
+# every corner's pixel sd (`view_shared_px`, set by the calibration from videos).
 SHARED_VIEW_ERROR = 0.5
+MIN_REFERENCE_DOF = 20  # residual degrees of freedom from which the reference view's own noise is measured
+MIN_NOISE_FACTOR = 0.01  # its variance against the cameras' noise never below this (1/10 of their sd)
 
 
 def perturbed(calibration: Calibration, parameters: list[str], delta: np.ndarray) -> Calibration:
@@ -86,11 +90,11 @@ def board_reference(calibration: Calibration, views: dict[str, BoardView], board
                     covariance: np.ndarray) -> RigUncertainty:
     """The world frame of a board lying in a reference frame (`views`: that frame's detection per camera,
     `T_rig_board`: its fitted pose), linearised at the fit."""
-    from ..triangulation_sd import camera_noise_px
+    from ..triangulation_sd import corner_noise_px
 
     pts = board.corner_points_mm()
     seen = [(n, v) for n, v in views.items() if n in calibration.cameras and len(v)]
-    noise = {n: np.where(np.isfinite(s := camera_noise_px(calibration, n)) & (s > 0), s, 1.0) for n, _ in seen}
+    noise = {n: np.where(np.isfinite(s := corner_noise_px(calibration, n)) & (s > 0), s, 1.0) for n, _ in seen}
 
     def residuals(cal: Calibration, pose: np.ndarray) -> np.ndarray:
         R = cv2.Rodrigues(pose[:3])[0]
@@ -107,15 +111,25 @@ def board_reference(calibration: Calibration, views: dict[str, BoardView], board
                     - residuals(perturbed(calibration, parameters, -h * e), pose0)) / (2 * h)
                    for h, e in zip(steps, np.eye(len(parameters)), strict=True)], axis=1) \
         if parameters else np.zeros((len(Jp), 0))
-    pose_cov = np.linalg.pinv(Jp.T @ Jp)
-    dpose = -pose_cov @ Jp.T @ Jt
+    inv_info = np.linalg.pinv(Jp.T @ Jp)
+    dpose = -inv_info @ Jp.T @ Jt
+    # the reference view's own noise, from its own residuals (a board at rest is sharper than the average view
+    # whose noise the cameras' figures hold), less what the cameras' own error puts in them
+    r0 = residuals(calibration, pose0)
+    dof = len(r0) - 6
+    factor = 1.0
+    if dof >= MIN_REFERENCE_DOF:
+        moved = Jt - Jp @ (inv_info @ (Jp.T @ Jt))  # a parameter change's residuals once the pose refits
+        cameras = float(np.einsum("ij,jk,ik->", moved, covariance, moved)) if parameters else 0.0
+        factor = max(float(r0 @ r0) - cameras, MIN_NOISE_FACTOR * dof) / dof
+    pose_cov = inv_info * factor
     # each camera's reference detections shifted together (whitened: SHARED_VIEW_ERROR per image axis)
     G = np.zeros((len(Jp), 2 * len(seen)))
     row = 0
     for k, (_, v) in enumerate(seen):
         G[row:row + 2 * len(v):2, 2 * k] = G[row + 1:row + 2 * len(v):2, 2 * k + 1] = SHARED_VIEW_ERROR
         row += 2 * len(v)
-    shared = pose_cov @ Jp.T @ G
+    shared = inv_info @ Jp.T @ G
     pose_cov = pose_cov + shared @ shared.T
     W0 = world_from_board_pose(T_rig_board, origin_mm)
     Dpsi = np.stack([(psi(world_from_board_pose(to_T((pose0 + h * e)[:3], (pose0 + h * e)[3:]), origin_mm), W0)
