@@ -122,9 +122,11 @@ def test_cli_json_writes_files_and_project(session, tmp_path, capsys):
         unc = cal.uncertainty[n]
         assert unc.view_shared_px == pytest.approx([SHARED_VIEW_ERROR * v for v in unc.noise_px])
         assert camera_noise_px(cal, n) == pytest.approx(np.hypot(unc.noise_px, unc.view_shared_px))
+        assert c["view_shared_px"] == pytest.approx(unc.view_shared_px)
     from sandtrack_tui.cli.cmd_calibrate import _text
 
     assert _text(r).count("corners misdetected (beyond 5 robust sd: not in the calibration points)") == 2
+    assert " ".join(_text(r).split()).count("allowed for in a corner's pixel sd: x ") == 2
     # each view's own board pose error, measured from the frames both cameras saw (a still board per frame: only
     # the render's detection biases, measured 0.055 / 0.031 / 0.005 mm; test_bundle_covariance checks a motion)
     motion = r["view_motion"]

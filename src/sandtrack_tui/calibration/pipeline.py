@@ -220,6 +220,8 @@ def calibrate_videos(videos: dict[str, str | Path], board: BoardSpec, *, offsets
         r.update(camera_parameters(calibration, n))
         r["reprojection_rmse_px"] = acc["per_camera_reprojection_rmse_px"].get(n)
         r.update(screen.summary(n))
+        if (unc := calibration.uncertainty.get(n)) is not None and unc.view_shared_px is not None:
+            r["view_shared_px"] = list(unc.view_shared_px)
         r["frames_with_board"] = len(views[n])
         r["mirrored_views"] = sum(v.mirrored for v in views[n].values())
         r["calibrated_region_pct"] = covered_pct(fitted[n], sizes[n])

@@ -150,6 +150,9 @@ def _text(r: dict) -> str:
             lines.append(f"    {c['misdetected_corners']} of {c['corners_screened']} corners misdetected (beyond "
                          f"{c['misdetection_limit_sd']:g} robust sd: not in the calibration points); the others' pixel "
                          f"noise x {x:.3f}, y {y:.3f} px")
+            if c.get("view_shared_px"):
+                lines.append("    and a shift one view's corners share, which its board pose absorbs, allowed for in a "
+                             "corner's pixel sd: x {:.3f}, y {:.3f} px".format(*c["view_shared_px"]))
         elif c.get("noise_px"):
             lines.append("    own pixel noise (the known points' error taken out) x {:.3f}, y {:.3f} px"
                          .format(*c["noise_px"]))
