@@ -180,8 +180,9 @@ class CameraUncertainty:
     # the lens model that fitted the left-out views better where a simpler one was kept: the covariance
     # holds the spread between the two (calibration.model_choice)
     better_lens: str | None = None
-    # an error all corners of one view share (the board's pose in that view off the frame's), its sd in pixels
-    # per image axis (calibration.view_pose_error); None where not measured
+    # the allowance for a shift all corners of one view share, which the view's board pose absorbs so that no
+    # residual shows it: its sd in pixels per image axis (world_uncertainty.SHARED_VIEW_ERROR times noise_px,
+    # set by a calibration from videos); None where not allowed for
     view_shared_px: list[float] | None = None
 
     def __post_init__(self) -> None:

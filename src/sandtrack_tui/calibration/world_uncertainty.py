@@ -79,6 +79,15 @@ def _steps(covariance: np.ndarray, fraction: float) -> np.ndarray:
     return np.where(sd > 0, fraction * sd, 1e-9)
 
 
+def _shared_shift_px(calibration: Calibration, name: str, noise: np.ndarray) -> np.ndarray:
+    """(2,) the sd of a shift shared by a camera's corners in one view (px per image axis): the calibration's
+    allowance (`view_shared_px`), else SHARED_VIEW_ERROR times the corners' noise."""
+    unc = calibration.uncertainty.get(name)
+    if unc is not None and unc.view_shared_px is not None:
+        return np.asarray(unc.view_shared_px, float)
+    return SHARED_VIEW_ERROR * np.asarray(noise, float)
+
+
 def rig_frame(parameters: list[str], covariance: np.ndarray) -> RigUncertainty:
     """World = rig frame: the cameras' joint covariance alone."""
     n = len(parameters)
@@ -120,14 +129,15 @@ def board_reference(calibration: Calibration, views: dict[str, BoardView], board
     factor = 1.0
     if dof >= MIN_REFERENCE_DOF:
         moved = Jt - Jp @ (inv_info @ (Jp.T @ Jt))  # a parameter change's residuals once the pose refits
-        cameras = float(np.einsum("ij,jk,ik->", moved, covariance, moved)) if parameters else 0.0
+        cameras = float(np.einsum("ij,jk,ik->", moved, covariance, moved))
         factor = max(float(r0 @ r0) - cameras, MIN_NOISE_FACTOR * dof) / dof
     pose_cov = inv_info * factor
-    # each camera's reference detections shifted together (whitened: SHARED_VIEW_ERROR per image axis)
+    # each camera's reference detections shifted together (whitened), by the calibration's allowance for it
     G = np.zeros((len(Jp), 2 * len(seen)))
     row = 0
-    for k, (_, v) in enumerate(seen):
-        G[row:row + 2 * len(v):2, 2 * k] = G[row + 1:row + 2 * len(v):2, 2 * k + 1] = SHARED_VIEW_ERROR
+    for k, (n, v) in enumerate(seen):
+        G[row:row + 2 * len(v):2, 2 * k], G[row + 1:row + 2 * len(v):2, 2 * k + 1] = \
+            _shared_shift_px(calibration, n, noise[n]) / noise[n]
         row += 2 * len(v)
     shared = inv_info @ Jp.T @ G
     pose_cov = pose_cov + shared @ shared.T
